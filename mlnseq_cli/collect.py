@@ -1,0 +1,48 @@
+"""`mlnseq collect`: make or import a dataset's frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import collect as stage
+
+
+def collect(
+    env: Annotated[str, typer.Option(help="Data source: fetch (MuJoCo simulation) or desk (real Taurus files).")] = "fetch",
+    source: Annotated[Optional[Path], typer.Option(help="desk: folder holding the DESK Taurus text files.")] = None,
+    channels: Annotated[str, typer.Option(help="desk: motion (3 channels, all frames) or kinematics (14 channels, training file only).")] = "motion",
+    episodes: Annotated[int, typer.Option(help="fetch: number of 50-step demonstrations.")] = stage.CollectOptions.episodes,
+    seed: Annotated[int, typer.Option(help="fetch: seed of resets and action noise.")] = 0,
+    train_frames: Annotated[Optional[int], typer.Option(help="The first K frames form the training split [default: 126 fetch, 1405 desk].")] = None,
+    goals: Annotated[bool, typer.Option(help="fetch: add the achieved and desired goal as features.")] = False,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
+    options = stage.CollectOptions(
+        env=env, source=source, channels=channels, episodes=episodes, seed=seed,
+        train_frames=train_frames, goals=goals,
+    )
+    with reported_errors():
+        options.validate()
+        with Progress(
+            "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            console=console, transient=True, disable=env != "fetch",
+        ) as bar:
+            task = bar.add_task(f"simulating {env}", total=None)
+            path, collected = stage.run(
+                workdir, options, progress=lambda done, total: bar.update(task, completed=done, total=total)
+            )
+    frames = collected.frames
+    split_sizes = dict(frames.group_by("split").len().iter_rows())
+    console.print(
+        f"[green]collect[/]: wrote {path} ({frames.height:,} frames, {frames['episode'].n_unique():,} episodes, "
+        f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
+        f"{len(collected.meta['features'])} features)"
+    )
+    if "success_rate" in collected.meta:
+        console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")

@@ -1,0 +1,12 @@
+"""`mlnseq eval`: not available yet (a later issue fills it)."""
+
+from __future__ import annotations
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
+from stages.errors import StageNotAvailable
+
+
+def evaluate(workdir: WorkdirOption = DEFAULT) -> None:
+    """Not available yet."""
+    with reported_errors():
+        raise StageNotAvailable("stage 'eval' is not available yet in this version of mlnseq")

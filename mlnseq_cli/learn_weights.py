@@ -1,0 +1,12 @@
+"""`mlnseq learn-weights`: not available yet (a later issue fills it)."""
+
+from __future__ import annotations
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
+from stages.errors import StageNotAvailable
+
+
+def learn_weights(workdir: WorkdirOption = DEFAULT) -> None:
+    """Not available yet."""
+    with reported_errors():
+        raise StageNotAvailable("stage 'learn-weights' is not available yet in this version of mlnseq")

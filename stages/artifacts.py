@@ -1,0 +1,219 @@
+"""The workdir's file names, the Parquet schemas, self-describing metadata and atomic write/read.
+
+Every stage reads its inputs from and writes its outputs to one workdir, by the fixed names below.
+Each Parquet artifact carries a JSON metadata entry (key ``mlnseq``) with the schema version, the
+options used, the class and feature names, and a digest of every input it was made from, so a
+reader can refuse an unknown version and name the stage to rerun when an input changed since.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from stages.errors import BadInput, MissingArtifact, StaleArtifact
+
+SCHEMA_VERSION = 1
+META_KEY = b"mlnseq"
+DEFAULT_WORKDIR = Path("mlnseq-work")
+
+FRAMES = "frames.parquet"
+PREDICATES = "predicates.parquet"
+FORMULAS = "formulas.mln"
+WEIGHTS = "weights.parquet"
+LEARNED_MLN = "learned.mln"
+MODELS_DIR = "models"
+PREDICTIONS = "predictions.parquet"
+METRICS = "metrics.parquet"
+
+# Which stage writes each artifact, so a missing or stale one names the command to run.
+PRODUCED_BY = {
+    FRAMES: "collect",
+    PREDICATES: "binarize",
+    FORMULAS: "formulas",
+    WEIGHTS: "learn-weights",
+    LEARNED_MLN: "learn-weights",
+    MODELS_DIR: "train",
+    PREDICTIONS: "conflate",
+    METRICS: "eval",
+}
+
+KEY_SCHEMA: dict[str, pl.DataType] = {
+    "episode": pl.Int32(),
+    "frame": pl.Int32(),
+    "label": pl.Int16(),
+    "split": pl.String(),
+}
+KEY_COLUMNS = tuple(KEY_SCHEMA)
+SPLITS = ("train", "test")
+
+
+def checkpoint_path(workdir: Path, method: str) -> Path:
+    """The model checkpoint of one training method (lstm, priorlayer)."""
+    return workdir / MODELS_DIR / f"{method}.pt"
+
+
+def train_log_path(workdir: Path, method: str) -> Path:
+    """The per-epoch training log (epoch, split, accuracy, loss) of one training method."""
+    return workdir / MODELS_DIR / f"{method}.log.parquet"
+
+
+def producer_of(path: Path) -> str:
+    """The stage command that writes this artifact."""
+    name = path.name
+    if path.parent.name == MODELS_DIR:
+        name = MODELS_DIR
+    return PRODUCED_BY.get(name, "the stage that writes it")
+
+
+def package_version() -> str:
+    try:
+        return importlib_metadata.version("mlnseq")
+    except importlib_metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def file_digest(path: Path) -> str:
+    """Content digest of a file (sha256, first 16 hex digits)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()[:16]
+
+
+def _input_key(artifact: Path, source: Path) -> str:
+    """An input's name as recorded: relative to the artifact's folder when inside it."""
+    try:
+        return str(source.resolve().relative_to(artifact.parent.resolve()))
+    except ValueError:
+        return str(source.resolve())
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it over ``path`` only if the block succeeds."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as error:
+        raise BadInput(f"cannot write {path}: {error.strerror or error}; choose a writable --workdir") from error
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as error:
+        raise BadInput(f"cannot write {path}: {error.strerror or error}; choose a writable --workdir") from error
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write a text artifact atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+def build_metadata(path: Path, kind: str, meta: dict[str, Any], inputs: Iterable[Path] = ()) -> dict[str, Any]:
+    """The metadata entry every artifact carries: version, kind, creation time, input digests, then ``meta``."""
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "kind": kind,
+        "mlnseq_version": package_version(),
+        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "inputs": {_input_key(path, Path(p)): file_digest(Path(p)) for p in inputs},
+        **meta,
+    }
+
+
+def write_table(
+    frame: pl.DataFrame, path: Path, kind: str, meta: dict[str, Any], inputs: Iterable[Path] = ()
+) -> Path:
+    """Write a Parquet artifact atomically with its metadata (see module docstring)."""
+    path = Path(path)
+    full_meta = build_metadata(path, kind, meta, inputs)
+    table = frame.to_arrow()
+    table = table.replace_schema_metadata({META_KEY: json.dumps(full_meta, sort_keys=True).encode()})
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return path
+
+
+def read_metadata(path: Path, kind: str | None = None) -> dict[str, Any]:
+    """Read and check an artifact's metadata without loading its rows."""
+    path = Path(path)
+    _require(path)
+    try:
+        schema = pq.read_schema(path)
+    except (OSError, pa.ArrowException) as error:
+        raise BadInput(
+            f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
+        ) from error
+    raw = (schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise BadInput(f"{path} has no mlnseq metadata; rerun `mlnseq {producer_of(path)}` to make it")
+    meta = json.loads(raw)
+    version = meta.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise BadInput(
+            f"{path} has schema version {version}, this mlnseq reads {SCHEMA_VERSION}; "
+            f"rerun `mlnseq {producer_of(path)}`"
+        )
+    if kind is not None and meta.get("kind") != kind:
+        raise BadInput(f"{path} holds {meta.get('kind')!r}, expected {kind!r}")
+    check_fresh(path, meta)
+    return meta
+
+
+def read_table(path: Path, kind: str | None = None) -> tuple[pl.DataFrame, dict[str, Any]]:
+    """Read a Parquet artifact and its metadata; missing, foreign, old or stale files are a clear error."""
+    meta = read_metadata(path, kind)
+    try:
+        frame = pl.read_parquet(path)
+    except Exception as error:  # polars raises several exception types for corrupt files
+        raise BadInput(
+            f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
+        ) from error
+    return frame, meta
+
+
+def check_fresh(path: Path, meta: dict[str, Any]) -> None:
+    """Refuse an artifact whose recorded inputs have changed since it was written."""
+    for name, digest in meta.get("inputs", {}).items():
+        source = Path(name) if Path(name).is_absolute() else path.parent / name
+        if source.exists() and file_digest(source) != digest:
+            raise StaleArtifact(
+                f"{path} was made from an older {source.name}; rerun `mlnseq {producer_of(path)}`"
+            )
+
+
+def _require(path: Path) -> None:
+    if not path.exists():
+        raise MissingArtifact(f"{path} not found: run `mlnseq {producer_of(path)}` first")
+
+
+def feature_columns(frames: pl.DataFrame) -> list[str]:
+    """The feature columns of frames.parquet: every column after the keys."""
+    return [c for c in frames.columns if c not in KEY_SCHEMA]
+
+
+def frames_table(keys: dict[str, Any], features: dict[str, Any]) -> pl.DataFrame:
+    """Assemble a frames.parquet table in its schema: keys first, then float32 features in order."""
+    columns = {name: pl.Series(name, keys[name], dtype=dtype) for name, dtype in KEY_SCHEMA.items()}
+    columns.update({name: pl.Series(name, values, dtype=pl.Float32) for name, values in features.items()})
+    return pl.DataFrame(columns)
