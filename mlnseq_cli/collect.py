@@ -13,19 +13,28 @@ from stages import collect as stage
 
 
 def collect(
-    env: Annotated[str, typer.Option(help="Data source: fetch (MuJoCo simulation) or desk (real Taurus files).")] = "fetch",
-    source: Annotated[Optional[Path], typer.Option(help="desk: folder holding the DESK Taurus text files.")] = None,
+    env: Annotated[str, typer.Option(help="Data source: fetch (MuJoCo simulation), desk (real Taurus files) or table (your own CSV/Parquet).")] = "fetch",
+    source: Annotated[Optional[Path], typer.Option(help="desk: folder of the DESK Taurus text files; table: a CSV/Parquet file or folder.")] = None,
     channels: Annotated[str, typer.Option(help="desk: motion (3 channels, all frames) or kinematics (14 channels, training file only).")] = "motion",
     episodes: Annotated[int, typer.Option(help="fetch: number of 50-step demonstrations.")] = stage.CollectOptions.episodes,
     seed: Annotated[int, typer.Option(help="fetch: seed of resets and action noise.")] = 0,
     train_frames: Annotated[Optional[int], typer.Option(help="The first K frames form the training split [default: 126 fetch, 1405 desk].")] = None,
     goals: Annotated[bool, typer.Option(help="fetch: add the achieved and desired goal as features.")] = False,
+    label_column: Annotated[str, typer.Option(help="table: the label column (class index or name).")] = "label",
+    episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column [default: 'episode' if present, else one episode per file].")] = None,
+    time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode [default: 'frame' if present, else file order].")] = None,
+    classes: Annotated[Optional[str], typer.Option(help="table: class names in label order, comma-separated.")] = None,
+    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated [default: every other numeric column].")] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
     options = stage.CollectOptions(
         env=env, source=source, channels=channels, episodes=episodes, seed=seed,
         train_frames=train_frames, goals=goals,
+        columns=stage.TableColumns(
+            label=label_column, episode=episode_column, time=time_column,
+            classes=_names(classes), features=_names(features),
+        ),
     )
     with reported_errors():
         options.validate()
@@ -46,3 +55,7 @@ def collect(
     )
     if "success_rate" in collected.meta:
         console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")
+
+
+def _names(text: Optional[str]) -> tuple[str, ...]:
+    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else ()

@@ -1,11 +1,13 @@
 """collect: make or import the frames of one dataset into ``frames.parquet``.
 
 Sources: ``fetch`` simulates scripted pick-and-place demonstrations in MuJoCo (see
-``stages.fetch_demos``); ``desk`` imports the real DESK Taurus text files.
+``stages.fetch_demos``); ``desk`` imports the real DESK Taurus text files; ``table`` imports a user's
+own CSV or Parquet recordings (see ``stages.table_import``).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -17,8 +19,9 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
+from stages.table_import import TableColumns, import_table
 
-ENVS = ("fetch", "desk")
+ENVS = ("fetch", "desk", "table")
 DESK_CHANNELS = ("motion", "kinematics")
 
 DESK_CLASSES = (
@@ -57,6 +60,7 @@ class CollectOptions:
     seed: int = 0
     train_frames: int | None = None  # first K frames train; default 126 (fetch), 1,405 (desk)
     goals: bool = False  # fetch: add achieved and desired goal to the 25 observation values
+    columns: TableColumns = TableColumns()  # table: which columns are keys and features
 
     def validate(self) -> None:
         if self.env not in ENVS:
@@ -65,6 +69,8 @@ class CollectOptions:
             raise BadInput(f"--episodes must be at least 1, got {self.episodes}")
         if self.train_frames is not None and self.train_frames < 0:
             raise BadInput(f"--train-frames must be 0 or more, got {self.train_frames}")
+        if self.env == "table" and self.source is None:
+            raise BadInput("--env table needs --source FILE or DIR, a CSV or Parquet file or a folder of them")
         if self.env == "desk":
             if self.source is None:
                 raise BadInput("--env desk needs --source DIR, the folder of the DESK Taurus files")
@@ -167,11 +173,21 @@ def collect_desk(options: CollectOptions) -> Collected:
     return Collected(frame_table, meta)
 
 
+def collect_table(options: CollectOptions) -> Collected:
+    """Import a user's table; ``train_frames``, when given, overrides its split (first K frames train)."""
+    frames, meta = import_table(Path(options.source), options.columns)
+    if options.train_frames is not None:
+        frames = frames.with_columns(split=pl.Series(_split(frames.height, options.train_frames)))
+    return Collected(frames, meta)
+
+
 def collect(options: CollectOptions, progress: Progress | None = None) -> Collected:
     """Make the frames of ``options.env`` (no file is written)."""
     options.validate()
     if options.env == "desk":
         return collect_desk(options)
+    if options.env == "table":
+        return collect_table(options)
     from stages import fetch_demos  # imports MuJoCo; only the fetch source needs it
 
     return fetch_demos.collect_fetch(options, progress)
@@ -180,7 +196,7 @@ def collect(options: CollectOptions, progress: Progress | None = None) -> Collec
 def run(workdir: Path, options: CollectOptions, progress: Progress | None = None) -> tuple[Path, Collected]:
     """Collect and write ``workdir/frames.parquet`` atomically."""
     collected = collect(options, progress)
-    options_record = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(options).items()}
+    options_record = json.loads(json.dumps(asdict(options), default=str))
     meta = {"options": options_record, "seed": options.seed, **collected.meta}
     path = artifacts.write_table(collected.frames, Path(workdir) / artifacts.FRAMES, "frames", meta)
     return path, collected

@@ -1,0 +1,108 @@
+"""The project file ``mlnseq.toml``: every stage's options in one place, one table per command.
+
+```toml
+[collect]
+env = "desk"
+source = "../shared/data/desk-taurus"
+
+[train]
+epochs = 40
+```
+
+It is read from ``--config FILE``, else from ``WORKDIR/mlnseq.toml`` when that exists. Its values become
+the commands' defaults, so flags on the command line override them. Relative paths in it are taken
+relative to the file's own folder.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from stages.artifacts import DEFAULT_WORKDIR
+from stages.errors import BadInput
+
+CONFIG_NAME = "mlnseq.toml"
+
+
+def find(config: Path | None, workdir: Path | None) -> Path | None:
+    """The config file in force: the one named, else the workdir's own, else none."""
+    if config is not None:
+        if not config.is_file():
+            raise BadInput(f"--config {config} not found")
+        return config
+    candidate = (workdir or DEFAULT_WORKDIR) / CONFIG_NAME
+    return candidate if candidate.is_file() else None
+
+
+def _line_of(text: str, section: str, key: str | None = None) -> int:
+    """The 1-based line of ``[section]`` (or of ``key`` inside it) in the TOML text."""
+    lines = text.splitlines()
+    start = next((i for i, line in enumerate(lines) if re.match(rf"\s*\[\s*{re.escape(section)}\s*\]", line)), 0)
+    if key is None:
+        return start + 1
+    for i in range(start + 1, len(lines)):
+        if re.match(r"\s*\[", lines[i]):
+            break
+        if re.match(rf"\s*{re.escape(key)}\s*=", lines[i]):
+            return i + 1
+    return start + 1
+
+
+def load(path: Path, commands: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Read and check the file against the commands' options; return click's ``default_map``."""
+    try:
+        text = path.read_text(encoding="utf-8")
+        document = tomllib.loads(text)
+    except OSError as error:
+        raise BadInput(f"cannot read {path}: {error.strerror or error}") from error
+    except tomllib.TOMLDecodeError as error:
+        raise BadInput(f"{path}: {error}") from error
+    default_map: dict[str, dict[str, Any]] = {}
+    for section, values in document.items():
+        command = commands.get(section)
+        if command is None or not isinstance(values, dict):
+            raise BadInput(
+                f"{path}:{_line_of(text, section)}: unknown table [{section}]; "
+                f"tables are the commands {', '.join(commands)}"
+            )
+        params = {p.name: p for p in command.params if p.name not in ("help",)}
+        section_map = {}
+        for key, value in values.items():
+            name = key.replace("-", "_")
+            param = params.get(name)
+            if param is None:
+                raise BadInput(
+                    f"{path}:{_line_of(text, section, key)}: [{section}] has no option {key!r}; "
+                    f"options are {', '.join(sorted(n.replace('_', '-') for n in params))}"
+                )
+            try:
+                param.get_runtime_param().coerce(value, param=param, ctx=None)
+            except Exception as error:
+                message = getattr(error, "message", None) or str(error)
+                raise BadInput(f"{path}:{_line_of(text, section, key)}: [{section}] {key}: {message}") from None
+            if param.type_descriptor.annotation is Path and not Path(value).is_absolute():
+                value = str(path.parent / value)
+            section_map[name] = value
+        default_map[section] = section_map
+    return default_map
+
+
+def options_in_force(commands: dict[str, Any], default_map: dict[str, dict[str, Any]], source: str) -> list[tuple[str, str, str, str]]:
+    """(command, option, value, where it came from) for every option of every command."""
+    rows = []
+    for name, command in commands.items():
+        for param in command.params:
+            if param.name in ("help",) or not getattr(param, "opts", None):
+                continue
+            configured = default_map.get(name, {})
+            if param.name in configured:
+                value, origin = configured[param.name], source
+            else:
+                value, origin = param.default, "default"
+            if callable(value):
+                value = value()
+            rows.append((name, param.opts[0], str(value), origin))
+    return rows
