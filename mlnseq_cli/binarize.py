@@ -1,12 +1,34 @@
-"""`mlnseq binarize`: not available yet (a later issue fills it)."""
+"""`mlnseq binarize`: turn frames into boolean predicates."""
 
 from __future__ import annotations
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
-from stages.errors import StageNotAvailable
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import binarize as stage
 
 
-def binarize(workdir: WorkdirOption = DEFAULT) -> None:
-    """Not available yet."""
+def binarize(
+    spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: examples/<source>.binarize.toml, chosen by the frames' source].", dir_okay=False)] = None,
+    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true.")] = False,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR/frames.parquet and a predicate spec; write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
+    options = stage.BinarizeOptions(spec=spec)
     with reported_errors():
-        raise StageNotAvailable("stage 'binarize' is not available yet in this version of mlnseq")
+        path, binarized = stage.run(workdir, options)
+    columns = binarized.meta["predicates"]
+    console.print(
+        f"[green]binarize[/]: wrote {path} ({len(columns)} predicates, "
+        f"{sum(len(c) for c in columns.values())} columns, {binarized.predicates.height:,} frames; "
+        f"spec {binarized.meta['spec']['path']})"
+    )
+    if table:
+        shown = Table("predicate", "column", "true", box=None)
+        for name, column, share in stage.true_shares(binarized.predicates, columns):
+            shown.add_row(name, column, f"{share:.1%}")
+        console.print(shown)

@@ -80,10 +80,11 @@ class CollectOptions:
 
 @dataclass(frozen=True)
 class Collected:
-    """What a collection made: the frames table and its metadata."""
+    """What a collection made: the frames table, its metadata and the files it was read from."""
 
     frames: pl.DataFrame
     meta: dict[str, Any]
+    inputs: tuple[Path, ...] = ()
 
 
 Progress = Callable[[int, int], None]
@@ -170,7 +171,7 @@ def collect_desk(options: CollectOptions) -> Collected:
         "features": list(features),
         "train_frames": train_frames,
     }
-    return Collected(frame_table, meta)
+    return Collected(frame_table, meta, inputs=tuple(path for path, _ in files))
 
 
 def collect_table(options: CollectOptions) -> Collected:
@@ -198,5 +199,7 @@ def run(workdir: Path, options: CollectOptions, progress: Progress | None = None
     collected = collect(options, progress)
     options_record = json.loads(json.dumps(asdict(options), default=str))
     meta = {"options": options_record, "seed": options.seed, **collected.meta}
-    path = artifacts.write_table(collected.frames, Path(workdir) / artifacts.FRAMES, "frames", meta)
+    path = artifacts.write_table(
+        collected.frames, Path(workdir) / artifacts.FRAMES, "frames", meta, inputs=collected.inputs
+    )
     return path, collected

@@ -1,0 +1,1 @@
+"""Speed figures measured side by side: ``python -m benchmarks [name ...]`` runs every ``bench_*.py``."""

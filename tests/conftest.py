@@ -1,0 +1,49 @@
+"""Shared fixtures: the real data folder beside the repository and workdirs holding collected frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stages import collect
+
+REPO = Path(__file__).resolve().parents[1]
+
+FETCH_TEST_EPISODES = 4
+FETCH_TEST_SEED = 0
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The repository root."""
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data`` relative to the repository root (read-only real data)."""
+    path = REPO.parent / "shared" / "data"
+    if not path.is_dir():
+        pytest.fail(f"real data not found at {path}")
+    return path
+
+
+@pytest.fixture(scope="session")
+def desk_frames_workdir(tmp_path_factory, shared_data) -> Path:
+    """A workdir whose frames.parquet is the DESK motion import (22,329 frames); treat it as read-only."""
+    workdir = tmp_path_factory.mktemp("desk")
+    collect.run(workdir, collect.CollectOptions(env="desk", source=shared_data / "desk-taurus"))
+    return workdir
+
+
+@pytest.fixture(scope="session")
+def fetch_frames_workdir(tmp_path_factory) -> Path:
+    """A workdir whose frames.parquet holds a few real MuJoCo Fetch episodes; treat it as read-only.
+
+    Tests using it need MuJoCo: mark them ``@pytest.mark.mujoco``.
+    """
+    workdir = tmp_path_factory.mktemp("fetch")
+    options = collect.CollectOptions(env="fetch", episodes=FETCH_TEST_EPISODES, seed=FETCH_TEST_SEED)
+    collect.run(workdir, options)
+    return workdir
