@@ -1,12 +1,27 @@
-"""`mlnseq formulas`: not available yet (a later issue fills it)."""
+"""`mlnseq formulas`: write the domain knowledge as WORKDIR/formulas.mln."""
 
 from __future__ import annotations
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
-from stages.errors import StageNotAvailable
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import formulas as stage
+from stages.mln.syntax import format_formula
 
 
-def formulas(workdir: WorkdirOption = DEFAULT) -> None:
-    """Not available yet."""
+def formulas(
+    spec: Annotated[Optional[Path], typer.Option(help="A .mln file of formulas and `+var` templates [default: examples/paper.mln, the paper's Has(+w,p) => Topic(+c,p)].")] = None,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR/predicates.parquet and the spec; write WORKDIR/formulas.mln (pracmln syntax, templates kept)."""
+    options = stage.FormulasOptions(spec=spec)
     with reported_errors():
-        raise StageNotAvailable("stage 'formulas' is not available yet in this version of mlnseq")
+        written = stage.run(workdir, options)
+    templates = sum(1 for f in written.mln.formulas if "+" in format_formula(f.formula))
+    console.print(
+        f"[green]formulas[/]: wrote {written.path} ({len(written.mln.formulas)} formulas, {templates} templates; "
+        f"training shows {len(written.words)} predicate values and {len(written.classes)} classes)"
+    )

@@ -1,12 +1,35 @@
-"""`mlnseq learn-weights`: not available yet (a later issue fills it)."""
+"""`mlnseq learn-weights`: learn the formulas' weights on the training split."""
 
 from __future__ import annotations
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
-from stages.errors import StageNotAvailable
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import artifacts
+from stages import learn_weights as stage
 
 
-def learn_weights(workdir: WorkdirOption = DEFAULT) -> None:
-    """Not available yet."""
+def learn_weights(
+    formulas: Annotated[Path, typer.Argument(help="The .mln file: relative to the current folder, else to the workdir.")] = Path(artifacts.FORMULAS),
+    engine: Annotated[str, typer.Option(help="native (vectorised BPLL) or pracmln (the paper's engine, slow).")] = "native",
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln."""
+    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine)
     with reported_errors():
-        raise StageNotAvailable("stage 'learn-weights' is not available yet in this version of mlnseq")
+        options.validate()
+        path, learned = stage.run(workdir, options)
+    for warning in learned.warnings:
+        console.print(f"[yellow]warning[/]: {warning}")
+    table = Table(title="strongest formulas per class")
+    for column in ("class", "weight", "formula"):
+        table.add_column(column, justify="right" if column == "weight" else "left")
+    for row in stage.strongest(learned.weights).iter_rows(named=True):
+        weight = "hard" if row["hard"] else f"{row['weight']:.3f}" + (" (fixed)" if row["fixed"] else "")
+        table.add_row(row["class"], weight, row["formula"])
+    console.print(table)
+    console.print(f"[green]learn-weights[/] ({engine}): wrote {path} ({learned.weights.height} formulas) and {artifacts.LEARNED_MLN}")

@@ -14,7 +14,8 @@ from typer.core import TyperGroup
 from mlnseq_cli import config as project_config
 from mlnseq_cli.console import console, reported_errors
 
-from mlnseq_cli import binarize, collect, conflate, evaluate, formulas, learn_weights, train
+from mlnseq_cli import binarize, collect, conflate, formulas, learn_weights, train
+from mlnseq_cli import eval as eval_command
 
 GLOBAL_FLAGS = ("--verbose",)
 GLOBAL_OPTIONS = ("--config",)
@@ -90,7 +91,7 @@ app.command("formulas")(formulas.formulas)
 app.command("learn-weights")(learn_weights.learn_weights)
 app.command("train")(train.train)
 app.command("conflate")(conflate.conflate)
-app.command("eval")(evaluate.evaluate)
+app.command("eval")(eval_command.evaluate)
 
 
 config_app = typer.Typer(help="Inspect the project file (mlnseq.toml).", no_args_is_help=True)

@@ -1,12 +1,47 @@
-"""`mlnseq train`: not available yet (a later issue fills it)."""
+"""`mlnseq train`: fit the LSTM (or GRU) classifier, alone or with the MLN PriorLayer."""
 
 from __future__ import annotations
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, reported_errors
-from stages.errors import StageNotAvailable
+from typing import Annotated
+
+import polars as pl
+import typer
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import train as stage
+
+Defaults = stage.TrainOptions
 
 
-def train(workdir: WorkdirOption = DEFAULT) -> None:
-    """Not available yet."""
+def train(
+    method: Annotated[str, typer.Option(help="lstm, or priorlayer (needs predicates.parquet and weights.parquet).")] = Defaults.method,
+    seed: Annotated[int, typer.Option(help="Seed of initial weights and batch order.")] = Defaults.seed,
+    epochs: Annotated[int, typer.Option(help="Passes over the training sequences.")] = Defaults.epochs,
+    mode: Annotated[str, typer.Option(help="segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.")] = Defaults.mode,
+    cell: Annotated[str, typer.Option(help="Recurrent cell: lstm or gru.")] = Defaults.cell,
+    prior: Annotated[str, typer.Option(help="priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).")] = Defaults.prior,
+    select: Annotated[str, typer.Option(help="none: keep the last epoch; val_accuracy: hold out the last 20% of training sequences and keep the best epoch on them.")] = Defaults.select,
+    device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
+    train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, 0 < F <= 1.")] = Defaults.train_fraction,
+    batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
+    window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch, split, accuracy, loss)."""
+    options = stage.TrainOptions(
+        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, device=device,
+        train_fraction=train_fraction, batch_size=batch_size, window=window,
+    )
     with reported_errors():
-        raise StageNotAvailable("stage 'train' is not available yet in this version of mlnseq")
+        options.validate()
+        with console.status(f"training {method} ({mode} mode, {epochs} epochs)"):
+            result = stage.run(workdir, options)
+    trained = result.trained
+    for warning in trained.warnings:
+        console.print(f"[yellow]warning[/]: {warning}")
+    last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
+    shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
+    console.print(
+        f"[green]train[/]: wrote {result.checkpoint} ({method}, {trained.n_train_units} training sequences, "
+        f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
+    )

@@ -179,7 +179,7 @@ def collect_table(options: CollectOptions) -> Collected:
     frames, meta = import_table(Path(options.source), options.columns)
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(_split(frames.height, options.train_frames)))
-    return Collected(frames, meta)
+    return Collected(frames, meta, inputs=tuple(Path(name) for name in meta["source_files"]))
 
 
 def collect(options: CollectOptions, progress: Progress | None = None) -> Collected:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -46,4 +47,17 @@ def fetch_frames_workdir(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("fetch")
     options = collect.CollectOptions(env="fetch", episodes=FETCH_TEST_EPISODES, seed=FETCH_TEST_SEED)
     collect.run(workdir, options)
+    return workdir
+
+
+@pytest.fixture(scope="session")
+def desk_mln_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
+    """DESK frames + predicates + the paper's formulas + learned weights (bare options); read-only."""
+    from stages import binarize, formulas, learn_weights
+
+    workdir = tmp_path_factory.mktemp("desk-mln")
+    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+    binarize.run(workdir, binarize.BinarizeOptions())
+    formulas.run(workdir, formulas.FormulasOptions())
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
     return workdir

@@ -1,0 +1,130 @@
+"""Training speed: one batched epoch of `mlnseq train` against a batch-size-1, segment-by-segment loop
+of the same model (the authors' loop: a tensor built from Python lists per segment, one SGD step per
+segment, torch's default threads), on the DESK training split and on a Fetch collection. Target: at
+least 20x faster per epoch. Also per-frame streaming inference (target under 1 ms per frame).
+
+``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from stages import collect, sequences, train
+from stages.models import ModelConfig, SequenceClassifier, StreamingClassifier
+
+TARGET_RATIO = 20.0
+TARGET_STEP_MS = 1.0
+DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
+REPEATS = 3
+
+
+def baseline_epoch(model: SequenceClassifier, segments: list[tuple[list, list]]) -> float:
+    """The authors' loop: one segment at a time, tensors from Python lists, one step each."""
+    optimizer = torch.optim.SGD(model.parameters(), lr=0.1)
+    loss_function = torch.nn.NLLLoss()
+    started = time.perf_counter()
+    for features, labels in segments:
+        model.zero_grad()
+        x = torch.tensor(features, dtype=torch.float).view(1, len(features), -1)
+        y = torch.tensor(labels, dtype=torch.long)
+        loss = loss_function(model(x)[0][0], y)
+        loss.backward()
+        optimizer.step()
+    return time.perf_counter() - started
+
+
+def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
+    """One epoch of :func:`train.fit` without its per-epoch evaluation (timed from the log-free path)."""
+    parts, fit_units, _ = train.assign_parts(data, options)
+    features = ((data.features - data.features.mean(0)) / (data.features.std(0) + 1e-8)).astype(np.float32)
+    model = SequenceClassifier(ModelConfig(features.shape[1], int(data.labels.max()) + 1))
+    optimizer = torch.optim.SGD(model.parameters(), lr=options.learning_rate)
+    started = time.perf_counter()
+    x_all = sequences.pad(fit_units, features)
+    y_all = sequences.pad(fit_units, data.labels, fill=-100)
+    n_all = torch.as_tensor(sequences.lengths(fit_units))
+    order = np.random.default_rng(0).permutation(len(fit_units))
+    for start in range(0, len(order), options.batch_size):
+        index = torch.as_tensor(order[start : start + options.batch_size])
+        longest = int(n_all[index].max())
+        log_probs = model(x_all[index, :longest])[0]
+        y = y_all[index, :longest]
+        frame_loss = torch.nn.functional.nll_loss(
+            log_probs.reshape(-1, log_probs.shape[-1]), y.reshape(-1), reduction="none", ignore_index=-100
+        ).view(y.shape)
+        loss = (frame_loss.sum(1) / n_all[index]).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return time.perf_counter() - started
+
+
+def compare(name: str, data: train.FrameData) -> None:
+    options = train.TrainOptions()
+    train_rows = data.splits == "train"
+    spans = [s for s in sequences.segments(data.episodes, data.splits, data.labels) if train_rows[s.start]]
+    scaled = (data.features - data.features.mean(0)) / (data.features.std(0) + 1e-8)
+    segments = [(scaled[s].tolist(), data.labels[s].tolist()) for s in spans]
+    config = ModelConfig(data.features.shape[1], int(data.labels.max()) + 1)
+
+    default_threads = torch.get_num_threads()
+    base_default = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
+    train.set_threads()
+    base_one = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
+    ours = min(batched_epoch(data, options) for _ in range(REPEATS))
+    wide = train.TrainOptions(batch_size=16)
+    ours_wide = min(batched_epoch(data, wide) for _ in range(REPEATS))
+    torch.set_num_threads(default_threads)
+    ratio = base_default / ours
+    verdict = "meets" if ratio >= TARGET_RATIO else "MISSES"
+    print(f"{name}: {len(spans)} training segments, {int(train_rows.sum()):,} frames; one epoch: "
+          f"baseline batch 1 {base_default * 1000:.0f} ms ({default_threads} threads) / "
+          f"{base_one * 1000:.0f} ms (1 thread), batched (batch {options.batch_size}, 1 thread) "
+          f"{ours * 1000:.0f} ms")
+    print(f"{name}: {ratio:.1f}x faster than the authors'-style loop, {verdict} the {TARGET_RATIO:.0f}x target "
+          f"({base_one / ours:.1f}x against the same loop on 1 thread; batch 16: {ours_wide * 1000:.0f} ms, "
+          f"{base_one / ours_wide:.1f}x)")
+
+
+def streaming(data: train.FrameData) -> None:
+    train.set_threads()
+    config = ModelConfig(data.features.shape[1], int(data.labels.max()) + 1)
+    classifier = StreamingClassifier(SequenceClassifier(config), data.features.mean(0), data.features.std(0))
+    frames = data.features[:2000]
+    for frame in frames[:50]:
+        classifier.step(frame)
+    times = []
+    for frame in frames:
+        started = time.perf_counter()
+        classifier.step(frame)
+        times.append(time.perf_counter() - started)
+    median, p99 = statistics.median(times) * 1000, float(np.percentile(times, 99)) * 1000
+    verdict = "meets" if median < TARGET_STEP_MS else "MISSES"
+    print(f"streaming inference: median {median:.3f} ms, p99 {p99:.3f} ms per frame over {len(frames)} frames, "
+          f"{verdict} the {TARGET_STEP_MS:.0f} ms target")
+
+
+def main() -> None:
+    desk = collect.collect(collect.CollectOptions(env="desk", source=DESK_SOURCE)).frames
+    desk_data = train.FrameData.from_frames(desk)
+    compare("desk", desk_data)
+    episodes = int(os.environ.get("BENCH_FETCH_EPISODES", "20"))
+    try:
+        fetch = collect.collect(collect.CollectOptions(env="fetch", episodes=episodes, seed=0,
+                                                       train_frames=episodes * 50)).frames
+    except Exception as error:  # MuJoCo absent or broken: DESK figures still stand
+        print(f"fetch: skipped ({type(error).__name__}: {error})")
+    else:
+        compare(f"fetch ({episodes} episodes)", train.FrameData.from_frames(fetch))
+    streaming(desk_data)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,52 @@
+"""`mlnseq eval`: score the predictions on the test split (the paper's segment metric and more)."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import eval as stage
+
+
+def evaluate(
+    method: Annotated[str, typer.Option(help="lstm, mln, priorlayer, conflation, combined or all.")] = stage.EvalOptions.method,
+    fraction: Annotated[float, typer.Option(help="Recognise each segment at frame max(int(len*F)-1, 0), 0 < F <= 1 (the paper: 0.5).")] = stage.EvalOptions.fraction,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of tables.")] = False,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy at the fraction, per-class and early-recognition accuracy, frame accuracy, macro F1, confusion and, without segment boundaries, edit score and F1@10/25/50."""
+    options = stage.EvalOptions(method=method, fraction=fraction)
+    with reported_errors():
+        result = stage.run(workdir, options)
+    if as_json:
+        print(json.dumps({m: {**r, "per_class": {result.classes[k]: v for k, v in r["per_class"].items()},
+                              "early": {str(f): v for f, v in r["early"].items()}, "mode": result.modes[m]}
+                          for m, r in result.results.items()}))
+        return
+    summary = Table(title=f"test split: segment recognised at {fraction:g} of its frames", box=None)
+    for column in ("method", "mode", "segments", "frames", "macro F1", "edit", "F1@10", "F1@25", "F1@50"):
+        summary.add_column(column, justify="left" if column in ("method", "mode") else "right")
+    for method_name, r in result.results.items():
+        extra = [f"{r[k]:.1f}" if k in r else "-" for k in ("edit", "f1@10", "f1@25", "f1@50")]
+        summary.add_row(method_name, result.modes[method_name], f"{r['segment_accuracy']:.1%}",
+                        f"{r['frame_accuracy']:.1%}", f"{r['macro_f1']:.3f}", *extra)
+    console.print(summary)
+    per_class = Table(title="segment accuracy per class", box=None)
+    per_class.add_column("class")
+    for method_name in result.results:
+        per_class.add_column(method_name, justify="right")
+    for k, name in enumerate(result.classes):
+        per_class.add_row(name, *(f"{r['per_class'][k]:.0%}" for r in result.results.values()))
+    console.print(per_class)
+    early = Table(title="early recognition: segment accuracy at a fraction of each segment", box=None)
+    early.add_column("method")
+    for f in stage.EARLY_FRACTIONS:
+        early.add_column(f"{f:g}", justify="right")
+    for method_name, r in result.results.items():
+        early.add_row(method_name, *(f"{v:.0%}" for v in r["early"].values()))
+    console.print(early)
+    console.print(f"[green]eval[/]: wrote {result.path}")

@@ -1,0 +1,89 @@
+"""formulas: write the domain knowledge as a pracmln .mln file, ``formulas.mln``.
+
+The file keeps `+var` templates as written (pracmln-style); `learn-weights` expands them against
+the training split. Every predicate and constant is checked against predicates.parquet here, so a
+typo fails now with its line and column rather than at learning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from stages import artifacts
+from stages.errors import BadInput
+from stages.mln.grounding import DECLARATIONS, class_constant, check_mln
+from stages.mln.syntax import MLN, format_weighted, parse_mln
+
+DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "examples" / "paper.mln"
+
+
+@dataclass(frozen=True)
+class FormulasOptions:
+    spec: Path | None = None  # .mln of hand-written formulas and templates; default examples/paper.mln
+
+    @property
+    def spec_path(self) -> Path:
+        return DEFAULT_SPEC if self.spec is None else Path(self.spec)
+
+    def validate(self) -> None:
+        if not self.spec_path.is_file():
+            raise BadInput(f"--spec {self.spec_path} not found: give a .mln file of formulas")
+
+
+@dataclass(frozen=True)
+class WrittenFormulas:
+    path: Path
+    mln: MLN
+    words: tuple[str, ...]  # predicate columns true somewhere in the training split
+    classes: tuple[str, ...]
+
+
+def read_spec(path: Path) -> MLN:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise BadInput(f"cannot read {path}: {error}") from error
+    mln = parse_mln(text, str(path))
+    if not mln.predicates:  # formulas only: the paper's two predicates
+        defaults = parse_mln(DECLARATIONS)
+        mln.predicates, mln.mutex = defaults.predicates, defaults.mutex
+    if not mln.formulas:
+        raise BadInput(f"{path} holds no formula: add e.g. `0.0 Has(+w, p) => Topic(+c, p)`")
+    return mln
+
+
+def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...]) -> str:
+    """formulas.mln: provenance, the training constants as comments, declarations, formulas."""
+    lines = [
+        f"// mlnseq formulas from {spec.name}: templates are expanded by `mlnseq learn-weights`",
+        f"// word = {{{', '.join(words)}}}",
+        f"// class = {{{', '.join(classes)}}}",
+        "",
+        *(f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items()),
+        "",
+        *(format_weighted(item) for item in mln.formulas),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def formulas_for(mln: MLN, spec: Path, columns: list[str], n_classes: int) -> None:
+    """Check a parsed spec against the predicate columns and classes (pure)."""
+    check_mln(mln, str(spec), set(columns), {class_constant(k) for k in range(n_classes)})
+
+
+def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
+    """Read predicates.parquet and the spec; write ``workdir/formulas.mln``."""
+    options.validate()
+    predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
+    columns = [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS]
+    classes = meta.get("classes") or []
+    mln = read_spec(options.spec_path)
+    formulas_for(mln, options.spec_path, columns, len(classes))
+    train = predicates.filter(predicates["split"] == "train")
+    seen = train.select(columns).sum().row(0) if train.height else [0] * len(columns)
+    words = tuple(c for c, n in zip(columns, seen) if n)
+    labels = set(train["label"].to_list())
+    class_names = tuple(class_constant(k) for k in range(len(classes)) if k in labels)
+    path = artifacts.write_text(Path(workdir) / artifacts.FORMULAS, render(mln, options.spec_path, words, class_names))
+    return WrittenFormulas(path, mln, words, class_names)

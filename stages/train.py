@@ -1,0 +1,381 @@
+"""train: fit the LSTM (or GRU) classifier, alone or with the MLN PriorLayer, on the training split.
+
+The core (:func:`fit`) works on arrays; :func:`run` reads ``frames.parquet`` (and, for PriorLayer,
+``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log.
+
+Validation part: with ``select="val_accuracy"`` the last ``val_fraction`` of the training units
+(segments in segment mode, windows in stream mode, in file order) is held out of training and the
+epoch with the best frame accuracy on it is kept. Without selection every training unit is used
+and the last epoch is kept. The test split is only ever logged (for the curves), never used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+import torch
+
+from stages import artifacts, sequences
+from stages.errors import BadInput, StaleArtifact
+from stages.models import CELLS, ModelConfig, SequenceClassifier, StreamingClassifier
+
+METHODS = ("lstm", "priorlayer")
+PRIORS = ("paper", "logprob")
+SELECTS = ("none", "val_accuracy")
+DEVICES = ("auto", "cpu", "cuda")
+CHECKPOINT_FORMAT = 1
+INFERENCE_BATCH = 256
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """Options of `mlnseq train`."""
+
+    method: str = "lstm"
+    seed: int = 0
+    epochs: int = 100
+    mode: str = "segment"
+    cell: str = "lstm"
+    prior: str = "paper"  # c2c input of PriorLayer: paper (clamped MLN sums) | logprob (MLN log-probs)
+    select: str = "none"
+    device: str = "auto"
+    train_fraction: float = 1.0
+    batch_size: int = 4
+    window: int = 64  # stream mode: training window length in frames
+    hidden_size: int = 32
+    learning_rate: float = 0.1
+    val_fraction: float = 0.2
+
+    def validate(self) -> None:
+        choices = {"method": METHODS, "mode": sequences.MODES, "cell": CELLS, "prior": PRIORS,
+                   "select": SELECTS, "device": DEVICES}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise BadInput(f"unknown --{name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
+        if not 0 < self.train_fraction <= 1:
+            raise BadInput(f"--train-fraction must be in (0, 1], got {self.train_fraction}")
+        if not 0 < self.val_fraction < 1:
+            raise BadInput(f"--val-fraction must be in (0, 1), got {self.val_fraction}")
+        for name in ("epochs", "batch_size", "window", "hidden_size"):
+            if getattr(self, name) < 1:
+                raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if not self.learning_rate > 0:
+            raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise BadInput("--device cuda: no CUDA GPU is visible to torch here; use --device cpu")
+
+
+@dataclass(frozen=True)
+class FrameData:
+    """The frames a network reads: raw features, labels, episode and split (train/test) per row."""
+
+    features: np.ndarray  # [n, F] float32, raw
+    labels: np.ndarray  # [n] int64
+    episodes: np.ndarray  # [n]
+    splits: np.ndarray  # [n] "train" | "test"
+    prior: np.ndarray | None = None  # [n, C] float32, the c2c input of PriorLayer
+
+    @classmethod
+    def from_frames(cls, frames: pl.DataFrame, prior: np.ndarray | None = None) -> FrameData:
+        return cls(
+            features=frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float32),
+            labels=frames["label"].to_numpy().astype(np.int64),
+            episodes=frames["episode"].to_numpy(),
+            splits=frames["split"].to_numpy(),
+            prior=prior,
+        )
+
+
+@dataclass
+class Trained:
+    """What :func:`fit` returns: the kept network, its standardisation and the per-epoch log."""
+
+    model: SequenceClassifier
+    mean: np.ndarray
+    std: np.ndarray
+    log: pl.DataFrame
+    kept_epoch: int
+    n_train_units: int
+    n_val_units: int
+    warnings: list[str] = field(default_factory=list)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def set_threads() -> None:
+    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
+    torch.set_num_threads(1)
+
+
+def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, list[slice], list[slice]]:
+    """Mark every row fit / val / test / unused; return the parts and the fit and val training units."""
+    parts = np.where(data.splits == "train", "train", "test").astype(object)
+    units = sequences.training_units(options.mode, data.episodes, parts, data.labels, options.window)
+    units = [u for u in units if parts[u.start] == "train"]
+    if not units:
+        raise BadInput("frames.parquet has no training frames: rerun `mlnseq collect` with a training split")
+    val_units: list[slice] = []
+    if options.select == "val_accuracy":
+        if len(units) < 2:
+            raise BadInput("--select val_accuracy needs at least 2 training sequences; use --select none")
+        n_val = max(1, round(options.val_fraction * len(units)))
+        units, val_units = units[:-n_val], units[-n_val:]
+    fit_units = units[: max(1, math.ceil(options.train_fraction * len(units)))]
+    for unit in units[len(fit_units):]:
+        parts[unit] = "unused"
+    for unit in val_units:
+        parts[unit] = "val"
+    for unit in fit_units:
+        parts[unit] = "fit"
+    return parts.astype(str), fit_units, val_units
+
+
+@torch.inference_mode()
+def predict_log_probs(
+    model: SequenceClassifier, spans: list[slice], features: np.ndarray, prior: np.ndarray | None,
+    device: torch.device,
+) -> np.ndarray:
+    """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence)."""
+    model.eval()
+    out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
+    ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
+    for i in range(0, len(ordered), INFERENCE_BATCH):
+        batch = ordered[i : i + INFERENCE_BATCH]
+        x = sequences.pad(batch, features).to(device)
+        p = None if prior is None else sequences.pad(batch, prior).to(device)
+        log_probs = model(x, p)[0].cpu().numpy()
+        for j, span in enumerate(batch):
+            out[span] = log_probs[j, : span.stop - span.start]
+    return out
+
+
+def _accuracy_and_loss(log_probs: np.ndarray, labels: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
+    if not rows.any():
+        return float("nan"), float("nan")
+    lp = log_probs[rows]
+    y = labels[rows]
+    return float((lp.argmax(1) == y).mean()), float(-lp[np.arange(len(y)), y].mean())
+
+
+def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: torch.device) -> Trained:
+    """Train a network on the training split of ``data``; log train/val/test accuracy each epoch."""
+    torch.manual_seed(options.seed)
+    rng = np.random.default_rng(options.seed)
+    parts, fit_units, val_units = assign_parts(data, options)
+    fit_rows = parts == "fit"
+    mean = data.features[fit_rows].mean(0)
+    std = data.features[fit_rows].std(0)
+    std = np.where(std > 1e-8, std, 1.0).astype(np.float32)
+    features = ((data.features - mean) / std).astype(np.float32)
+    prior = None if data.prior is None else data.prior.astype(np.float32)
+
+    warnings = []
+    missing = sorted(set(data.labels[data.splits == "test"]) - set(data.labels[fit_rows]))
+    if missing:
+        warnings.append(f"classes {missing} occur in the test split but not in the training frames used; "
+                        "the model cannot predict them well")
+
+    model = SequenceClassifier(config).to(device)
+    optimizer = torch.optim.SGD(model.parameters(), lr=options.learning_rate)
+    x_all = sequences.pad(fit_units, features).to(device)
+    p_all = None if prior is None else sequences.pad(fit_units, prior).to(device)
+    y_all = sequences.pad(fit_units, data.labels, fill=-100).to(device)
+    n_all = torch.as_tensor(sequences.lengths(fit_units), device=device)
+    eval_spans = {
+        name: [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
+               if parts[s.start] == part]
+        for name, part in (("train", "fit"), ("val", "val"), ("test", "test"))
+    }
+    part_rows = {"train": fit_rows, "val": parts == "val", "test": parts == "test"}
+
+    log_rows: list[dict[str, Any]] = []
+    best_state, best_accuracy, kept_epoch = None, -1.0, options.epochs
+    for epoch in range(1, options.epochs + 1):
+        model.train()
+        order = rng.permutation(len(fit_units))
+        for start in range(0, len(order), options.batch_size):
+            index = torch.as_tensor(order[start : start + options.batch_size], device=device)
+            longest = int(n_all[index].max())
+            x = x_all[index, :longest]
+            p = None if p_all is None else p_all[index, :longest]
+            y = y_all[index, :longest]
+            log_probs = model(x, p)[0]
+            frame_loss = torch.nn.functional.nll_loss(
+                log_probs.reshape(-1, config.n_classes), y.reshape(-1), reduction="none", ignore_index=-100
+            ).view(y.shape)
+            # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
+            loss = (frame_loss.sum(1) / n_all[index]).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+
+        spans = [s for name in eval_spans for s in eval_spans[name]]
+        log_probs = predict_log_probs(model, spans, features, prior, device)
+        for name, rows in part_rows.items():
+            if rows.any():
+                accuracy, nll = _accuracy_and_loss(log_probs, data.labels, rows)
+                log_rows.append({"epoch": epoch, "split": name, "accuracy": accuracy, "loss": nll})
+        if options.select == "val_accuracy":
+            accuracy = _accuracy_and_loss(log_probs, data.labels, part_rows["val"])[0]
+            if accuracy > best_accuracy:
+                best_accuracy, kept_epoch = accuracy, epoch
+                best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    log = pl.DataFrame(
+        log_rows, schema={"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "loss": pl.Float64}
+    )
+    return Trained(model.cpu(), mean.astype(np.float32), std, log, kept_epoch, len(fit_units), len(val_units),
+                   warnings)
+
+
+# --- the MLN input of PriorLayer --------------------------------------------------------------------
+
+
+def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
+    """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
+    from stages.mln import classifier
+
+    predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
+    predicates, _ = artifacts.read_table(predicates_path)
+    weights, _ = artifacts.read_table(weights_path)
+    keys = ["episode", "frame"]
+    if predicates.height != frames.height or not predicates.select(keys).equals(frames.select(keys)):
+        raise StaleArtifact(f"{predicates_path} does not hold the frames of {artifacts.FRAMES}; "
+                            "rerun `mlnseq binarize`")
+    return classifier.class_scores(predicates, weights, n_classes), [predicates_path, weights_path]
+
+
+def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
+    """The c2c input of PriorLayer: the MLN class weights as the authors passed them, or log-probs."""
+    from stages.mln import classifier
+
+    if kind == "paper":
+        return np.asarray(classifier.paper_prior(scores, source), dtype=np.float32)
+    return np.asarray(classifier.class_log_probs(scores, "exact", source), dtype=np.float32)
+
+
+# --- checkpoints ------------------------------------------------------------------------------------
+
+
+@dataclass
+class Checkpoint:
+    """A trained network with the configuration it embeds."""
+
+    model: SequenceClassifier
+    config: dict[str, Any]
+
+    @property
+    def mode(self) -> str:
+        return self.config["mode"]
+
+    def standardise(self, features: np.ndarray) -> np.ndarray:
+        mean = np.asarray(self.config["mean"], dtype=np.float32)
+        std = np.asarray(self.config["std"], dtype=np.float32)
+        return ((features - mean) / std).astype(np.float32)
+
+    def streaming(self) -> StreamingClassifier:
+        """A per-frame online classifier with this network and standardisation."""
+        return StreamingClassifier(self.model, np.asarray(self.config["mean"]), np.asarray(self.config["std"]))
+
+
+def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any]) -> Path:
+    """Write a checkpoint atomically: an interrupted save leaves the previous file as it was."""
+    with artifacts.atomic_path(path) as tmp:
+        torch.save({"config": config, "state_dict": model.state_dict()}, tmp)
+    return path
+
+
+def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | None = None) -> Checkpoint:
+    """Load ``models/<method>.pt``; refuse one made from other inputs, features or classes."""
+    path = artifacts.checkpoint_path(workdir, method)
+    if not path.exists():
+        raise BadInput(f"{path} not found: run `mlnseq train --method {method}` first")
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+        config = saved["config"]
+    except Exception as error:  # torch raises many types for a foreign or truncated file
+        raise BadInput(f"{path} is not an mlnseq checkpoint ({error}); rerun `mlnseq train --method {method}`") from error
+    if config.get("format") != CHECKPOINT_FORMAT:
+        raise BadInput(f"{path} has checkpoint format {config.get('format')}, this mlnseq reads "
+                       f"{CHECKPOINT_FORMAT}; rerun `mlnseq train --method {method}`")
+    if frames_meta is not None:
+        for key in ("features", "classes"):
+            if list(config[key]) != list(frames_meta[key]):
+                raise BadInput(f"{path} was trained on {key} {config[key]}, but {artifacts.FRAMES} has "
+                               f"{frames_meta[key]}; rerun `mlnseq train --method {method}`")
+    for name, digest in config["inputs"].items():
+        source = workdir / name
+        if source.exists() and artifacts.file_digest(source) != digest:
+            raise StaleArtifact(f"{path} was trained on an older {name}; rerun `mlnseq train --method {method}`")
+    model = SequenceClassifier(ModelConfig(**config["model"]))
+    model.load_state_dict(saved["state_dict"])
+    return Checkpoint(model.eval(), config)
+
+
+# --- the stage ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    checkpoint: Path
+    log: Path
+    trained: Trained
+    device: str
+
+
+def run(workdir: Path, options: TrainOptions) -> TrainResult:
+    """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
+    options.validate()
+    workdir = Path(workdir)
+    set_threads()
+    frames_path = workdir / artifacts.FRAMES
+    frames, meta = artifacts.read_table(frames_path, "frames")
+    n_classes = len(meta["classes"])
+    inputs = [frames_path]
+    prior = None
+    if options.method == "priorlayer":
+        scores, mln_inputs = mln_class_scores(workdir, frames, n_classes)
+        prior = prior_input(scores, options.prior, meta.get("source", ""))
+        inputs += mln_inputs
+    data = FrameData.from_frames(frames, prior)
+    config = ModelConfig(
+        n_features=data.features.shape[1], n_classes=n_classes, hidden_size=options.hidden_size,
+        cell=options.cell, prior_layer=options.method == "priorlayer",
+    )
+    device = resolve_device(options.device)
+    trained = fit(data, config, options, device)
+
+    checkpoint_config = {
+        "format": CHECKPOINT_FORMAT,
+        "method": options.method,
+        "mode": options.mode,
+        "prior": options.prior if options.method == "priorlayer" else None,
+        "seed": options.seed,
+        "model": config.to_dict(),
+        "features": list(meta["features"]),
+        "classes": list(meta["classes"]),
+        "source": meta.get("source", ""),
+        "mean": trained.mean.tolist(),
+        "std": trained.std.tolist(),
+        "options": asdict(options),
+        "kept_epoch": trained.kept_epoch,
+        "n_train_units": trained.n_train_units,
+        "n_val_units": trained.n_val_units,
+        "inputs": {path.name: artifacts.file_digest(path) for path in inputs},
+    }
+    log_path = artifacts.train_log_path(workdir, options.method)
+    checkpoint = artifacts.checkpoint_path(workdir, options.method)
+    artifacts.write_table(trained.log, log_path, "train_log",
+                          {"options": asdict(options), "kept_epoch": trained.kept_epoch}, inputs=inputs)
+    save_checkpoint(checkpoint, trained.model, checkpoint_config)
+    return TrainResult(checkpoint, log_path, trained, str(device))

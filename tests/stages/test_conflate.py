@@ -1,0 +1,76 @@
+"""conflate: eq. 16 by hand, and predictions of every method on the real DESK frames."""
+
+import shutil
+
+import numpy as np
+import polars as pl
+import pytest
+
+from stages import artifacts, conflate, train
+from stages.errors import BadInput, MissingArtifact
+
+
+def test_conflation_is_equation_16():
+    p_lstm = np.array([[0.7, 0.2, 0.1]])
+    p_mln = np.array([[0.4, 0.4, 0.2]])
+    # by hand: 0.28 / (0.28 + 0.3*0.6), 0.08 / (0.08 + 0.8*0.6), 0.02 / (0.02 + 0.9*0.8)
+    expected = [[0.28 / 0.46, 0.08 / 0.56, 0.02 / 0.74]]
+    np.testing.assert_allclose(conflate.conflation(p_lstm, p_mln), expected, rtol=1e-6)
+    # two sources agreeing on a class strengthen it; a certain zero stays (near) zero
+    assert conflate.conflation([[0.6, 0.4]], [[0.6, 0.4]])[0, 0] > 0.6
+    assert conflate.conflation([[1.0, 0.0]], [[0.0, 1.0]]).max() <= 0.5 + 1e-9
+
+
+@pytest.fixture(scope="module")
+def predicted(tmp_path_factory, desk_mln_workdir):
+    workdir = tmp_path_factory.mktemp("conflate")
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, workdir / name)
+    train.run(workdir, train.TrainOptions(epochs=3))
+    train.run(workdir, train.TrainOptions(method="priorlayer", epochs=3, mode="stream"))
+    result = conflate.run(workdir, conflate.ConflateOptions())
+    return workdir, result
+
+
+def test_every_method_is_predicted_and_conflation_matches_its_parts(predicted):
+    workdir, result = predicted
+    assert result.methods == ["lstm", "mln", "priorlayer", "conflation", "combined"]
+    table, meta = artifacts.read_table(result.path, "predictions")
+    assert table.height == 22_329 and table["split"].to_list().count("train") == 1405
+    assert meta["modes"] == {"lstm": "segment", "mln": "frame", "priorlayer": "stream",
+                             "conflation": "segment", "combined": "stream"}
+    probs = {m: table.select(conflate.prob_columns(m, 7)).to_numpy().astype(np.float64) for m in result.methods}
+    np.testing.assert_allclose(probs["lstm"].sum(1), 1.0, rtol=1e-4)
+    np.testing.assert_allclose(probs["conflation"], conflate.conflation(probs["lstm"], probs["mln"]), rtol=1e-4)
+    assert (table["combined_pred"].to_numpy() == probs["combined"].argmax(1)).all()
+    assert table["lstm_pred"].dtype == pl.Int16
+
+
+def test_mln_alone_needs_only_weights_and_names_missing_models(tmp_path, desk_mln_workdir):
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    result = conflate.run(tmp_path, conflate.ConflateOptions(mln_mode="exact"))
+    assert result.methods == ["mln"]
+    assert any("train --method lstm" in note for note in result.notes)
+
+
+def test_conflate_with_nothing_trained_names_the_stages(tmp_path, desk_frames_workdir):
+    shutil.copy(desk_frames_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
+    with pytest.raises(MissingArtifact, match="learn-weights.*train"):
+        conflate.run(tmp_path, conflate.ConflateOptions())
+    assert not (tmp_path / artifacts.PREDICTIONS).exists()
+
+
+def test_a_checkpoint_from_another_feature_set_is_refused(predicted, tmp_path):
+    workdir, _ = predicted
+    frames, meta = artifacts.read_table(workdir / artifacts.FRAMES, "frames")
+    renamed = frames.rename({"left_gripper": "left_grip"})
+    artifacts.write_table(renamed, tmp_path / artifacts.FRAMES, "frames", {**meta, "features": renamed.columns[4:]})
+    shutil.copytree(workdir / artifacts.MODELS_DIR, tmp_path / artifacts.MODELS_DIR)
+    with pytest.raises(BadInput, match="features"):
+        conflate.run(tmp_path, conflate.ConflateOptions())
+
+
+def test_unknown_mln_mode_is_refused():
+    with pytest.raises(BadInput, match="--mln-mode"):
+        conflate.ConflateOptions(mln_mode="fast").validate()

@@ -1,0 +1,54 @@
+"""formulas: the paper's template by default, hand-written specs checked against the predicates."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stages import formulas as stage
+from stages.errors import BadInput
+from stages.mln.published_codes import desk_predicates, write_predicates
+from stages.mln.syntax import parse_mln
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> Path:
+    path = tmp_path_factory.mktemp("desk")
+    write_predicates(path, *desk_predicates(shared_data), "desk")
+    return path
+
+
+def test_default_spec_keeps_the_template(workdir: Path) -> None:
+    written = stage.run(workdir, stage.FormulasOptions())
+    mln = parse_mln(written.path.read_text(), "formulas.mln")
+    assert mln.predicates == {"Has": ("word", "page"), "Topic": ("class", "page")}
+    assert [f.weight for f in mln.formulas] == [0.0]
+    assert "Has(+w,p) => Topic(+c,p)" in written.path.read_text()
+    assert "grippers_closed_closed" in written.words and "grippers_opening_opening" not in written.words
+    assert written.classes == tuple(f"C{k}" for k in range(7))
+
+
+def test_handwritten_example_is_accepted(workdir: Path, repo_root: Path) -> None:
+    written = stage.run(workdir, stage.FormulasOptions(spec=repo_root / "examples" / "desk_handwritten.mln"))
+    assert len(written.mln.formulas) == 3
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ('0.0 Has("left_gripper_closed",p) => Topc("C4",p)\n', "spec.mln:1: unknown predicate Topc"),
+        ('\n0.0 Has("left_gripper_clsed",p) => Topic("C4",p)\n', "spec.mln:2: unknown constant 'left_gripper_clsed'"),
+        ('0.0 Has("left_gripper_closed",p) => Topic("C9",p)\n', "unknown constant 'C9'"),
+        ('0.0 Has("left_gripper_closed",p) => Topic("C4",q)\n', "one frame variable"),
+        ('0.0 Has("left_gripper_closed",p) ^^ Topic("C4",p)\n', "spec.mln:1:35:"),
+    ],
+)
+def test_bad_specs_are_refused(workdir: Path, tmp_path: Path, spec: str, message: str) -> None:
+    path = tmp_path / "spec.mln"
+    path.write_text(spec)
+    before = (workdir / "formulas.mln").read_text() if (workdir / "formulas.mln").exists() else None
+    with pytest.raises(BadInput, match=message.replace("(", r"\(")):
+        stage.run(workdir, stage.FormulasOptions(spec=path))
+    after = (workdir / "formulas.mln").read_text() if (workdir / "formulas.mln").exists() else None
+    assert before == after

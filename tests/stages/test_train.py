@@ -1,0 +1,115 @@
+"""train on the real DESK frames: sequences, learning, determinism, selection, bad input."""
+
+import shutil
+
+import numpy as np
+import polars as pl
+import pytest
+import torch
+
+from stages import artifacts, sequences, train
+from stages.errors import BadInput, MissingArtifact
+
+
+@pytest.fixture
+def desk_workdir(tmp_path, desk_frames_workdir):
+    shutil.copy(desk_frames_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
+    return tmp_path
+
+
+@pytest.fixture(scope="module")
+def desk_data(desk_frames_workdir):
+    frames, _ = artifacts.read_table(desk_frames_workdir / artifacts.FRAMES, "frames")
+    return train.FrameData.from_frames(frames)
+
+
+def test_segment_and_stream_modes_cut_different_sequences(desk_data):
+    d = desk_data
+    segments = sequences.sequences("segment", d.episodes, d.splits, d.labels)
+    streams = sequences.sequences("stream", d.episodes, d.splits, d.labels)
+    assert len(segments) == 775  # 50 train + 725 test segments, as the data README states
+    assert len(streams) == 2  # one training and one test episode
+    windows = sequences.training_units("stream", d.episodes, d.splits, d.labels, 64)
+    assert len([w for w in windows if d.splits[w.start] == "train"]) == 22  # ceil(1405 / 64)
+
+
+def test_validation_part_is_the_last_fifth_of_training_segments(desk_data):
+    options = train.TrainOptions(select="val_accuracy")
+    parts, fit_units, val_units = train.assign_parts(desk_data, options)
+    assert (len(fit_units), len(val_units)) == (40, 10)
+    assert val_units[0].start == fit_units[-1].stop
+    assert set(parts[desk_data.splits == "test"]) == {"test"}
+    half = train.assign_parts(desk_data, train.TrainOptions(train_fraction=0.5))[1]
+    assert len(half) == 25
+
+
+def test_a_few_epochs_learn_better_than_chance_and_are_deterministic(desk_workdir):
+    options = train.TrainOptions(epochs=12, seed=3)
+    first = train.run(desk_workdir, options)
+    log, _ = artifacts.read_table(first.log, "train_log")
+    test = log.filter(pl.col("split") == "test")["accuracy"]
+    assert test[-1] > 2 / 7  # chance over 7 classes is about 1/7
+    assert log.filter(pl.col("split") == "train")["accuracy"][-1] > 0.3
+    weights = {k: v.clone() for k, v in train.load_checkpoint(desk_workdir, "lstm").model.state_dict().items()}
+    second = train.run(desk_workdir, options)
+    again = train.load_checkpoint(desk_workdir, "lstm")
+    for name, value in again.model.state_dict().items():
+        assert torch.equal(value, weights[name]), name
+    assert artifacts.read_table(second.log, "train_log")[0].equals(log)
+    config = again.config
+    assert config["features"] == ["arm_distance", "left_gripper", "right_gripper"]
+    assert len(config["classes"]) == 7 and config["mode"] == "segment" and config["seed"] == 3
+    train_rows = pl.read_parquet(desk_workdir / artifacts.FRAMES).filter(pl.col("split") == "train")
+    np.testing.assert_allclose(config["mean"][0], train_rows["arm_distance"].mean(), rtol=1e-4)
+
+
+def test_select_keeps_the_best_validation_epoch_and_logs_val(desk_workdir):
+    result = train.run(desk_workdir, train.TrainOptions(epochs=4, select="val_accuracy", mode="stream"))
+    log = result.trained.log
+    val = log.filter(pl.col("split") == "val")
+    assert val.height == 4
+    assert result.trained.kept_epoch == int(val["epoch"][int(np.argmax(val["accuracy"].to_numpy()))])
+
+
+def test_priorlayer_trains_on_the_learned_mln_weights(tmp_path, desk_mln_workdir):
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    result = train.run(tmp_path, train.TrainOptions(method="priorlayer", prior="paper", epochs=2))
+    checkpoint = train.load_checkpoint(tmp_path, "priorlayer")
+    assert checkpoint.config["prior"] == "paper" and checkpoint.model.prior is not None
+    assert set(checkpoint.config["inputs"]) == {artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS}
+    assert result.trained.log.height == 4  # 2 epochs x (train, test)
+
+
+def test_priorlayer_before_learn_weights_names_the_stage(desk_workdir):
+    with pytest.raises(MissingArtifact, match="binarize|learn-weights"):
+        train.run(desk_workdir, train.TrainOptions(method="priorlayer", epochs=1))
+    assert not artifacts.checkpoint_path(desk_workdir, "priorlayer").exists()
+
+
+def test_train_before_collect_names_collect(tmp_path):
+    with pytest.raises(MissingArtifact, match="mlnseq collect"):
+        train.run(tmp_path, train.TrainOptions(epochs=1))
+
+
+@pytest.mark.parametrize("change", [{"mode": "video"}, {"train_fraction": 0.0}, {"train_fraction": 1.5},
+                                    {"method": "tcn"}, {"epochs": 0}])
+def test_bad_options_are_refused(change):
+    with pytest.raises(BadInput):
+        train.TrainOptions(**change).validate()
+
+
+def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatch):
+    train.run(desk_workdir, train.TrainOptions(epochs=1))
+    path = artifacts.checkpoint_path(desk_workdir, "lstm")
+    before = path.read_bytes()
+
+    def interrupted_save(obj, file):
+        open(file, "wb").write(b"partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", interrupted_save)
+    with pytest.raises(KeyboardInterrupt):
+        train.run(desk_workdir, train.TrainOptions(epochs=1, seed=1))
+    assert path.read_bytes() == before
+    assert train.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
