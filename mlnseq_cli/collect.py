@@ -18,13 +18,13 @@ def collect(
     channels: Annotated[str, typer.Option(help="desk: motion (3 channels, all frames) or kinematics (14 channels, training file only).")] = "motion",
     episodes: Annotated[int, typer.Option(help="fetch: number of 50-step demonstrations.")] = stage.CollectOptions.episodes,
     seed: Annotated[int, typer.Option(help="fetch: seed of resets and action noise.")] = 0,
-    train_frames: Annotated[Optional[int], typer.Option(help="The first K frames form the training split [default: 126 fetch, 1405 desk].")] = None,
+    train_frames: Annotated[Optional[int], typer.Option(help="The first K frames form the training split \\[default: 126 fetch, 1405 desk].")] = None,
     goals: Annotated[bool, typer.Option(help="fetch: add the achieved and desired goal as features.")] = False,
     label_column: Annotated[str, typer.Option(help="table: the label column (class index or name).")] = "label",
-    episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column [default: 'episode' if present, else one episode per file].")] = None,
-    time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode [default: 'frame' if present, else file order].")] = None,
+    episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
+    time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
     classes: Annotated[Optional[str], typer.Option(help="table: class names in label order, comma-separated.")] = None,
-    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated [default: every other numeric column].")] = None,
+    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column].")] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""

@@ -13,7 +13,7 @@ from stages.mln.syntax import format_formula
 
 
 def formulas(
-    spec: Annotated[Optional[Path], typer.Option(help="A .mln file of formulas and `+var` templates [default: examples/paper.mln, the paper's Has(+w,p) => Topic(+c,p)].")] = None,
+    spec: Annotated[Optional[Path], typer.Option(help="A .mln file of formulas and `+var` templates \\[default: examples/paper.mln, the paper's Has(+w,p) => Topic(+c,p)].")] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet and the spec; write WORKDIR/formulas.mln (pracmln syntax, templates kept)."""
@@ -22,6 +22,6 @@ def formulas(
         written = stage.run(workdir, options)
     templates = sum(1 for f in written.mln.formulas if "+" in format_formula(f.formula))
     console.print(
-        f"[green]formulas[/]: wrote {written.path} ({len(written.mln.formulas)} formulas, {templates} templates; "
+        f"[green]formulas[/]: wrote {written.path} ({len(written.mln.formulas)} formulas of which {templates} with +variables; "
         f"training shows {len(written.words)} predicate values and {len(written.classes)} classes)"
     )

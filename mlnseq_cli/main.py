@@ -77,7 +77,7 @@ app = typer.Typer(
 def root(
     verbose: Annotated[bool, typer.Option("--verbose", help="Show a traceback on errors.")] = False,
     config: Annotated[
-        Optional[Path], typer.Option("--config", help="Project file of options [default: WORKDIR/mlnseq.toml].")
+        Optional[Path], typer.Option("--config", help="Project file of options \\[default: WORKDIR/mlnseq.toml].")
     ] = None,
 ) -> None:
     """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval."""

@@ -34,9 +34,9 @@ def trial(rng: np.random.Generator) -> list[tuple[float, float, float, str]]:
     rows = []
     for phase in PHASES:
         z, grip, force = plan[phase]
-        z = z + rng.normal(0.0, 0.001, z.size)
-        grip = grip + rng.normal(0.0, 0.3, grip.size)
-        force = force + rng.normal(0.0, 0.1, force.size)
+        z = z + rng.normal(0.0, 0.004, z.size)  # sensor noise comparable to the motion per frame
+        grip = grip + rng.normal(0.0, 2.0, grip.size)
+        force = force + rng.normal(0.0, 0.8, force.size)
         rows += [(float(a), float(b), float(c), phase) for a, b, c in zip(z, grip, force)]
     return rows
 

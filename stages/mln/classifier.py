@@ -18,7 +18,6 @@ from stages.mln.syntax import MLNSyntaxError, atoms, parse_formula
 
 HARD_WEIGHT = 1000.0  # a hard formula's weight in the scores: far above any learned weight
 MODES = ("paper", "exact")
-SOURCES = ("desk", "fetch")
 
 
 def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, n_classes: int) -> np.ndarray:
@@ -54,14 +53,12 @@ def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, n_classes: int
 
 
 def paper_prior(scores: np.ndarray, source: str) -> np.ndarray:
-    """The class weights as the authors passed them to PriorLayer (c2c): DESK: negative sums clamped to 0;
-    Fetch: shifted by the minimum (their code per dataset). float32 [n, C]."""
-    if source == "desk":
-        prior = np.maximum(scores, 0.0)
-    elif source == "fetch":
+    """The class weights as the authors passed them to PriorLayer (c2c): Fetch: shifted by the minimum;
+    DESK, and any other source such as a user's table: negative sums clamped to 0. float32 [n, C]."""
+    if source == "fetch":
         prior = scores - scores.min(axis=1, keepdims=True)
     else:
-        raise BadInput(f"unknown source {source!r}: expected one of {', '.join(SOURCES)}")
+        prior = np.maximum(scores, 0.0)
     return prior.astype(np.float32)
 
 

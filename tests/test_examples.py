@@ -1,0 +1,48 @@
+"""The worked examples run as their READMEs say, on a copy of the example folder."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+OWN_DATA = Path(__file__).resolve().parents[1] / "examples" / "own-data"
+
+
+def documented_commands(readme: Path) -> list[str]:
+    """The `python` and `mlnseq` lines of the README's bash block, comments stripped."""
+    block = re.search(r"```bash\n(.*?)```", readme.read_text(), re.S).group(1)
+    lines = [line.split("#", 1)[0].strip() for line in block.splitlines()]
+    return [line for line in lines if line.startswith(("python ", "mlnseq "))]
+
+
+@pytest.mark.slow
+def test_own_data_example_runs_as_documented(tmp_path: Path) -> None:
+    folder = tmp_path / "own-data"
+    shutil.copytree(OWN_DATA, folder, ignore=shutil.ignore_patterns("mlnseq-work", "recordings.csv"))
+    commands = documented_commands(OWN_DATA / "README.md")
+    assert commands[0] == "python make_data.py" and len(commands) == 10
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    for command in commands:
+        done = subprocess.run(command, shell=True, cwd=folder, env=env, capture_output=True, text=True)
+        assert done.returncode == 0, f"{command}: {done.stderr}"
+
+    work = folder / "mlnseq-work"
+    frames = pl.read_parquet(work / "frames.parquet")
+    assert frames["episode"].n_unique() == 12 and set(frames["split"]) == {"train", "test"}
+    weights = pl.read_parquet(work / "weights.parquet")
+    conjunctions = weights.filter(pl.col("formula").str.contains(r"\^"))
+    expert = conjunctions.filter(pl.col("fixed")).row(0, named=True)
+    assert (expert["class"], expert["weight"]) == ("C3", 2.0)
+    learned = conjunctions.filter(~pl.col("fixed")).row(0, named=True)
+    assert learned["class"] == "C2" and learned["weight"] != 0.0
+    metrics = pl.read_parquet(work / "metrics.parquet").filter(pl.col("metric") == "segment_accuracy")
+    accuracy = dict(zip(metrics["method"], metrics["value"]))
+    assert set(accuracy) == {"lstm", "mln", "priorlayer", "conflation", "combined"}
+    assert min(accuracy.values()) > 0.5  # four classes: chance is 0.25
