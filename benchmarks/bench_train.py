@@ -74,14 +74,14 @@ def compare(name: str, data: train.FrameData) -> None:
     segments = [(scaled[s].tolist(), data.labels[s].tolist()) for s in spans]
     config = ModelConfig(data.features.shape[1], int(data.labels.max()) + 1)
 
-    default_threads = torch.get_num_threads()
+    default_threads = os.cpu_count() or 1  # torch's default; mlnseq itself pins one thread (stages/__init__)
+    torch.set_num_threads(default_threads)
     base_default = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
     train.set_threads()
     base_one = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
     ours = min(batched_epoch(data, options) for _ in range(REPEATS))
     wide = train.TrainOptions(batch_size=16)
     ours_wide = min(batched_epoch(data, wide) for _ in range(REPEATS))
-    torch.set_num_threads(default_threads)
     ratio = base_default / ours
     verdict = "meets" if ratio >= TARGET_RATIO else "MISSES"
     print(f"{name}: {len(spans)} training segments, {int(train_rows.sum()):,} frames; one epoch: "

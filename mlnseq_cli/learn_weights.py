@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 from rich.table import Table
+from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import artifacts
@@ -24,7 +25,7 @@ def learn_weights(
         options.validate()
         path, learned = stage.run(workdir, options)
     for warning in learned.warnings:
-        console.print(f"[yellow]warning[/]: {warning}")
+        console.print(f"[yellow]warning[/]: {escape(warning)}")  # a warning may hold [..]: not markup
     table = Table(title="strongest formulas per class")
     for column in ("class", "weight", "formula"):
         table.add_column(column, justify="right" if column == "weight" else "left")

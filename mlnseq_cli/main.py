@@ -14,7 +14,7 @@ from typer.core import TyperGroup
 from mlnseq_cli import config as project_config
 from mlnseq_cli.console import console, reported_errors
 
-from mlnseq_cli import binarize, collect, conflate, formulas, learn_weights, train
+from mlnseq_cli import binarize, collect, conflate, formulas, learn_weights, report, train
 from mlnseq_cli import eval as eval_command
 
 GLOBAL_FLAGS = ("--verbose",)
@@ -80,7 +80,7 @@ def root(
         Optional[Path], typer.Option("--config", help="Project file of options \\[default: WORKDIR/mlnseq.toml].")
     ] = None,
 ) -> None:
-    """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval."""
+    """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval, report."""
     if verbose:
         os.environ["MLNSEQ_VERBOSE"] = "1"
 
@@ -92,6 +92,7 @@ app.command("learn-weights")(learn_weights.learn_weights)
 app.command("train")(train.train)
 app.command("conflate")(conflate.conflate)
 app.command("eval")(eval_command.evaluate)
+app.command("report")(report.report)
 
 
 config_app = typer.Typer(help="Inspect the project file (mlnseq.toml).", no_args_is_help=True)

@@ -6,6 +6,7 @@ from typing import Annotated
 
 import polars as pl
 import typer
+from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import train as stage
@@ -38,7 +39,7 @@ def train(
             result = stage.run(workdir, options)
     trained = result.trained
     for warning in trained.warnings:
-        console.print(f"[yellow]warning[/]: {warning}")
+        console.print(f"[yellow]warning[/]: {escape(warning)}")  # a warning may hold [..]: not markup
     last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
     shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
     console.print(

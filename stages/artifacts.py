@@ -95,11 +95,19 @@ def file_digest(path: Path) -> str:
 
 
 def _input_key(artifact: Path, source: Path) -> str:
-    """An input's name as recorded: relative to the artifact's folder when inside it."""
-    try:
-        return str(source.resolve().relative_to(artifact.parent.resolve()))
-    except ValueError:
-        return str(source.resolve())
+    """An input's name as recorded: relative to the artifact's folder when inside it or its workdir
+    (``../frames.parquet`` from ``models/``), so a moved or copied workdir still checks its inputs."""
+    folder, source = artifact.parent.resolve(), source.resolve()
+    workdir = folder.parent if folder.name == MODELS_DIR else folder
+    if source.is_relative_to(workdir):
+        return os.path.relpath(source, folder)
+    return str(source)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 @contextlib.contextmanager
@@ -113,6 +121,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
         raise BadInput(f"cannot write {path}: {error.strerror or error}; choose a writable --workdir") from error
     os.close(fd)
     tmp = Path(tmp_name)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; an artifact gets the mode open() would give it
     try:
         yield tmp
         os.replace(tmp, path)
@@ -129,13 +138,23 @@ def write_text(path: Path, text: str) -> Path:
     return path
 
 
+def created_time() -> str:
+    """Now in UTC, or ``SOURCE_DATE_EPOCH`` when set (reproducible builds: byte-identical artifacts)."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    try:
+        now = dt.datetime.fromtimestamp(int(epoch), dt.timezone.utc) if epoch else dt.datetime.now(dt.timezone.utc)
+    except (ValueError, OverflowError, OSError):
+        raise BadInput(f"SOURCE_DATE_EPOCH={epoch!r} is not a whole number of seconds since 1970") from None
+    return now.isoformat(timespec="seconds")
+
+
 def build_metadata(path: Path, kind: str, meta: dict[str, Any], inputs: Iterable[Path] = ()) -> dict[str, Any]:
     """The metadata entry every artifact carries: version, kind, creation time, input digests, then ``meta``."""
     return {
         "schema_version": SCHEMA_VERSION,
         "kind": kind,
         "mlnseq_version": package_version(),
-        "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": created_time(),
         "inputs": {_input_key(path, Path(p)): file_digest(Path(p)) for p in inputs},
         **meta,
     }
@@ -189,6 +208,8 @@ def read_table(path: Path, kind: str | None = None) -> tuple[pl.DataFrame, dict[
         raise BadInput(
             f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
         ) from error
+    if kind == "frames":
+        check_frames(frame, meta, path)
     return frame, meta
 
 
@@ -196,7 +217,11 @@ def check_fresh(path: Path, meta: dict[str, Any]) -> None:
     """Refuse an artifact whose recorded inputs have changed since it was written."""
     for name, digest in meta.get("inputs", {}).items():
         source = Path(name) if Path(name).is_absolute() else path.parent / name
-        if source.exists() and file_digest(source) != digest:
+        try:
+            changed = source.exists() and file_digest(source) != digest
+        except OSError as error:
+            raise BadInput(f"cannot read {source}, an input of {path}: {error.strerror or error}") from error
+        if changed:
             raise StaleArtifact(
                 f"{path} was made from an older {source.name}; rerun `mlnseq {producer_of(path)}`"
             )
@@ -217,3 +242,61 @@ def frames_table(keys: dict[str, Any], features: dict[str, Any]) -> pl.DataFrame
     columns = {name: pl.Series(name, keys[name], dtype=dtype) for name, dtype in KEY_SCHEMA.items()}
     columns.update({name: pl.Series(name, values, dtype=pl.Float32) for name, values in features.items()})
     return pl.DataFrame(columns)
+
+
+def check_frames(frames: pl.DataFrame, meta: dict[str, Any], path: Path) -> None:
+    """Refuse frames no stage can use, naming the first bad row: missing or mistyped key columns,
+    non-float or non-finite features, no rows, splits other than train/test, labels outside the
+    classes, a single class, or frames that do not rise strictly within each episode."""
+    fix = f"repair it or rerun `mlnseq {producer_of(path)}`"
+
+    def at(mask: pl.Series) -> str:
+        row = int(mask.arg_true()[0])
+        return f"row {row} (episode {frames['episode'][row]}, frame {frames['frame'][row]})"
+
+    for name, dtype in KEY_SCHEMA.items():
+        if name not in frames.columns:
+            raise BadInput(f"{path} has no column {name!r}; {fix}")
+        if frames[name].dtype != dtype:
+            raise BadInput(f"{path} column {name!r} is {frames[name].dtype}, expected {dtype}; {fix}")
+    features = feature_columns(frames)
+    if not features:
+        raise BadInput(f"{path} has no feature column after {', '.join(KEY_COLUMNS)}; {fix}")
+    if "features" in meta and list(meta["features"]) != features:
+        raise BadInput(f"{path} has feature columns {features}, but its metadata lists {meta['features']}; {fix}")
+    for name in features:
+        if not frames[name].dtype.is_float():
+            raise BadInput(f"{path} feature column {name!r} is {frames[name].dtype}, expected Float32; {fix}")
+    if frames.height == 0:
+        raise BadInput(f"{path} holds no frames; {fix}")
+    for name in KEY_COLUMNS:
+        if frames[name].null_count():
+            raise BadInput(f"{path} column {name!r} is empty at row {int(frames[name].is_null().arg_true()[0])}; {fix}")
+    for name in features:
+        bad = frames[name].is_null() | ~frames[name].is_finite()
+        if bad.any():
+            raise BadInput(f"{path} column {name!r} is empty, NaN or infinite at {at(bad)}; {fix}")
+    bad = ~frames["split"].is_in(SPLITS)
+    if bad.any():
+        raise BadInput(f"{path} has split {frames['split'].filter(bad)[0]!r} at {at(bad)}; "
+                       f"splits are {', '.join(SPLITS)}; {fix}")
+    classes = meta.get("classes") or []
+    if classes:
+        bad = (frames["label"] < 0) | (frames["label"] >= len(classes))
+        if bad.any():
+            raise BadInput(f"{path} has label {frames['label'].filter(bad)[0]} at {at(bad)}, outside its "
+                           f"{len(classes)} classes 0..{len(classes) - 1}; {fix}")
+    if frames["label"].n_unique() < 2:
+        raise BadInput(f"{path} holds a single class (label {frames['label'][0]}); mlnseq needs two or more")
+    episode, frame = frames["episode"], frames["frame"]
+    same = (episode == episode.shift(1)).fill_null(False)
+    bad = same & (frame <= frame.shift(1)).fill_null(False)
+    if bad.any():
+        row = int(bad.arg_true()[0])
+        what = "repeats the previous frame index" if frame[row] == frame[row - 1] else "goes back in time"
+        raise BadInput(f"{path} {at(bad)} {what}; frames must rise strictly within each episode; {fix}")
+    starts = frames.filter(~same)["episode"]
+    if starts.n_unique() != starts.len():
+        repeated = starts.filter(starts.is_duplicated())[0]
+        raise BadInput(f"{path} episode {repeated} is split into separate runs of rows; "
+                       f"each episode's frames must be consecutive rows; {fix}")

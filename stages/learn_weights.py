@@ -157,7 +157,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "classes": classes,
                   "source": meta.get("source"), "warnings": learned.warnings}
-    path = artifacts.write_table(learned.weights, workdir / artifacts.WEIGHTS, "weights", table_meta,
-                                 inputs=[predicates_path, formulas_path])
-    artifacts.write_text(workdir / artifacts.LEARNED_MLN, learned.learned_mln)
+    with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # both or neither
+        staged.write_text(learned.learned_mln, encoding="utf-8")
+        path = artifacts.write_table(learned.weights, workdir / artifacts.WEIGHTS, "weights", table_meta,
+                                     inputs=[predicates_path, formulas_path])
     return path, learned

@@ -64,6 +64,20 @@ def _row_error(path: Path, mask: pl.Series, what: str, csv_header: bool) -> BadI
     return BadInput(f"{where}: {what}")
 
 
+def _refuse_numbers_with_typos(table: pl.DataFrame, path: Path, keys: set[str], csv_header: bool) -> None:
+    """A text column whose values are mostly numbers is a feature with a bad cell, not a column to drop."""
+    for name in table.columns:
+        if name in keys or table[name].dtype != pl.String:
+            continue
+        text = table[name].str.strip_chars()
+        numbers = text.cast(pl.Float64, strict=False)
+        bad = numbers.is_null() | ~numbers.is_finite()
+        if bad.any() and bad.sum() * 2 < table.height:
+            value = table[name].filter(bad)[0]
+            raise _row_error(path, bad, f"column {name!r} is numeric but holds {value!r} here; repair the value, "
+                                        "or name the feature columns with --features", csv_header)
+
+
 def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dict]:
     """Read, check and assemble the frames (split column still absent) and their metadata."""
     files = table_files(Path(source))
@@ -81,6 +95,8 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
         names = list(columns.features) or [
             c for c in table.columns if c not in keys and table[c].dtype.is_numeric()
         ]
+        if not columns.features:
+            _refuse_numbers_with_typos(table, path, keys, is_csv)
         if not names:
             raise BadInput(f"{path}: no numeric feature column; name them with --features")
         if feature_names is None:

@@ -179,7 +179,7 @@ def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: tor
     prior = None if data.prior is None else data.prior.astype(np.float32)
 
     warnings = []
-    missing = sorted(set(data.labels[data.splits == "test"]) - set(data.labels[fit_rows]))
+    missing = sorted(int(k) for k in set(data.labels[data.splits == "test"]) - set(data.labels[fit_rows]))
     if missing:
         warnings.append(f"classes {missing} occur in the test split but not in the training frames used; "
                         "the model cannot predict them well")
@@ -291,7 +291,8 @@ class Checkpoint:
 def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any]) -> Path:
     """Write a checkpoint atomically: an interrupted save leaves the previous file as it was."""
     with artifacts.atomic_path(path) as tmp:
-        torch.save({"config": config, "state_dict": model.state_dict()}, tmp)
+        with open(tmp, "wb") as handle:  # a file object: the archive is named 'archive', not the random temp name
+            torch.save({"config": config, "state_dict": model.state_dict()}, handle)
     return path
 
 
@@ -375,7 +376,8 @@ def run(workdir: Path, options: TrainOptions) -> TrainResult:
     }
     log_path = artifacts.train_log_path(workdir, options.method)
     checkpoint = artifacts.checkpoint_path(workdir, options.method)
-    artifacts.write_table(trained.log, log_path, "train_log",
-                          {"options": asdict(options), "kept_epoch": trained.kept_epoch}, inputs=inputs)
-    save_checkpoint(checkpoint, trained.model, checkpoint_config)
+    with artifacts.atomic_path(checkpoint) as staged:  # both or neither: a failed log write keeps the old model
+        save_checkpoint(staged, trained.model, checkpoint_config)
+        artifacts.write_table(trained.log, log_path, "train_log",
+                              {"options": asdict(options), "kept_epoch": trained.kept_epoch}, inputs=inputs)
     return TrainResult(checkpoint, log_path, trained, str(device))

@@ -61,3 +61,17 @@ def desk_mln_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     formulas.run(workdir, formulas.FormulasOptions())
     learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
     return workdir
+
+
+@pytest.fixture(scope="session")
+def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
+    """Every artifact of the bare DESK pipeline (lstm trained 2 epochs, conflated, evaluated); read-only."""
+    from stages import conflate, eval as evaluate, train
+
+    workdir = tmp_path_factory.mktemp("desk-full")
+    for path in desk_mln_workdir.iterdir():
+        shutil.copy(path, workdir / path.name)
+    train.run(workdir, train.TrainOptions(epochs=2))
+    conflate.run(workdir, conflate.ConflateOptions())
+    evaluate.run(workdir, evaluate.EvalOptions())
+    return workdir

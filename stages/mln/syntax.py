@@ -8,6 +8,7 @@ parentheses, `+var` template variables, and quoted or capitalised constants.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Union
@@ -239,7 +240,10 @@ _WEIGHT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)(?=\s)")
 def parse_formula(text: str, where: str = "<formula>", line: int = 1, column0: int = 0) -> Formula:
     """Parse one formula (no weight, no trailing '.')."""
     parser = _Parser(text, where, line, column0)
-    formula = parser.formula()
+    try:
+        formula = parser.formula()
+    except RecursionError:
+        raise parser.error(column0 + 1, "the formula nests '(' or '!' too deeply") from None
     parser.done()
     return formula
 
@@ -263,7 +267,11 @@ def parse_mln(text: str, where: str = "<mln>") -> MLN:
         if weight_match is not None:
             body_start = weight_match.end()
             formula = parse_formula(line[body_start:], where, number, body_start)
-            mln.formulas.append(WeightedFormula(formula, float(weight_match.group(1)), number, indent + 1))
+            weight = float(weight_match.group(1))
+            if not math.isfinite(weight):
+                raise MLNSyntaxError(f"{where}:{number}:{indent + 1}: weight {weight_match.group(1)} is not a finite "
+                                     "number; end the formula with '.' to make it hard")
+            mln.formulas.append(WeightedFormula(formula, weight, number, indent + 1))
             continue
         if line.endswith("."):
             formula = parse_formula(line[:-1], where, number)

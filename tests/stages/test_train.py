@@ -105,7 +105,7 @@ def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatc
     before = path.read_bytes()
 
     def interrupted_save(obj, file):
-        open(file, "wb").write(b"partial")
+        file.write(b"partial")  # save_checkpoint hands torch.save the open temporary file
         raise KeyboardInterrupt
 
     monkeypatch.setattr(torch, "save", interrupted_save)

@@ -1,0 +1,95 @@
+"""`make report` (what `make reproduce` runs after set-up), reduced by its size variables, end to end.
+
+Tiny Fetch collection, the real DESK files, 1 seed, 2 epochs, 2 data-efficiency fractions, into a
+temporary RUNS and REPORTS; then the Make dependency behaviour: nothing to do on a second run, and a
+touched predicate spec reruns only what depends on it.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from stages import report
+
+pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
+
+REPORT_SECTIONS = (
+    "## Table III", "### Do the paper's claims hold here?", "## Table IV", "## Fig. 7", "## Fig. 8",
+    "## Confusion matrices", "## Data efficiency", "## Learned weights", "## Fetch: richer predicate spec",
+    "## Stream mode", "## Timings and machine", "## Hyper-parameters used", "## Differences from the paper",
+)
+
+
+@pytest.fixture(scope="module")
+def reduced(tmp_path_factory, repo_root, shared_data) -> dict[str, Path | list[str]]:
+    """Run the reduced reproduction once; returns its folders and the make command line."""
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    root = tmp_path_factory.mktemp("reproduce")
+    rich_spec = root / "fetch-rich.binarize.toml"  # a copy, so touching it leaves examples/ alone
+    shutil.copy(repo_root / "examples" / "fetch-rich.binarize.toml", rich_spec)
+    command = [
+        "make", "--no-print-directory", "-C", str(repo_root), f"RUNS={root / 'runs'}", f"REPORTS={root / 'reports'}",
+        "SEEDS=0", "EPOCHS=2", "DESK_EPOCHS=2", "FETCH_EPISODES=4", "FRACTIONS=0.25 0.5",
+        f"DESK_DIR={shared_data / 'desk-taurus'}", f"FETCH_RICH_SPEC={rich_spec}",
+    ]
+    first = make(command, "-j2", "-Otarget", "report")
+    return {"root": root, "command": command, "rich_spec": rich_spec, "first": first}
+
+
+def make(command: list, *args: str) -> subprocess.CompletedProcess:
+    result = subprocess.run([*command, *args], capture_output=True, text=True, env={**os.environ, "MAKEFLAGS": ""})
+    assert result.returncode in (0, 1), result.stdout + result.stderr  # -q answers 1 for "work to do"
+    return result
+
+
+def test_the_report_has_every_section_and_figure(reduced):
+    reports = reduced["root"] / "reports"
+    assert reduced["first"].returncode == 0, reduced["first"].stdout + reduced["first"].stderr
+    text = (reports / "REPORT.md").read_text()
+    for section in REPORT_SECTIONS:
+        assert section in text, section
+    figures = ["fig7_test_accuracy.png", "fig8_train_vs_test.png", "data_efficiency.png",
+               "confusion_fetch.png", "confusion_desk.png"]
+    for name in figures:
+        assert f"]({name})" in text
+        assert (reports / name).read_bytes()[:4] == b"\x89PNG", name
+    assert "**Not run:**" not in text
+    assert set(report.load_run(reduced["root"] / "runs").datasets) == {
+        "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5"}
+
+
+def test_every_stage_prints_one_timed_summary(reduced):
+    lines = [line for line in reduced["first"].stdout.splitlines() if ": wrote " in line]
+    assert lines and all(line.rstrip().endswith(" s]") for line in lines)
+    assert any(line.startswith("report: wrote") for line in lines)
+
+
+def test_a_second_run_does_no_work(reduced):
+    timings = reduced["root"] / "runs" / report.TIMINGS
+    before = timings.read_text()
+    assert make(reduced["command"], "-q", str(reduced["root"] / "reports" / "REPORT.md")).returncode == 0
+    again = make(reduced["command"], "-j2", "report")
+    assert again.returncode == 0 and ": wrote " not in again.stdout
+    assert timings.read_text() == before
+
+
+def test_a_touched_spec_reruns_only_what_depends_on_it(reduced):
+    os.utime(reduced["rich_spec"])
+    planned = make(reduced["command"], "-n", "report").stdout
+    runs = reduced["root"] / "runs"
+    stages = [line.split("/mlnseq ", 1)[1] for line in planned.splitlines() if "timed_stage.sh" in line]
+    assert len(stages) == 7, planned  # binarize, formulas, learn-weights, train priorlayer, conflate, eval, report
+    assert all(f"{runs}/fetch-rich" in s or s.startswith("report") for s in stages), planned
+    assert not any("--method lstm" in s or s.startswith("collect") for s in stages), planned
+
+
+def test_without_desk_the_fetch_half_still_runs(reduced, tmp_path):
+    planned = make(reduced["command"], "-n", f"DESK_DIR={tmp_path / 'absent'}", "report").stdout
+    assert "DESK Taurus files not found" in planned
+    assert "/desk/" not in planned
