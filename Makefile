@@ -127,4 +127,4 @@ $(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet stages/eval.py
 	$(STAGE) eval --method all --workdir $(@D)
 
 clean: ## Remove generated workdirs and reports (keeps .venv)
-	rm -rf runs reports mlnseq-work
+	rm -rf $(RUNS) $(REPORTS) mlnseq-work
