@@ -9,6 +9,8 @@ then the classes), so a ground formula is evaluated on all frames at once.
 
 from __future__ import annotations
 
+import difflib
+
 import itertools
 from dataclasses import dataclass
 
@@ -88,8 +90,13 @@ def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], 
         frame_vars.add(frame.name)
         known = words if atom.predicate == EVIDENCE else classes
         if isinstance(first, Const) and first.value not in known:
-            kind = "predicate column" if atom.predicate == EVIDENCE else "class"
-            raise BadInput(f"{at}: unknown constant {first.value!r} in {format_formula(atom)}: no such {kind}")
+            if atom.predicate == EVIDENCE:
+                close = difflib.get_close_matches(first.value, sorted(known), n=3)
+                hint = f"did you mean {', '.join(close)}?" if close else "see the columns of predicates.parquet"
+                raise BadInput(f"{at}: unknown constant {first.value!r} in {format_formula(atom)}: "
+                               f"no such predicate column; {hint}")
+            raise BadInput(f"{at}: unknown constant {first.value!r} in {format_formula(atom)}: classes are "
+                           f"{', '.join(sorted(known, key=lambda c: int(c[1:])))} (C<k> in the frames' class order)")
         if isinstance(first, Var):
             if first_domain.setdefault(first.name, atom.predicate) != atom.predicate:
                 raise BadInput(f"{at}: variable {first.name} ranges over both words and classes")
