@@ -12,7 +12,7 @@ from pathlib import Path
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.mln.grounding import DECLARATIONS, class_constant, check_mln
+from stages.mln.grounding import DECLARATIONS, class_constant, check_mln, name_classes
 from stages.mln.syntax import MLN, format_weighted, parse_mln
 
 DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "examples" / "paper.mln"
@@ -67,9 +67,10 @@ def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...
     return "\n".join(lines) + "\n"
 
 
-def formulas_for(mln: MLN, spec: Path, columns: list[str], n_classes: int) -> None:
-    """Check a parsed spec against the predicate columns and classes (pure)."""
-    check_mln(mln, str(spec), set(columns), {class_constant(k) for k in range(n_classes)})
+def formulas_for(mln: MLN, spec: Path, columns: list[str], class_names: list[str]) -> None:
+    """Write class names as their ``C<k>``, then check the spec against the predicate columns and classes."""
+    name_classes(mln, class_names)
+    check_mln(mln, str(spec), set(columns), {class_constant(k) for k in range(len(class_names))})
 
 
 def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
@@ -79,7 +80,7 @@ def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
     columns = [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS]
     classes = meta.get("classes") or []
     mln = read_spec(options.spec_path)
-    formulas_for(mln, options.spec_path, columns, len(classes))
+    formulas_for(mln, options.spec_path, columns, list(classes))
     train = predicates.filter(predicates["split"] == "train")
     seen = train.select(columns).sum().row(0) if train.height else [0] * len(columns)
     words = tuple(c for c, n in zip(columns, seen) if n)

@@ -152,7 +152,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
         raise BadInput(f"{options.formulas} not found here nor in {workdir}: run `mlnseq formulas` first")
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
-    formulas_for(mln, formulas_path, [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS], len(classes))
+    formulas_for(mln, formulas_path, [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS], list(classes))
     learned = learn(predicates, len(classes), mln, options.engine)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "classes": classes,

@@ -12,14 +12,14 @@ from __future__ import annotations
 import difflib
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from stages.errors import BadInput
 from stages.mln.syntax import (
     MLN, And, Atom, Const, Equiv, Formula, Implies, Not, Or, Var, WeightedFormula, atoms, format_formula,
-    substitute,
+    map_atoms, substitute,
 )
 
 EVIDENCE = "Has"
@@ -59,6 +59,23 @@ class AtomSpace:
         value = atom.args[0].value  # type: ignore[union-attr]
         table = self._word_index if atom.predicate == EVIDENCE else self._class_index  # type: ignore[attr-defined]
         return value in table
+
+
+def name_classes(mln: MLN, class_names: list[str]) -> MLN:
+    """Let formulas name a class as the frames do, ``Topic("lift", p)``: rewritten to its ``C<k>``.
+    A constant already of the form ``C<k>`` is left as it is."""
+    constants = {name: class_constant(k) for k, name in enumerate(class_names)}
+    paper_form = {class_constant(k) for k in range(len(class_names))}
+
+    def rename(atom: Atom) -> Atom:
+        first = atom.args[0] if atom.args else None
+        if atom.predicate == CLASS and isinstance(first, Const) and first.value not in paper_form \
+                and first.value in constants:
+            return Atom(atom.predicate, (Const(constants[first.value]), *atom.args[1:]))
+        return atom
+
+    mln.formulas = [replace(item, formula=map_atoms(item.formula, rename)) for item in mln.formulas]
+    return mln
 
 
 def check_mln(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:

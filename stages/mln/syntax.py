@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Union
+from typing import Callable, Union
 
 from stages.errors import BadInput
 
@@ -334,17 +334,20 @@ def atoms(formula: Formula) -> list[Atom]:
     return atoms(formula.left) + atoms(formula.right)
 
 
+def map_atoms(formula: Formula, change: Callable[[Atom], Atom]) -> Formula:
+    """The same formula with every atom replaced by ``change(atom)``."""
+    if isinstance(formula, Atom):
+        return change(formula)
+    if isinstance(formula, Not):
+        return Not(map_atoms(formula.operand, change))
+    if isinstance(formula, (And, Or)):
+        return type(formula)(tuple(map_atoms(o, change) for o in formula.operands))
+    if isinstance(formula, Implies):
+        return Implies(map_atoms(formula.body, change), map_atoms(formula.head, change))
+    return Equiv(map_atoms(formula.left, change), map_atoms(formula.right, change))
+
+
 def substitute(formula: Formula, binding: dict[str, str]) -> Formula:
     """Replace variables named in ``binding`` by constants."""
-    if isinstance(formula, Atom):
-        args = tuple(Const(binding[t.name]) if isinstance(t, Var) and t.name in binding else t for t in formula.args)
-        return Atom(formula.predicate, args)
-    if isinstance(formula, Not):
-        return Not(substitute(formula.operand, binding))
-    if isinstance(formula, And):
-        return And(tuple(substitute(o, binding) for o in formula.operands))
-    if isinstance(formula, Or):
-        return Or(tuple(substitute(o, binding) for o in formula.operands))
-    if isinstance(formula, Implies):
-        return Implies(substitute(formula.body, binding), substitute(formula.head, binding))
-    return Equiv(substitute(formula.left, binding), substitute(formula.right, binding))
+    return map_atoms(formula, lambda atom: Atom(atom.predicate, tuple(
+        Const(binding[t.name]) if isinstance(t, Var) and t.name in binding else t for t in atom.args)))

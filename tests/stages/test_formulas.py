@@ -34,6 +34,15 @@ def test_handwritten_example_is_accepted(workdir: Path, repo_root: Path) -> None
     assert len(written.mln.formulas) == 3
 
 
+def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) -> None:
+    path = tmp_path / "named.mln"
+    path.write_text('0.0 Has("grippers_closed_closed",p) => Topic("S5",p)\n'
+                    '1.0 Has("left_gripper_open",p) => Topic("C0",p)\n')
+    written = stage.run(workdir, stage.FormulasOptions(spec=path)).path.read_text()
+    assert 'Has("grippers_closed_closed",p) => Topic("C4",p)' in written
+    assert 'Has("left_gripper_open",p) => Topic("C0",p)' in written
+
+
 @pytest.mark.parametrize(
     ("spec", "message"),
     [
