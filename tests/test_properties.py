@@ -253,6 +253,16 @@ BROKEN_SPECS = [
 ]
 
 
+def assert_refused_in_one_line(command: str, spec, where: str, workdir, output: str) -> None:
+    """`mlnseq COMMAND --spec SPEC` exits 2 with one error line naming SPEC and WHERE, writing nothing."""
+    result = runner.invoke(app, [command, "--spec", str(spec), "-w", str(workdir)])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {spec}{where}"), result.stderr
+    assert "Traceback" not in result.output
+    assert not (workdir / output).exists()
+
+
 @pytest.mark.parametrize("name,text,where", BROKEN_MLN, ids=[c[0] for c in BROKEN_MLN])
 def test_formulas_cli_refuses_a_broken_mln_in_one_line(name, text, where, desk_mln_workdir, tmp_path, quiet_errors):
     spec = tmp_path / name
@@ -260,12 +270,7 @@ def test_formulas_cli_refuses_a_broken_mln_in_one_line(name, text, where, desk_m
     workdir = tmp_path / "w"
     workdir.mkdir()
     (workdir / artifacts.PREDICATES).write_bytes((desk_mln_workdir / artifacts.PREDICATES).read_bytes())
-    result = runner.invoke(app, ["formulas", "--spec", str(spec), "-w", str(workdir)])
-    assert result.exit_code == 2, result.output
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: {spec}{where}"), result.stderr
-    assert "Traceback" not in result.output
-    assert not (workdir / artifacts.FORMULAS).exists()
+    assert_refused_in_one_line("formulas", spec, where, workdir, artifacts.FORMULAS)
 
 
 @pytest.mark.parametrize("name,text,where", BROKEN_SPECS, ids=[c[0] for c in BROKEN_SPECS])
@@ -275,9 +280,4 @@ def test_binarize_cli_refuses_a_broken_spec_in_one_line(name, text, where, desk_
     workdir = tmp_path / "w"
     workdir.mkdir()
     (workdir / artifacts.FRAMES).write_bytes((desk_frames_workdir / artifacts.FRAMES).read_bytes())
-    result = runner.invoke(app, ["binarize", "--spec", str(spec), "-w", str(workdir)])
-    assert result.exit_code == 2, result.output
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: {spec}{where}"), result.stderr
-    assert "Traceback" not in result.output
-    assert not (workdir / artifacts.PREDICATES).exists()
+    assert_refused_in_one_line("binarize", spec, where, workdir, artifacts.PREDICATES)
