@@ -9,7 +9,7 @@ import typer
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import formulas as stage
-from stages.mln.syntax import format_formula
+from stages.mln.grounding import is_template
 
 
 def formulas(
@@ -20,7 +20,7 @@ def formulas(
     options = stage.FormulasOptions(spec=spec)
     with reported_errors():
         written = stage.run(workdir, options)
-    templates = sum(1 for f in written.mln.formulas if "+" in format_formula(f.formula))
+    templates = sum(1 for f in written.mln.formulas if is_template(f.formula))
     console.print(
         f"[green]formulas[/]: wrote {written.path} ({len(written.mln.formulas)} formulas of which {templates} with +variables; "
         f"training shows {len(written.words)} predicate values and {len(written.classes)} classes)"

@@ -233,7 +233,7 @@ def _require(path: Path) -> None:
 
 
 def feature_columns(frames: pl.DataFrame) -> list[str]:
-    """The feature columns of frames.parquet: every column after the keys."""
+    """Every column after the keys: the features of frames.parquet, the predicate values of predicates.parquet."""
     return [c for c in frames.columns if c not in KEY_SCHEMA]
 
 

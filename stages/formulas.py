@@ -77,7 +77,7 @@ def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
     """Read predicates.parquet and the spec; write ``workdir/formulas.mln``."""
     options.validate()
     predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
-    columns = [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS]
+    columns = artifacts.feature_columns(predicates)
     classes = meta.get("classes") or []
     mln = read_spec(options.spec_path)
     formulas_for(mln, options.spec_path, columns, list(classes))

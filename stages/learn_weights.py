@@ -52,7 +52,7 @@ def training_space(predicates: pl.DataFrame, n_classes: int) -> tuple[AtomSpace,
     train = predicates.filter(predicates["split"] == "train")
     if train.height == 0:
         raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with training frames")
-    columns = [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS]
+    columns = artifacts.feature_columns(predicates)
     evidence = train.select(columns).to_numpy().astype(bool)
     labels = train["label"].to_numpy().astype(np.int64)
     if labels.min() < 0 or labels.max() >= n_classes:
@@ -152,7 +152,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
         raise BadInput(f"{options.formulas} not found here nor in {workdir}: run `mlnseq formulas` first")
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
-    formulas_for(mln, formulas_path, [c for c in predicates.columns if c not in artifacts.KEY_COLUMNS], list(classes))
+    formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
     learned = learn(predicates, len(classes), mln, options.engine)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "classes": classes,

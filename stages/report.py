@@ -25,17 +25,17 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
+from stages.conflate import METHODS
 from stages.learn_weights import strongest
+from stages.train import METHODS as NETWORKS
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
 PAPER_TABLE_III = {
     "fetch": {"lstm": 71, "mln": 50, "priorlayer": 83, "conflation": 77, "combined": 84},
     "desk": {"lstm": 68, "mln": 49, "priorlayer": 71, "conflation": 69, "combined": 72},
 }
-METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")
 METHOD_NAMES = {"lstm": "LSTM", "mln": "MLN", "priorlayer": "LSTM + PriorLayer",
                 "conflation": "LSTM + Conflation", "combined": "PriorLayer + Conflation (combined)"}
-NETWORKS = ("lstm", "priorlayer")
 PAPER_DATASETS = ("fetch", "desk")
 RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"
 TIMINGS = "timings.tsv"  # written by scripts/timed_stage.sh: started, seconds, stage, arguments

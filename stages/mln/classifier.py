@@ -24,7 +24,7 @@ def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, n_classes: int
     """[n_frames, n_classes] float64: per frame, sum of the weights of the formulas whose body (the
     evidence part) is true in that frame and whose head is Topic(C<k>) — i.e. the formulas that are
     satisfied only if the class is k. Row order = predicates' row order."""
-    words = tuple(c for c in predicates.columns if c not in artifacts.KEY_COLUMNS)
+    words = tuple(artifacts.feature_columns(predicates))
     space = AtomSpace(words, tuple(class_constant(k) for k in range(n_classes)))
     evidence = predicates.select(words).to_numpy().astype(bool) if words else np.zeros((predicates.height, 0), bool)
     unique, inverse = np.unique(evidence, axis=0, return_inverse=True)

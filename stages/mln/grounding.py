@@ -133,6 +133,11 @@ def _first_vars(formula: Formula, expand: bool) -> dict[str, str]:
     return found
 
 
+def is_template(formula: Formula) -> bool:
+    """Whether the formula has a `+var`, to be expanded over the training constants."""
+    return bool(_first_vars(formula, expand=True))
+
+
 @dataclass(frozen=True)
 class Expanded:
     """One formula after `+var` expansion, with its own weight."""
