@@ -70,6 +70,16 @@ def train_log_path(workdir: Path, method: str) -> Path:
     return workdir / MODELS_DIR / f"{method}.log.parquet"
 
 
+def prob_columns(method: str, n_classes: int) -> list[str]:
+    """predictions.parquet: a method's class probabilities, one column per class."""
+    return [f"{method}_p{k}" for k in range(n_classes)]
+
+
+def pred_column(method: str) -> str:
+    """predictions.parquet: a method's predicted class index."""
+    return f"{method}_pred"
+
+
 def producer_of(path: Path) -> str:
     """The stage command that writes this artifact."""
     name = path.name

@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, sequences
-from stages.conflate import METHODS, pred_column
+from stages.recognizer import METHODS
 from stages.errors import BadInput
 
 EARLY_FRACTIONS = tuple(round(0.1 * i, 1) for i in range(1, 10))
@@ -152,7 +152,7 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
     episodes = test["episode"].to_numpy()
     n_classes = len(meta["classes"])
     return {
-        method: score_method(test[pred_column(method)].to_numpy().astype(np.int64), labels, episodes,
+        method: score_method(test[artifacts.pred_column(method)].to_numpy().astype(np.int64), labels, episodes,
                              n_classes, options.fraction, meta["modes"][method] != "segment")
         for method in chosen
     }

@@ -25,9 +25,8 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.conflate import METHODS
 from stages.learn_weights import strongest
-from stages.train import METHODS as NETWORKS
+from stages.recognizer import METHODS, NETWORKS
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
 PAPER_TABLE_III = {

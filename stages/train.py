@@ -21,15 +21,15 @@ import polars as pl
 import torch
 
 from stages import artifacts, sequences
-from stages.errors import BadInput, StaleArtifact
-from stages.models import CELLS, ModelConfig, SequenceClassifier, StreamingClassifier
+from stages.errors import BadInput
+from stages.models import CELLS, ModelConfig, SequenceClassifier
+from stages.recognizer import (
+    NETWORKS, PRIORS, FrameData, mln_class_scores, predict_log_probs, prior_input, save_checkpoint, set_threads,
+)
 
-METHODS = ("lstm", "priorlayer")
-PRIORS = ("paper", "logprob")
+METHODS = NETWORKS
 SELECTS = ("none", "val_accuracy")
 DEVICES = ("auto", "cpu", "cuda")
-CHECKPOINT_FORMAT = 1
-INFERENCE_BATCH = 256
 
 
 @dataclass(frozen=True)
@@ -70,27 +70,6 @@ class TrainOptions:
             raise BadInput("--device cuda: no CUDA GPU is visible to torch here; use --device cpu")
 
 
-@dataclass(frozen=True)
-class FrameData:
-    """The frames a network reads: raw features, labels, episode and split (train/test) per row."""
-
-    features: np.ndarray  # [n, F] float32, raw
-    labels: np.ndarray  # [n] int64
-    episodes: np.ndarray  # [n]
-    splits: np.ndarray  # [n] "train" | "test"
-    prior: np.ndarray | None = None  # [n, C] float32, the c2c input of PriorLayer
-
-    @classmethod
-    def from_frames(cls, frames: pl.DataFrame, prior: np.ndarray | None = None) -> FrameData:
-        return cls(
-            features=frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float32),
-            labels=frames["label"].to_numpy().astype(np.int64),
-            episodes=frames["episode"].to_numpy(),
-            splits=frames["split"].to_numpy(),
-            prior=prior,
-        )
-
-
 @dataclass
 class Trained:
     """What :func:`fit` returns: the kept network, its standardisation and the per-epoch log."""
@@ -109,11 +88,6 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
-
-
-def set_threads() -> None:
-    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
-    torch.set_num_threads(1)
 
 
 def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, list[slice], list[slice]]:
@@ -137,25 +111,6 @@ def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, li
     for unit in fit_units:
         parts[unit] = "fit"
     return parts.astype(str), fit_units, val_units
-
-
-@torch.inference_mode()
-def predict_log_probs(
-    model: SequenceClassifier, spans: list[slice], features: np.ndarray, prior: np.ndarray | None,
-    device: torch.device,
-) -> np.ndarray:
-    """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence)."""
-    model.eval()
-    out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
-    ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
-    for i in range(0, len(ordered), INFERENCE_BATCH):
-        batch = ordered[i : i + INFERENCE_BATCH]
-        x = sequences.pad(batch, features).to(device)
-        p = None if prior is None else sequences.pad(batch, prior).to(device)
-        log_probs = model(x, p)[0].cpu().numpy()
-        for j, span in enumerate(batch):
-            out[span] = log_probs[j, : span.stop - span.start]
-    return out
 
 
 def _accuracy_and_loss(log_probs: np.ndarray, labels: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
@@ -238,91 +193,6 @@ def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: tor
                    warnings)
 
 
-# --- the MLN input of PriorLayer --------------------------------------------------------------------
-
-
-def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
-    """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
-    from stages.mln import classifier
-
-    predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
-    predicates, _ = artifacts.read_table(predicates_path)
-    weights, _ = artifacts.read_table(weights_path)
-    keys = ["episode", "frame"]
-    if predicates.height != frames.height or not predicates.select(keys).equals(frames.select(keys)):
-        raise StaleArtifact(f"{predicates_path} does not hold the frames of {artifacts.FRAMES}; "
-                            "rerun `mlnseq binarize`")
-    return classifier.class_scores(predicates, weights, n_classes), [predicates_path, weights_path]
-
-
-def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
-    """The c2c input of PriorLayer: the MLN class weights as the authors passed them, or log-probs."""
-    from stages.mln import classifier
-
-    if kind == "paper":
-        return np.asarray(classifier.paper_prior(scores, source), dtype=np.float32)
-    return np.asarray(classifier.class_log_probs(scores, "exact", source), dtype=np.float32)
-
-
-# --- checkpoints ------------------------------------------------------------------------------------
-
-
-@dataclass
-class Checkpoint:
-    """A trained network with the configuration it embeds."""
-
-    model: SequenceClassifier
-    config: dict[str, Any]
-
-    @property
-    def mode(self) -> str:
-        return self.config["mode"]
-
-    def standardise(self, features: np.ndarray) -> np.ndarray:
-        mean = np.asarray(self.config["mean"], dtype=np.float32)
-        std = np.asarray(self.config["std"], dtype=np.float32)
-        return ((features - mean) / std).astype(np.float32)
-
-    def streaming(self) -> StreamingClassifier:
-        """A per-frame online classifier with this network and standardisation."""
-        return StreamingClassifier(self.model, np.asarray(self.config["mean"]), np.asarray(self.config["std"]))
-
-
-def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any]) -> Path:
-    """Write a checkpoint atomically: an interrupted save leaves the previous file as it was."""
-    with artifacts.atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:  # a file object: the archive is named 'archive', not the random temp name
-            torch.save({"config": config, "state_dict": model.state_dict()}, handle)
-    return path
-
-
-def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | None = None) -> Checkpoint:
-    """Load ``models/<method>.pt``; refuse one made from other inputs, features or classes."""
-    path = artifacts.checkpoint_path(workdir, method)
-    if not path.exists():
-        raise BadInput(f"{path} not found: run `mlnseq train --method {method}` first")
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=True)
-        config = saved["config"]
-    except Exception as error:  # torch raises many types for a foreign or truncated file
-        raise BadInput(f"{path} is not an mlnseq checkpoint ({error}); rerun `mlnseq train --method {method}`") from error
-    if config.get("format") != CHECKPOINT_FORMAT:
-        raise BadInput(f"{path} has checkpoint format {config.get('format')}, this mlnseq reads "
-                       f"{CHECKPOINT_FORMAT}; rerun `mlnseq train --method {method}`")
-    if frames_meta is not None:
-        for key in ("features", "classes"):
-            if list(config[key]) != list(frames_meta[key]):
-                raise BadInput(f"{path} was trained on {key} {config[key]}, but {artifacts.FRAMES} has "
-                               f"{frames_meta[key]}; rerun `mlnseq train --method {method}`")
-    for name, digest in config["inputs"].items():
-        source = workdir / name
-        if source.exists() and artifacts.file_digest(source) != digest:
-            raise StaleArtifact(f"{path} was trained on an older {name}; rerun `mlnseq train --method {method}`")
-    model = SequenceClassifier(ModelConfig(**config["model"]))
-    model.load_state_dict(saved["state_dict"])
-    return Checkpoint(model.eval(), config)
-
-
 # --- the stage ----------------------------------------------------------------------------------------
 
 
@@ -357,7 +227,6 @@ def run(workdir: Path, options: TrainOptions) -> TrainResult:
     trained = fit(data, config, options, device)
 
     checkpoint_config = {
-        "format": CHECKPOINT_FORMAT,
         "method": options.method,
         "mode": options.mode,
         "prior": options.prior if options.method == "priorlayer" else None,

@@ -22,7 +22,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, train
+from stages import artifacts, recognizer
 
 pytestmark = pytest.mark.slow
 
@@ -136,7 +136,7 @@ def test_sigkill_during_training_keeps_the_previous_model(desk_workdir):
     assert snapshot(desk_workdir) == before
     ok("conflate", "-w", desk_workdir)  # the previous model still loads and predicts
     ok("train", "--epochs", 1, "-w", desk_workdir)
-    train.load_checkpoint(desk_workdir, "lstm")
+    recognizer.load_checkpoint(desk_workdir, "lstm")
 
 
 def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk_workdir):
@@ -150,7 +150,7 @@ def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk
     assert leftovers and all(n.startswith(".") and n.endswith(".tmp") and "lstm.pt" in n for n in leftovers)
     ok("conflate", "-w", desk_workdir)
     ok("train", "--epochs", 1, "--seed", 7, "-w", desk_workdir)
-    assert train.load_checkpoint(desk_workdir, "lstm").config["seed"] == 7
+    assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 7
 
 
 def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk_workdir):
@@ -163,7 +163,7 @@ def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk
     assert err.strip().splitlines() == ["error: interrupted; artifacts written before the interruption are intact"]
     assert "Traceback" not in out + err
     assert snapshot(desk_workdir) == before  # nothing half-written, no temporary file left
-    checkpoint = train.load_checkpoint(desk_workdir, "lstm")
+    checkpoint = recognizer.load_checkpoint(desk_workdir, "lstm")
     assert checkpoint.config["options"]["epochs"] == 2  # the model of the last complete run
     ok("conflate", "-w", desk_workdir)
     ok("eval", "-w", desk_workdir)

@@ -7,7 +7,7 @@ import polars as pl
 import pytest
 import torch
 
-from stages import artifacts, sequences, train
+from stages import artifacts, recognizer, sequences, train
 from stages.errors import BadInput, MissingArtifact
 
 
@@ -50,9 +50,9 @@ def test_a_few_epochs_learn_better_than_chance_and_are_deterministic(desk_workdi
     test = log.filter(pl.col("split") == "test")["accuracy"]
     assert test[-1] > 2 / 7  # chance over 7 classes is about 1/7
     assert log.filter(pl.col("split") == "train")["accuracy"][-1] > 0.3
-    weights = {k: v.clone() for k, v in train.load_checkpoint(desk_workdir, "lstm").model.state_dict().items()}
+    weights = {k: v.clone() for k, v in recognizer.load_checkpoint(desk_workdir, "lstm").model.state_dict().items()}
     second = train.run(desk_workdir, options)
-    again = train.load_checkpoint(desk_workdir, "lstm")
+    again = recognizer.load_checkpoint(desk_workdir, "lstm")
     for name, value in again.model.state_dict().items():
         assert torch.equal(value, weights[name]), name
     assert artifacts.read_table(second.log, "train_log")[0].equals(log)
@@ -75,7 +75,7 @@ def test_priorlayer_trains_on_the_learned_mln_weights(tmp_path, desk_mln_workdir
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)
     result = train.run(tmp_path, train.TrainOptions(method="priorlayer", prior="paper", epochs=2))
-    checkpoint = train.load_checkpoint(tmp_path, "priorlayer")
+    checkpoint = recognizer.load_checkpoint(tmp_path, "priorlayer")
     assert checkpoint.config["prior"] == "paper" and checkpoint.model.prior is not None
     assert set(checkpoint.config["inputs"]) == {artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS}
     assert result.trained.log.height == 4  # 2 epochs x (train, test)
@@ -112,4 +112,4 @@ def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatc
     with pytest.raises(KeyboardInterrupt):
         train.run(desk_workdir, train.TrainOptions(epochs=1, seed=1))
     assert path.read_bytes() == before
-    assert train.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
+    assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
