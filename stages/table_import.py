@@ -9,14 +9,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import csv
+
 import numpy as np
 import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from stages import artifacts
 from stages.errors import BadInput
 
 TABLE_SUFFIXES = (".csv", ".parquet")
 DEFAULT_TRAIN_SHARE = 0.7
+FLOAT32_MAX = float(np.finfo(np.float32).max)  # features are stored as float32: a larger value would be inf
 
 
 @dataclass(frozen=True)
@@ -44,7 +49,23 @@ def table_files(source: Path) -> list[Path]:
     return [source]
 
 
+def column_names(path: Path) -> list[str]:
+    """The header as written: polars would rename a repeated name (``x_duplicated_0``) or refuse it."""
+    try:
+        if path.suffix.lower() == ".csv":
+            with open(path, newline="", encoding="utf-8") as handle:
+                return next(csv.reader(handle), [])
+        return pq.read_schema(path).names
+    except (OSError, UnicodeDecodeError, csv.Error, pa.ArrowException):
+        return []  # unreadable: read_one names the problem
+
+
 def read_one(path: Path) -> pl.DataFrame:
+    names = column_names(path)
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise BadInput(f"{path}: column {repeated[0]!r} appears more than once in the header; "
+                       "give every column its own name")
     try:
         if path.suffix.lower() == ".csv":
             table = pl.read_csv(path, infer_schema_length=10_000)
@@ -88,9 +109,10 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
         is_csv = path.suffix.lower() == ".csv"
         episode_col = columns.episode or ("episode" if "episode" in table.columns else None)
         time_col = columns.time or ("frame" if "frame" in table.columns else None)
-        for name in (columns.label, episode_col, time_col, *columns.features):
-            if name is not None and name not in table.columns:
-                raise BadInput(f"{path}: no column {name!r}; columns are {', '.join(table.columns)}")
+        missing = [n for n in (columns.label, episode_col, time_col, *columns.features)
+                   if n is not None and n not in table.columns]
+        if missing:
+            raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}")
         keys = {columns.label, episode_col, time_col, "split"} - {None}
         names = list(columns.features) or [
             c for c in table.columns if c not in keys and table[c].dtype.is_numeric()
@@ -110,6 +132,10 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
             bad = values.is_null() | ~values.is_finite()
             if bad.any():
                 raise _row_error(path, bad, f"column {name!r} is empty, NaN or infinite", is_csv)
+            bad = values.abs() > FLOAT32_MAX
+            if bad.any():
+                raise _row_error(path, bad, f"column {name!r} holds {values.filter(bad)[0]:g}, beyond the "
+                                            f"float32 range (±{FLOAT32_MAX:.4g}) features are stored in", is_csv)
         episode = (
             table[episode_col] if episode_col else pl.Series([file_number] * table.height)
         ).alias("episode")

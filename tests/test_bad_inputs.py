@@ -174,6 +174,8 @@ TABLE_CASES = {
     "non-monotone.csv": (GOOD_CSV.replace("\n2,", "\n0,"), ("non-monotone.csv:4", "goes back in time")),
     "fractional-label.csv": (GOOD_CSV.replace(",1,1.7", ",1.5,1.7"), ("fractional-label.csv:4", "not a class index")),
     "binary.csv": (None, ("binary.csv",)),
+    "float32-overflow.csv": (GOOD_CSV.replace("1.5", "1e308"), ("float32-overflow.csv:3", "'a'", "float32 range")),
+    "duplicate-column.csv": (GOOD_CSV.replace(",b\n", ",a\n"), ("duplicate-column.csv", "'a' appears more than once")),
 }
 
 
@@ -192,6 +194,10 @@ def test_bad_parquet_tables_leave_the_frames_as_they_were(workdir, tmp_path):
     zero = tmp_path / "zero.parquet"
     pl.DataFrame(schema={"frame": pl.Int64, "label": pl.Int64, "a": pl.Float64}).write_parquet(zero)
     refused(workdir, "collect", "--env", "table", "--source", zero, needles=("zero.parquet has no rows",))
+    repeated = tmp_path / "repeated.parquet"
+    pq.write_table(pl.read_csv(GOOD_CSV.encode()).to_arrow().rename_columns(["frame", "label", "a", "a"]), repeated)
+    refused(workdir, "collect", "--env", "table", "--source", repeated,
+            needles=("repeated.parquet", "'a' appears more than once"))
     truncated = tmp_path / "truncated.parquet"
     pl.read_csv(GOOD_CSV.encode()).write_parquet(truncated)
     truncated.write_bytes(truncated.read_bytes()[:-20])
