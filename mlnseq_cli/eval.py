@@ -10,6 +10,7 @@ from rich.table import Table
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import eval as stage
+from stages.metrics import EARLY_FRACTIONS
 
 
 def evaluate(
@@ -44,7 +45,7 @@ def evaluate(
     console.print(per_class)
     early = Table(title="early recognition: segment accuracy at a fraction of each segment", box=None)
     early.add_column("method")
-    for f in stage.EARLY_FRACTIONS:
+    for f in EARLY_FRACTIONS:
         early.add_column(f"{f:g}", justify="right")
     for method_name, r in result.results.items():
         early.add_row(method_name, *(f"{v:.0%}" for v in r["early"].values()))
