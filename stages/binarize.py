@@ -23,9 +23,11 @@ frames of each file with themselves instead; mlnseq differs from them only on th
 
 from __future__ import annotations
 
+import bisect
 import re
 import tomllib
 from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -340,26 +342,23 @@ def load_spec(path: Path) -> PredicateSpec:
 # ---- binarization ---------------------------------------------------------------------------------
 
 
-def _previous_delta(values: np.ndarray, first: np.ndarray, previous_scale: float = 1.0) -> np.ndarray:
-    """x minus (scale x) the previous frame's x in the same episode; 0 on each episode's first frame."""
-    previous = np.empty_like(values)
-    previous[1:] = values[:-1]
-    previous[0] = values[0]
-    delta = values - previous_scale * previous
+def _delta(channel: np.ndarray, previous: np.ndarray, first: np.ndarray, previous_scale: float = 1.0) -> np.ndarray:
+    """x minus (scale x) the previous frame's x; 0 on an episode's first frame, which has none."""
+    delta = channel - previous_scale * previous
     delta[first] = 0.0
     return delta
 
 
-def _codes(predicate: Predicate, channel: np.ndarray | None, first: np.ndarray,
+def _codes(predicate: Predicate, channel: np.ndarray | None, previous: np.ndarray | None, first: np.ndarray,
            earlier: dict[str, tuple[Predicate, np.ndarray]]) -> np.ndarray:
     """The index into ``predicate.values`` of every frame."""
     if isinstance(predicate, Bins):
         return np.searchsorted(np.asarray(predicate.edges), channel, side="right")
     if isinstance(predicate, Change):
-        delta = _previous_delta(channel, first)
+        delta = _delta(channel, previous, first)
         return np.select([delta > predicate.threshold, delta < -predicate.threshold], [1, 2], 0)
     if isinstance(predicate, Gripper):
-        delta = _previous_delta(channel, first, predicate.previous_scale)
+        delta = _delta(channel, previous, first, predicate.previous_scale)
         return np.select(
             [channel > predicate.open_above, channel < predicate.closed_below,
              delta > predicate.threshold, delta < -predicate.threshold],
@@ -369,29 +368,51 @@ def _codes(predicate: Predicate, channel: np.ndarray | None, first: np.ndarray,
     return earlier[predicate.first][1] * len(second.values) + second_codes
 
 
-def _channel_values(frames: pl.DataFrame, spec: PredicateSpec, entry: Distance | Predicate, name: str, key: str,
-                    channels: dict[str, np.ndarray]) -> np.ndarray:
-    """A channel's values as float64, from the derived ones or frames; absent or non-finite is an error."""
-    if name in channels:
+Channels = dict[str, np.ndarray]
+RawChannel = Callable[[Distance | Predicate, str, str], np.ndarray]  # (entry, channel name, key) -> float64 values
+
+
+def _channels(spec: PredicateSpec, raw: RawChannel) -> Channels:
+    """Every channel a predicate reads: the frames' own columns (through ``raw``) and the derived distances."""
+    channels: Channels = {}
+
+    def value(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
+        if name not in channels:
+            channels[name] = raw(entry, name, key)
         return channels[name]
-    if name not in frames.columns or name in artifacts.KEY_COLUMNS:
-        hint = spec.hints.get(entry.name)
-        section = "channel" if isinstance(entry, Distance) else "predicate"
-        known = ", ".join(artifacts.feature_columns(frames) + [c.name for c in spec.channels if c.name in channels])
-        raise BadInput(
-            f"{spec.where(entry, key)}: key '{key}' of [[{section}]] {entry.name!r}: channel {name!r} is not in "
-            f"frames.parquet nor a [[channel]] above; " + (hint if hint else f"known channels: {known}")
-        )
-    values = frames[name].cast(pl.Float64).to_numpy()
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        row = frames.row(int(bad[0]), named=True)
-        raise BadInput(
-            f"frames.parquet column {name!r} is NaN or infinite at episode {row['episode']} frame {row['frame']}; "
-            "repair the frames and rerun `mlnseq collect`"
-        )
-    channels[name] = values
-    return values
+
+    for derived in spec.channels:
+        start = np.column_stack([value(derived, c, "from") for c in derived.start])
+        end = np.column_stack([value(derived, c, "to") for c in derived.end])
+        distance = np.sqrt(((end - start) ** 2).sum(axis=1))
+        channels[derived.name] = distance if derived.decimals is None else np.round(distance, derived.decimals)
+    for predicate in spec.predicates:
+        if not isinstance(predicate, Pair):
+            value(predicate, predicate.channel, "channel")
+    return channels
+
+
+def _evidence(spec: PredicateSpec, channels: Channels, previous: Channels, first: np.ndarray) -> np.ndarray:
+    """[frames, columns] bool: one column per predicate value, in the spec's column order."""
+    earlier: dict[str, tuple[Predicate, np.ndarray]] = {}
+    columns = []
+    for predicate in spec.predicates:
+        channel = None if isinstance(predicate, Pair) else channels[predicate.channel]
+        before = None if isinstance(predicate, Pair) else previous[predicate.channel]
+        codes = _codes(predicate, channel, before, first, earlier)
+        earlier[predicate.name] = (predicate, codes)
+        columns += [codes == index for index in range(len(predicate.values))]
+    return np.column_stack(columns)
+
+
+def _missing_channel(spec: PredicateSpec, entry: Distance | Predicate, name: str, key: str, where: str,
+                     known: list[str]) -> BadInput:
+    hint = spec.hints.get(entry.name)
+    section = "channel" if isinstance(entry, Distance) else "predicate"
+    return BadInput(
+        f"{spec.where(entry, key)}: key '{key}' of [[{section}]] {entry.name!r}: channel {name!r} is not in "
+        f"{where} nor a [[channel]] above; " + (hint if hint else f"known channels: {', '.join(known)}")
+    )
 
 
 def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
@@ -402,28 +423,95 @@ def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
     episode = frames["episode"].to_numpy()
     first = np.ones(len(episode), dtype=bool)
     first[1:] = episode[1:] != episode[:-1]
-
-    channels: dict[str, np.ndarray] = {}
     for derived in spec.channels:
         if derived.name in frames.columns:
             raise BadInput(f"{spec.where(derived, 'name')}: key 'name' of [[channel]] {derived.name!r}: "
                            "frames.parquet already has a column of that name; rename the channel")
-        start = np.column_stack([_channel_values(frames, spec, derived, c, "from", channels) for c in derived.start])
-        end = np.column_stack([_channel_values(frames, spec, derived, c, "to", channels) for c in derived.end])
-        distance = np.sqrt(((end - start) ** 2).sum(axis=1))
-        channels[derived.name] = distance if derived.decimals is None else np.round(distance, derived.decimals)
 
-    earlier: dict[str, tuple[Predicate, np.ndarray]] = {}
-    columns: list[pl.Series] = []
-    for predicate in spec.predicates:
-        channel = None
-        if not isinstance(predicate, Pair):
-            channel = _channel_values(frames, spec, predicate, predicate.channel, "channel", channels)
-        codes = _codes(predicate, channel, first, earlier)
-        earlier[predicate.name] = (predicate, codes)
-        for index, value in enumerate(predicate.values):
-            columns.append(pl.Series(f"{predicate.name}_{value}", codes == index, dtype=pl.Boolean))
-    return frames.select(artifacts.KEY_COLUMNS).with_columns(columns)
+    def raw(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
+        if name not in frames.columns or name in artifacts.KEY_COLUMNS:
+            known = artifacts.feature_columns(frames) + [c.name for c in spec.channels]
+            raise _missing_channel(spec, entry, name, key, "frames.parquet", known)
+        values = frames[name].cast(pl.Float64).to_numpy()
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            row = frames.row(int(bad[0]), named=True)
+            raise BadInput(f"frames.parquet column {name!r} is NaN or infinite at episode {row['episode']} "
+                           f"frame {row['frame']}; repair the frames and rerun `mlnseq collect`")
+        return values
+
+    channels = _channels(spec, raw)
+    previous = {name: np.concatenate([values[:1], values[:-1]]) for name, values in channels.items()}
+    evidence = _evidence(spec, channels, previous, first)
+    names = [column for columns in spec.columns().values() for column in columns]
+    return frames.select(artifacts.KEY_COLUMNS).with_columns(
+        pl.Series(name, evidence[:, i], dtype=pl.Boolean) for i, name in enumerate(names))
+
+
+def _code(predicate: Bins | Change | Gripper, value: float, delta: float) -> int:
+    """:func:`_codes` for one frame, on plain floats (a live stream calls it every frame)."""
+    if isinstance(predicate, Bins):
+        return bisect.bisect_right(predicate.edges, value)
+    if isinstance(predicate, Change):
+        return 1 if delta > predicate.threshold else 2 if delta < -predicate.threshold else 0
+    if isinstance(predicate, Gripper):
+        if value > predicate.open_above:
+            return 0
+        if value < predicate.closed_below:
+            return 1
+        return 2 if delta > predicate.threshold else 3 if delta < -predicate.threshold else 4
+    raise TypeError(f"no per-frame code for {predicate!r}")
+
+
+class StreamingBinarizer:
+    """Binarize one frame at a time, as :func:`binarize` does over a whole episode: the change and gripper
+    predicates compare with the previous frame, which the first frame of an episode does not have."""
+
+    def __init__(self, spec: PredicateSpec, features: Sequence[str]):
+        self.spec = spec
+        index = {name: i for i, name in enumerate(features)}
+        self._raw: dict[str, int] = {}  # each feature the spec reads -> its position in a frame
+
+        def check(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
+            if name not in index:
+                raise _missing_channel(spec, entry, name, key, "the model's features", list(features))
+            self._raw[name] = index[name]
+            return np.zeros(1)
+
+        _channels(spec, check)
+        self._sizes = {p.name: len(p.values) for p in spec.predicates}
+        self._offsets = np.cumsum([0] + [len(p.values) for p in spec.predicates])[:-1].tolist()
+        self._width = sum(self._sizes.values())
+        self._previous: dict[str, float] | None = None
+
+    def reset(self) -> None:
+        """The next frame starts an episode."""
+        self._previous = None
+
+    def step(self, features: np.ndarray) -> np.ndarray:
+        """The predicate values [columns] (bool) of the next frame, given its raw features [F]."""
+        channels = {name: float(features[i]) for name, i in self._raw.items()}
+        for derived in self.spec.channels:
+            start = np.array([channels[c] for c in derived.start])
+            end = np.array([channels[c] for c in derived.end])
+            distance = np.sqrt(((end - start) ** 2).sum())
+            channels[derived.name] = float(distance if derived.decimals is None else np.round(distance, derived.decimals))
+        previous = self._previous
+        evidence = np.zeros(self._width, dtype=bool)
+        codes: dict[str, int] = {}
+        for predicate, offset in zip(self.spec.predicates, self._offsets):
+            if isinstance(predicate, Pair):
+                code = codes[predicate.first] * self._sizes[predicate.second] + codes[predicate.second]
+            else:
+                value, delta = channels[predicate.channel], 0.0
+                if previous is not None:
+                    scale = predicate.previous_scale if isinstance(predicate, Gripper) else 1.0
+                    delta = value - scale * previous[predicate.channel]
+                code = _code(predicate, value, delta)
+            codes[predicate.name] = code
+            evidence[offset + code] = True
+        self._previous = channels
+        return evidence
 
 
 def true_shares(predicates: pl.DataFrame, columns: dict[str, list[str]]) -> list[tuple[str, str, float]]:

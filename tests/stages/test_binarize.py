@@ -196,3 +196,38 @@ def test_distance_channel_rebuilds_the_arm_distance_code_from_the_kinematics(sha
     published = np.loadtxt(shared_data / "desk-taurus" / "taurus_motion_train.txt")
     mine = codes(predicates, "arm_distance", spec.columns()["arm_distance"], DESK_ARM_CODE)
     np.testing.assert_array_equal(mine[2:], published[2:, 1])
+
+
+def streamed(frames: pl.DataFrame, spec: stage.PredicateSpec) -> np.ndarray:
+    """Every frame through a StreamingBinarizer, reset at each episode's first frame."""
+    features = artifacts.feature_columns(frames)
+    binarizer = stage.StreamingBinarizer(spec, features)
+    values = frames.select(features).to_numpy().astype(np.float64)
+    episodes = frames["episode"].to_numpy()
+    rows = []
+    for i in range(frames.height):
+        if i == 0 or episodes[i] != episodes[i - 1]:
+            binarizer.reset()
+        rows.append(binarizer.step(values[i]))
+    return np.array(rows)
+
+
+def test_streaming_binarizer_matches_the_batch_one_on_real_frames(desk_frames, shared_data):
+    desk_spec = stage.load_spec(stage.default_spec_path("desk"))  # gripper with previous_scale 100, a pair
+    desk = desk_frames.head(3000)
+    batch = stage.binarize(desk, desk_spec).select(pl.exclude(artifacts.KEY_COLUMNS)).to_numpy()
+    np.testing.assert_array_equal(streamed(desk, desk_spec), batch)
+    rich = stage.load_spec(stage.EXAMPLES_DIR / "fetch-rich.binarize.toml")  # distances, bins, change
+    goals = ("achieved_goal_x", "achieved_goal_y", "achieved_goal_z", "desired_goal_x", "desired_goal_y", "desired_goal_z")
+    fetch = fetch_frames(shared_data, episode_length=50)
+    fetch = fetch.with_columns([pl.col(f"object_pos_{a}").alias(f"{kind}_goal_{a}") for kind in ("achieved", "desired")
+                                for a in "xyz"]).select(*artifacts.KEY_COLUMNS, *OBSERVATION_FEATURES, *goals)
+    batch = stage.binarize(fetch, rich).select(pl.exclude(artifacts.KEY_COLUMNS)).to_numpy()
+    assert batch.any(axis=0).sum() > 5  # several predicates vary on these frames
+    np.testing.assert_array_equal(streamed(fetch, rich), batch)
+
+
+def test_streaming_binarizer_names_a_channel_the_model_lacks():
+    spec = stage.load_spec(stage.default_spec_path("desk"))
+    with pytest.raises(BadInput, match="channel 'right_gripper' is not in the model's features"):
+        stage.StreamingBinarizer(spec, ["arm_distance", "left_gripper"])
