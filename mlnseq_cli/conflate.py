@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import conflate as stage
@@ -12,12 +13,16 @@ from stages import conflate as stage
 
 def conflate(
     mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper (the authors' normalised clamped sums) or exact (softmax of the scores).")] = stage.ConflateOptions.mln_mode,
+    decode: Annotated[str, typer.Option(help="none (per frame, the paper), filter (online chain decoding), viterbi (offline), all, or a comma list.")] = "none",
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16)."""
-    options = stage.ConflateOptions(mln_mode=mln_mode)
+    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight chosen on the validation part)."""
+    options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode))
     with reported_errors():
         result = stage.run(workdir, options)
     for note in result.notes:
-        console.print(f"[yellow]note[/]: {note}")
+        console.print(f"[yellow]note[/]: {escape(note)}")
+    for name, choice in result.choices.items():
+        if choice.accuracy is not None:
+            console.print(f"{name}: network factor weight {choice.weight:g} (validation frame accuracy {choice.accuracy:.1%})")
     console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)})")

@@ -14,7 +14,7 @@ from stages.metrics import EARLY_FRACTIONS
 
 
 def evaluate(
-    method: Annotated[str, typer.Option(help="lstm, mln, priorlayer, conflation, combined or all.")] = stage.EvalOptions.method,
+    method: Annotated[str, typer.Option(help="lstm, mln, priorlayer, conflation, combined (each optionally +filter or +viterbi, as conflate --decode made them) or all.")] = stage.EvalOptions.method,
     fraction: Annotated[float, typer.Option(help="Recognise each segment at frame max(int(len*F)-1, 0), 0 < F <= 1 (the paper: 0.5).")] = stage.EvalOptions.fraction,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of tables.")] = False,
     workdir: WorkdirOption = DEFAULT,

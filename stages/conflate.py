@@ -1,4 +1,5 @@
-"""conflate: run every trained model and the MLN classifier on all frames and combine them (eq. 16).
+"""conflate: run every trained model and the MLN classifier on all frames, combine them (eq. 16) and,
+on request, decode each over the frame chain with the MLN's temporal factors.
 
 Conflation of two class distributions, per class k (eq. 16):
     P_C(k) = P_L(k)·P_K(k) / (P_L(k)·P_K(k) + (1 − P_L(k))·(1 − P_K(k)))
@@ -6,7 +7,9 @@ and the prediction is argmax_k P_C(k). The stored conflated values are eq. 16 as
 renormalised to sum to 1 (the argmax is the same either way).
 
 Methods: lstm, priorlayer (the networks), mln (the MLN classifier alone), conflation (lstm + MLN)
-and combined (priorlayer + MLN). A method whose inputs are absent is left out with a note.
+and combined (priorlayer + MLN); with ``--decode filter`` or ``viterbi`` also METHOD+filter (online
+forward filtering) and METHOD+viterbi (offline: the most probable path, forward-backward marginals).
+A method whose inputs are absent is left out with a note. The work is stages/recognizer.py's.
 """
 
 from __future__ import annotations
@@ -18,8 +21,8 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, recognizer
-from stages.errors import BadInput, MissingArtifact
-from stages.recognizer import METHODS, MLN_MODES, FrameData
+from stages.errors import BadInput
+from stages.recognizer import DECODES, MLN_MODES
 
 
 @dataclass(frozen=True)
@@ -27,18 +30,35 @@ class ConflateOptions:
     """Options of `mlnseq conflate`."""
 
     mln_mode: str = "paper"
+    decode: tuple[str, ...] = ("none",)  # any of none, filter, viterbi
 
     def validate(self) -> None:
         if self.mln_mode not in MLN_MODES:
             raise BadInput(f"unknown --mln-mode {self.mln_mode!r}: choose one of {', '.join(MLN_MODES)}")
+        for kind in self.decode:
+            if kind not in DECODES:
+                raise BadInput(f"unknown --decode {kind!r}: choose from {', '.join(DECODES)}, all, "
+                               "or a comma list such as none,viterbi")
+
+    @property
+    def decodes(self) -> tuple[str, ...]:
+        """The decodings asked for, undecoded first; undecoded methods are always predicted."""
+        return tuple(dict.fromkeys(("none", *self.decode)))
 
 
-def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray]) -> pl.DataFrame:
-    """Keys, then per method its argmax (int16) and its class probabilities (float32)."""
+def parse_decode(text: str) -> tuple[str, ...]:
+    """``--decode`` as written: one name, ``all``, or a comma list."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    return DECODES if names == ("all",) else names
+
+
+def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray],
+                      predicted: dict[str, np.ndarray]) -> pl.DataFrame:
+    """Keys, then per method its predicted class (int16) and its class probabilities (float32)."""
     columns = [keys]
     for method, probs in probabilities.items():
         columns.append(pl.DataFrame(
-            [pl.Series(artifacts.pred_column(method), probs.argmax(1), dtype=pl.Int16)]
+            [pl.Series(artifacts.pred_column(method), predicted[method], dtype=pl.Int16)]
             + [pl.Series(name, probs[:, k], dtype=pl.Float32)
                for k, name in enumerate(artifacts.prob_columns(method, probs.shape[1]))]
         ))
@@ -50,65 +70,26 @@ class ConflateResult:
     path: Path
     methods: list[str]
     notes: list[str]
+    choices: dict[str, recognizer.WeightChoice]
 
 
 def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     """Read frames, models and MLN weights from ``workdir``; write ``predictions.parquet``."""
     options.validate()
     workdir = Path(workdir)
-    frames_path = workdir / artifacts.FRAMES
-    frames, meta = artifacts.read_table(frames_path, "frames")
-    n_classes, source = len(meta["classes"]), meta.get("source", "")
-    notes: list[str] = []
-    inputs = [frames_path]
-
-    scores = None
-    if (workdir / artifacts.WEIGHTS).exists():
-        scores, mln_inputs = recognizer.mln_class_scores(workdir, frames, n_classes)
-        inputs += mln_inputs
-    else:
-        notes.append(f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined left out "
-                     "(run `mlnseq learn-weights`)")
-
-    from stages.mln import classifier
-
-    probabilities: dict[str, np.ndarray] = {}
-    p_mln = None if scores is None else np.exp(classifier.class_log_probs(scores, options.mln_mode, source))
-    checkpoints = {}
-    for method in recognizer.NETWORKS:
-        if artifacts.checkpoint_path(workdir, method).exists():
-            checkpoints[method] = recognizer.load_checkpoint(workdir, method, meta)
-            inputs.append(artifacts.checkpoint_path(workdir, method))
-        else:
-            notes.append(f"no {method} model: {method} left out (run `mlnseq train --method {method}`)")
-
-    if "lstm" in checkpoints:
-        probabilities["lstm"] = recognizer.network_probabilities(checkpoints["lstm"], FrameData.from_frames(frames))
-    if p_mln is not None:
-        probabilities["mln"] = p_mln
-    if "priorlayer" in checkpoints and scores is not None:
-        kind = checkpoints["priorlayer"].config["prior"]
-        prior = recognizer.prior_input(scores, kind, source)
-        probabilities["priorlayer"] = recognizer.network_probabilities(
-            checkpoints["priorlayer"], FrameData.from_frames(frames, prior))
-    if p_mln is not None:
-        for fused, network in recognizer.FUSED.items():
-            if network in probabilities:
-                probabilities[fused] = recognizer.conflation(probabilities[network], p_mln)
-    if not probabilities:
-        raise MissingArtifact(f"nothing to predict with in {workdir}: run `mlnseq learn-weights` "
-                              "and/or `mlnseq train` first")
-
-    methods = [m for m in METHODS if m in probabilities]
-    table = predictions_table(frames.select(artifacts.KEY_COLUMNS), {m: probabilities[m] for m in methods})
-    modes = {m: "frame" for m in methods}
-    for fused, network in recognizer.FUSED.items():
-        if network in checkpoints:
-            modes[network] = modes[fused] = checkpoints[network].mode
+    predicted = recognizer.predict_workdir(workdir, options.mln_mode, options.decodes)
+    methods = [recognizer.decoded_name(m, d) for d in options.decodes for m in recognizer.METHODS
+               if recognizer.decoded_name(m, d) in predicted.probabilities]
+    table = predictions_table(predicted.keys, {m: predicted.probabilities[m] for m in methods}, predicted.predicted)
+    meta = predicted.meta
     path = artifacts.write_table(
         table, workdir / artifacts.PREDICTIONS, "predictions",
-        {"methods": methods, "modes": {m: modes[m] for m in methods}, "mln_mode": options.mln_mode,
-         "classes": meta["classes"], "source": source},
-        inputs=inputs,
+        {"methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": options.mln_mode,
+         "decode": list(options.decodes), "classes": meta["classes"], "source": meta.get("source", ""),
+         "network_weights": {m: {"weight": c.weight, "validation_frame_accuracy": c.accuracy,
+                                 "tried": {str(w): a for w, a in c.tried.items()}}
+                             for m, c in predicted.choices.items()},
+         "notes": predicted.notes},
+        inputs=predicted.inputs,
     )
-    return ConflateResult(path, methods, notes)
+    return ConflateResult(path, methods, predicted.notes, predicted.choices)

@@ -16,7 +16,7 @@ import polars as pl
 from stages import artifacts
 from stages.errors import BadInput
 from stages.metrics import score_method
-from stages.recognizer import METHODS
+from stages import recognizer
 
 
 @dataclass(frozen=True)
@@ -27,8 +27,8 @@ class EvalOptions:
     fraction: float = 0.5
 
     def validate(self) -> None:
-        if self.method not in (*METHODS, "all"):
-            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(METHODS)}, all")
+        if self.method != "all":
+            recognizer.parse_method(self.method)
         if not 0 < self.fraction <= 1:
             raise BadInput(f"--fraction must be in (0, 1], got {self.fraction}")
 
@@ -40,7 +40,7 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
     for method in chosen:
         if method not in available:
             raise BadInput(f"predictions.parquet has no {method!r} predictions (it has {', '.join(available)}); "
-                           f"run `mlnseq {_stage_for(method)}` then `mlnseq conflate`")
+                           f"{_remedy(method)}")
     test = predictions.filter(pl.col("split") == "test")
     if test.height == 0:
         raise BadInput("predictions.parquet has no test frames: rerun `mlnseq collect` with a test split")
@@ -54,10 +54,12 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
     }
 
 
-def _stage_for(method: str) -> str:
-    return {"lstm": "train --method lstm", "priorlayer": "train --method priorlayer",
-            "conflation": "train --method lstm", "combined": "train --method priorlayer",
-            "mln": "learn-weights"}[method]
+def _remedy(method: str) -> str:
+    base, decode = recognizer.parse_method(method)
+    stage = {"lstm": "train --method lstm", "priorlayer": "train --method priorlayer",
+             "conflation": "train --method lstm", "combined": "train --method priorlayer",
+             "mln": "learn-weights"}[base]
+    return f"run `mlnseq {stage}` then `mlnseq conflate" + ("`" if decode == "none" else f" --decode {decode}`")
 
 
 def metrics_table(results: dict[str, dict[str, Any]], classes: list[str], fraction: float) -> pl.DataFrame:

@@ -8,7 +8,12 @@ torch is imported only where a network runs, so the method names and options her
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import io
+import json
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,11 +21,14 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, sequences
-from stages.errors import BadInput, StaleArtifact
+from stages.errors import BadInput, MissingArtifact, StaleArtifact
 
 if TYPE_CHECKING:
     import torch
 
+    from stages.binarize import PredicateSpec
+    from stages.mln.chain import ChainFactors
+    from stages.mln.factors import MLNFactors
     from stages.models import SequenceClassifier, StreamingClassifier
 
 NETWORKS = ("lstm", "priorlayer")
@@ -28,6 +36,8 @@ METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")
 FUSED = {"conflation": "lstm", "combined": "priorlayer"}  # a fused method -> the network it conflates
 PRIORS = ("paper", "logprob")  # the c2c input of PriorLayer: clamped MLN sums (the authors') or log-probs
 MLN_MODES = ("paper", "exact")
+DECODES = ("none", "filter", "viterbi")  # none: per frame; filter: online chain; viterbi: offline chain
+NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
 CHECKPOINT_FORMAT = 1
 INFERENCE_BATCH = 256
 EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other exactly 1
@@ -36,6 +46,26 @@ EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other 
 def network_of(method: str) -> str | None:
     """The network a method runs (None for the MLN alone)."""
     return FUSED.get(method, method if method in NETWORKS else None)
+
+
+def decoded_name(method: str, decode: str) -> str:
+    """How predictions and metrics name a method with a decoding: ``lstm``, ``lstm+filter``, ``mln+viterbi``."""
+    return method if decode == "none" else f"{method}+{decode}"
+
+
+def method_names() -> list[str]:
+    """Every method name predictions.parquet may hold, decoded ones included."""
+    return [decoded_name(m, d) for d in DECODES for m in METHODS]
+
+
+def parse_method(name: str, option: str = "--method") -> tuple[str, str]:
+    """(method, decode) of a name such as ``combined+viterbi``; an unknown one is a BadInput naming ``option``."""
+    method, _, decode = name.partition("+")
+    decode = decode or "none"
+    if method not in METHODS or decode not in DECODES[1:] + (("none",) if "+" not in name else ()):
+        raise BadInput(f"unknown {option} {name!r}: choose one of {', '.join(METHODS)}, "
+                       f"optionally with +filter or +viterbi (e.g. combined+filter)")
+    return method, decode
 
 
 def set_threads() -> None:
@@ -166,18 +196,24 @@ def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | No
 # --- the MLN ----------------------------------------------------------------------------------------
 
 
-def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
-    """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
-    from stages.mln import classifier
-
+def read_mln(workdir: Path, frames: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame, list[Path]]:
+    """predicates.parquet (checked to hold the frames of frames.parquet) and weights.parquet, and their paths."""
     predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
-    predicates, _ = artifacts.read_table(predicates_path)
-    weights, _ = artifacts.read_table(weights_path)
+    predicates, _ = artifacts.read_table(predicates_path, "predicates")
+    weights, _ = artifacts.read_table(weights_path, "weights")
     keys = ["episode", "frame"]
     if predicates.height != frames.height or not predicates.select(keys).equals(frames.select(keys)):
         raise StaleArtifact(f"{predicates_path} does not hold the frames of {artifacts.FRAMES}; "
                             "rerun `mlnseq binarize`")
-    return classifier.class_scores(predicates, weights, n_classes), [predicates_path, weights_path]
+    return predicates, weights, [predicates_path, weights_path]
+
+
+def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
+    """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
+    from stages.mln import classifier
+
+    predicates, weights, inputs = read_mln(workdir, frames)
+    return classifier.class_scores(predicates, weights, n_classes), inputs
 
 
 def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
@@ -200,3 +236,185 @@ def conflation(p_network: np.ndarray, p_mln: np.ndarray) -> np.ndarray:
     a = np.clip(np.asarray(p_network, dtype=np.float64), EPSILON, 1 - EPSILON)
     b = np.clip(np.asarray(p_mln, dtype=np.float64), EPSILON, 1 - EPSILON)
     return a * b / (a * b + (1 - a) * (1 - b))
+
+
+def fuse(method: str, p_network: np.ndarray | None, p_mln: np.ndarray | None) -> np.ndarray:
+    """A method's per-frame class probabilities, undecoded: the network, the MLN, or eq. 16 of the two."""
+    if method == "mln":
+        return p_mln
+    if method in NETWORKS:
+        return p_network
+    return conflation(p_network, p_mln)
+
+
+# --- decoding ---------------------------------------------------------------------------------------
+
+
+def chain_starts(*keys: np.ndarray) -> np.ndarray:
+    """True where a chain starts: the first row, and wherever any key (episode, part) changes."""
+    starts = np.zeros(len(keys[0]), dtype=bool)
+    for run in sequences.runs(*keys):
+        starts[run.start] = True
+    return starts
+
+
+def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
+             log_p_network: np.ndarray | None, weight: float) -> ChainFactors:
+    """The chain a decoded method runs: the MLN's transition factors, and per frame the MLN's factor (mln,
+    conflation, combined) plus ``weight`` times the network's log-probabilities (every method but mln)."""
+    factors = mln.chain(evidence, starts, per_frame=method == "mln" or method in FUSED)
+    if method == "mln":
+        return factors
+    return replace(factors, unary=factors.unary + weight * np.asarray(log_p_network, dtype=np.float64))
+
+
+def decode(kind: str, factors: ChainFactors) -> tuple[np.ndarray, np.ndarray]:
+    """(class probabilities [T, C], predicted classes [T]): filter is online (each frame from the frames up
+    to it); viterbi is offline (the most probable path, with forward-backward marginals as probabilities)."""
+    from stages.mln import chain
+
+    if kind == "filter":
+        probabilities = np.exp(chain.filtered(factors))
+        return probabilities, probabilities.argmax(1)
+    return np.exp(chain.smoothed(factors)), chain.viterbi(factors)
+
+
+@dataclass(frozen=True)
+class WeightChoice:
+    """The network factor's weight of a decoded method, and the validation frame accuracy it gave."""
+
+    weight: float
+    accuracy: float | None  # None: no validation part, the weight is fixed at 1
+    tried: dict[float, float]
+
+
+def choose_network_weight(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
+                          log_p_network: np.ndarray, labels: np.ndarray, validation: np.ndarray) -> WeightChoice:
+    """The weight in NETWORK_WEIGHTS with the best frame accuracy on the ``validation`` rows (ties: the one
+    nearest 1); with no validation row the weight is 1. Test rows are never passed here."""
+    if not validation.any():
+        return WeightChoice(1.0, None, {})
+    rows = np.flatnonzero(validation)
+    starts = starts[rows] | np.r_[True, np.diff(rows) > 1]  # a chain also starts where validation resumes
+    tried = {}
+    for weight in NETWORK_WEIGHTS:
+        factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
+        tried[weight] = float((decode(kind, factors)[1] == labels[validation]).mean())
+    best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
+    return WeightChoice(best, tried[best], tried)
+
+
+# --- every method over a workdir (conflate, export) --------------------------------------------------
+
+
+def parts_of(config: dict[str, Any], splits: np.ndarray) -> np.ndarray:
+    """Per row: test, val (the checkpoint's validation part, held out of fitting) or train."""
+    parts = np.where(splits == "test", "test", "train").astype(object)
+    for start, stop in config.get("val_spans", []):
+        parts[start:stop] = "val"
+    return parts.astype(str)
+
+
+@dataclass
+class WorkdirPredictions:
+    """Every method's class probabilities over a workdir's frames, with what was chosen and said."""
+
+    keys: pl.DataFrame
+    probabilities: dict[str, np.ndarray]  # method name (decoded ones too) -> [n, C]
+    predicted: dict[str, np.ndarray]  # method name -> [n] class index
+    modes: dict[str, str]  # method name -> segment | stream | frame
+    choices: dict[str, WeightChoice]  # decoded network methods -> the network factor's weight
+    inputs: list[Path]
+    notes: list[str]
+    meta: dict[str, Any]  # frames.parquet's metadata
+
+
+def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("none",),
+                    methods: Sequence[str] = METHODS) -> WorkdirPredictions:
+    """Run every trained network and the MLN over a workdir's frames and fuse and decode them.
+
+    A method whose inputs are absent is left out with a note. A decoded network method's network
+    factor weight is chosen on the validation part its network held out in training (never on test);
+    a network trained without one keeps the weight 1, and a note says so.
+    """
+    from stages.mln import classifier
+
+    workdir = Path(workdir)
+    frames_path = workdir / artifacts.FRAMES
+    frames, meta = artifacts.read_table(frames_path, "frames")
+    classes, source = list(meta["classes"]), meta.get("source", "")
+    data = FrameData.from_frames(frames)
+    notes: list[str] = []
+    inputs = [frames_path]
+
+    predicates = weights = scores = p_mln = None
+    if (workdir / artifacts.WEIGHTS).exists():
+        predicates, weights, mln_inputs = read_mln(workdir, frames)
+        inputs += mln_inputs
+        scores = classifier.class_scores(predicates, weights, len(classes))
+        p_mln = np.exp(classifier.class_log_probs(scores, mln_mode, source))
+    else:
+        notes.append(f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined left out "
+                     "(run `mlnseq learn-weights`)")
+
+    checkpoints: dict[str, Checkpoint] = {}
+    for network in dict.fromkeys(network_of(m) for m in methods if network_of(m)):
+        if artifacts.checkpoint_path(workdir, network).exists():
+            checkpoints[network] = load_checkpoint(workdir, network, meta)
+            inputs.append(artifacts.checkpoint_path(workdir, network))
+        else:
+            notes.append(f"no {network} model: {network} left out (run `mlnseq train --method {network}`)")
+    parts = {n: parts_of(c.config, data.splits) for n, c in checkpoints.items()}
+    log_p_network: dict[str, np.ndarray] = {}
+    for network, checkpoint in checkpoints.items():
+        if network == "priorlayer" and scores is None:
+            continue
+        prior = None if network == "lstm" else prior_input(scores, checkpoint.config["prior"], source)
+        spans = sequences.sequences(checkpoint.mode, data.episodes, parts[network], data.labels)
+        set_threads()
+        log_p_network[network] = predict_log_probs(
+            checkpoint.model, spans, checkpoint.standardise(data.features), prior).astype(np.float64)
+
+    available = [m for m in methods if (network_of(m) is None or network_of(m) in log_p_network)
+                 and (m in NETWORKS or p_mln is not None)]
+    if not available:
+        raise MissingArtifact(f"nothing to predict with in {workdir}: run `mlnseq learn-weights` "
+                              "and/or `mlnseq train` first")
+    result = WorkdirPredictions(frames.select(artifacts.KEY_COLUMNS), {}, {}, {}, {}, inputs, notes, meta)
+    for method in available:
+        network = network_of(method)
+        probabilities = fuse(method, None if network is None else np.exp(log_p_network[network]), p_mln)
+        result.probabilities[method], result.predicted[method] = probabilities, probabilities.argmax(1)
+        result.modes[method] = "frame" if network is None else checkpoints[network].mode
+
+    decoding = [d for d in decodes if d != "none"]
+    if not decoding:
+        return result
+    if weights is None:
+        raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
+    from stages.mln.factors import MLNFactors
+
+    columns = artifacts.feature_columns(predicates)
+    mln = MLNFactors.from_weights(weights, columns, len(classes))
+    if not mln.temporal:
+        notes.append(f"{artifacts.WEIGHTS} has no temporal formula (Next): decoding uses uniform transitions")
+    evidence = predicates.select(columns).to_numpy().astype(bool)
+    unvalidated = sorted(n for n, c in checkpoints.items() if not c.config.get("val_spans"))
+    if unvalidated:
+        notes.append(f"{', '.join(unvalidated)} trained without a validation part (`train --select val_accuracy`): "
+                     "its decoded methods keep the network factor's weight 1")
+    split_parts = np.where(data.splits == "test", "test", "train")
+    for kind in decoding:
+        for method in available:
+            network, name = network_of(method), decoded_name(method, kind)
+            rows = parts.get(network, split_parts)
+            starts = chain_starts(data.episodes, rows)
+            weight = 1.0
+            if network is not None:
+                choice = choose_network_weight(method, kind, mln, evidence, starts, log_p_network[network],
+                                               data.labels, rows == "val")
+                result.choices[name], weight = choice, choice.weight
+            factors = chain_of(method, mln, evidence, starts, log_p_network.get(network), weight)
+            result.probabilities[name], result.predicted[name] = decode(kind, factors)
+            result.modes[name] = result.modes[method]
+    return result

@@ -81,6 +81,7 @@ class Trained:
     kept_epoch: int
     n_train_units: int
     n_val_units: int
+    val_spans: list[tuple[int, int]]  # rows of the validation part: held out of fitting, scored each epoch
     warnings: list[str] = field(default_factory=list)
 
 
@@ -190,7 +191,7 @@ def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: tor
         log_rows, schema={"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "loss": pl.Float64}
     )
     return Trained(model.cpu(), mean.astype(np.float32), std, log, kept_epoch, len(fit_units), len(val_units),
-                   warnings)
+                   [(u.start, u.stop) for u in val_units], warnings)
 
 
 # --- the stage ----------------------------------------------------------------------------------------
@@ -241,6 +242,7 @@ def run(workdir: Path, options: TrainOptions) -> TrainResult:
         "kept_epoch": trained.kept_epoch,
         "n_train_units": trained.n_train_units,
         "n_val_units": trained.n_val_units,
+        "val_spans": [list(span) for span in trained.val_spans],
         "inputs": {path.name: artifacts.file_digest(path) for path in inputs},
     }
     log_path = artifacts.train_log_path(workdir, options.method)
