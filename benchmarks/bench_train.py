@@ -1,7 +1,7 @@
 """Training speed: one batched epoch of `mlnseq train` against a batch-size-1, segment-by-segment loop
 of the same model (the authors' loop: a tensor built from Python lists per segment, one SGD step per
 segment, torch's default threads), on the DESK training split and on a Fetch collection. Target: at
-least 20x faster per epoch. Also per-frame streaming inference (target under 1 ms per frame).
+least 20x faster per epoch. (Per-frame streaming recognition: bench_recognize.)
 
 ``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
 """
@@ -9,7 +9,6 @@ least 20x faster per epoch. Also per-frame streaming inference (target under 1 m
 from __future__ import annotations
 
 import os
-import statistics
 import time
 from pathlib import Path
 
@@ -17,10 +16,9 @@ import numpy as np
 import torch
 
 from stages import collect, sequences, train
-from stages.models import ModelConfig, SequenceClassifier, StreamingClassifier
+from stages.models import ModelConfig, SequenceClassifier
 
 TARGET_RATIO = 20.0
-TARGET_STEP_MS = 1.0
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
 REPEATS = 3
 
@@ -93,24 +91,6 @@ def compare(name: str, data: train.FrameData) -> None:
           f"{base_one / ours_wide:.1f}x)")
 
 
-def streaming(data: train.FrameData) -> None:
-    train.set_threads()
-    config = ModelConfig(data.features.shape[1], int(data.labels.max()) + 1)
-    classifier = StreamingClassifier(SequenceClassifier(config), data.features.mean(0), data.features.std(0))
-    frames = data.features[:2000]
-    for frame in frames[:50]:
-        classifier.step(frame)
-    times = []
-    for frame in frames:
-        started = time.perf_counter()
-        classifier.step(frame)
-        times.append(time.perf_counter() - started)
-    median, p99 = statistics.median(times) * 1000, float(np.percentile(times, 99)) * 1000
-    verdict = "meets" if median < TARGET_STEP_MS else "MISSES"
-    print(f"streaming inference: median {median:.3f} ms, p99 {p99:.3f} ms per frame over {len(frames)} frames, "
-          f"{verdict} the {TARGET_STEP_MS:.0f} ms target")
-
-
 def main() -> None:
     desk = collect.collect(collect.CollectOptions(env="desk", source=DESK_SOURCE)).frames
     desk_data = train.FrameData.from_frames(desk)
@@ -123,7 +103,6 @@ def main() -> None:
         print(f"fetch: skipped ({type(error).__name__}: {error})")
     else:
         compare(f"fetch ({episodes} episodes)", train.FrameData.from_frames(fetch))
-    streaming(desk_data)
 
 
 if __name__ == "__main__":

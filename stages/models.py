@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -61,25 +60,3 @@ class SequenceClassifier(nn.Module):
                 raise ValueError("a PriorLayer model needs the MLN class input of every frame")
             scores = self.prior(torch.cat([scores, prior], dim=-1))
         return torch.log_softmax(scores, dim=-1), state
-
-
-class StreamingClassifier:
-    """Per-frame online recognition: one raw feature vector in, class probabilities out, state carried."""
-
-    def __init__(self, model: SequenceClassifier, mean: np.ndarray, std: np.ndarray):
-        self.model = model.eval().to("cpu")
-        self.mean = torch.as_tensor(mean, dtype=torch.float32)
-        self.std = torch.as_tensor(std, dtype=torch.float32)
-        self.state: State | None = None
-
-    def reset(self) -> None:
-        """Start a new sequence."""
-        self.state = None
-
-    @torch.inference_mode()
-    def step(self, features: np.ndarray, prior: np.ndarray | None = None) -> np.ndarray:
-        """Class probabilities [C] of the next frame, given its raw features [F] (and MLN input [C])."""
-        x = ((torch.as_tensor(features, dtype=torch.float32) - self.mean) / self.std).view(1, 1, -1)
-        p = None if prior is None else torch.as_tensor(prior, dtype=torch.float32).view(1, 1, -1)
-        log_probs, self.state = self.model(x, p, self.state)
-        return log_probs.exp().view(-1).numpy()

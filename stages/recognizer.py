@@ -2,8 +2,9 @@
 networks, fusion (eq. 16) and decoding.
 
 `conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
-frame at a time) and the Python API all call this module; `train` fits and saves what it loads.
-torch is imported only where a network runs, so the method names and options here stay light.
+frame at a time) and the Python API all call this module; `train` fits and saves what it loads. The
+networks run in numpy (stages/inference.py); torch is imported only to read and write the workdir's
+checkpoints, so a model file is recognised without it.
 """
 
 from __future__ import annotations
@@ -23,13 +24,13 @@ import polars as pl
 from stages import artifacts, sequences
 from stages.errors import BadInput, MissingArtifact, StaleArtifact
 
-if TYPE_CHECKING:
-    import torch
+from stages.inference import Network, StreamingNetwork
 
+if TYPE_CHECKING:
     from stages.binarize import PredicateSpec
     from stages.mln.chain import ChainFactors
     from stages.mln.factors import MLNFactors
-    from stages.models import SequenceClassifier, StreamingClassifier
+    from stages.models import SequenceClassifier
 
 NETWORKS = ("lstm", "priorlayer")
 METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")
@@ -39,7 +40,6 @@ MLN_MODES = ("paper", "exact")
 DECODES = ("none", "filter", "viterbi")  # none: per frame; filter: online chain; viterbi: offline chain
 NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
 CHECKPOINT_FORMAT = 1
-INFERENCE_BATCH = 256
 EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other exactly 1
 
 
@@ -68,13 +68,6 @@ def parse_method(name: str, option: str = "--method") -> tuple[str, str]:
     return method, decode
 
 
-def set_threads() -> None:
-    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
-    import torch
-
-    torch.set_num_threads(1)
-
-
 @dataclass(frozen=True)
 class FrameData:
     """The frames a network reads: raw features, labels, episode and split (train/test) per row."""
@@ -99,57 +92,16 @@ class FrameData:
 # --- networks ---------------------------------------------------------------------------------------
 
 
-def predict_log_probs(
-    model: SequenceClassifier, spans: list[slice], features: np.ndarray, prior: np.ndarray | None,
-    device: torch.device | None = None,
-) -> np.ndarray:
-    """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence)."""
-    import torch
-
-    device = device or torch.device("cpu")
-    model.eval()
-    out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
-    ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
-    with torch.inference_mode():
-        for i in range(0, len(ordered), INFERENCE_BATCH):
-            batch = ordered[i : i + INFERENCE_BATCH]
-            x = sequences.pad(batch, features).to(device)
-            p = None if prior is None else sequences.pad(batch, prior).to(device)
-            log_probs = model(x, p)[0].cpu().numpy()
-            for j, span in enumerate(batch):
-                out[span] = log_probs[j, : span.stop - span.start]
-    return out
-
-
-@dataclass
+@dataclass(frozen=True)
 class Checkpoint:
-    """A trained network with the configuration it embeds."""
+    """A trained network (in numpy) with the configuration its checkpoint embeds."""
 
-    model: SequenceClassifier
+    network: Network
     config: dict[str, Any]
 
     @property
     def mode(self) -> str:
         return self.config["mode"]
-
-    def standardise(self, features: np.ndarray) -> np.ndarray:
-        mean = np.asarray(self.config["mean"], dtype=np.float32)
-        std = np.asarray(self.config["std"], dtype=np.float32)
-        return ((features - mean) / std).astype(np.float32)
-
-    def streaming(self) -> StreamingClassifier:
-        """A per-frame online classifier with this network and standardisation."""
-        from stages.models import StreamingClassifier
-
-        return StreamingClassifier(self.model, np.asarray(self.config["mean"]), np.asarray(self.config["std"]))
-
-
-def network_probabilities(checkpoint: Checkpoint, data: FrameData) -> np.ndarray:
-    """Run a trained network over every frame in its sequence mode; class probabilities [n, C]."""
-    set_threads()
-    spans = sequences.sequences(checkpoint.mode, data.episodes, data.splits, data.labels)
-    log_probs = predict_log_probs(checkpoint.model, spans, checkpoint.standardise(data.features), data.prior)
-    return np.exp(log_probs.astype(np.float64))
 
 
 def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any]) -> Path:
@@ -165,8 +117,6 @@ def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any
 def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | None = None) -> Checkpoint:
     """Load ``models/<method>.pt``; refuse one made from other inputs, features or classes."""
     import torch
-
-    from stages.models import ModelConfig, SequenceClassifier
 
     path = artifacts.checkpoint_path(workdir, method)
     if not path.exists():
@@ -188,9 +138,7 @@ def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | No
         source = workdir / name
         if source.exists() and artifacts.file_digest(source) != digest:
             raise StaleArtifact(f"{path} was trained on an older {name}; rerun `mlnseq train --method {method}`")
-    model = SequenceClassifier(ModelConfig(**config["model"]))
-    model.load_state_dict(saved["state_dict"])
-    return Checkpoint(model.eval(), config)
+    return Checkpoint(Network.from_state(config["model"], saved["state_dict"], config["mean"], config["std"]), config)
 
 
 # --- the MLN ----------------------------------------------------------------------------------------
@@ -268,7 +216,7 @@ def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndar
     return replace(factors, unary=factors.unary + weight * np.asarray(log_p_network, dtype=np.float64))
 
 
-def decode(kind: str, factors: ChainFactors) -> tuple[np.ndarray, np.ndarray]:
+def decode_chain(kind: str, factors: ChainFactors) -> tuple[np.ndarray, np.ndarray]:
     """(class probabilities [T, C], predicted classes [T]): filter is online (each frame from the frames up
     to it); viterbi is offline (the most probable path, with forward-backward marginals as probabilities)."""
     from stages.mln import chain
@@ -299,7 +247,7 @@ def choose_network_weight(method: str, kind: str, mln: MLNFactors, evidence: np.
     tried = {}
     for weight in NETWORK_WEIGHTS:
         factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
-        tried[weight] = float((decode(kind, factors)[1] == labels[validation]).mean())
+        tried[weight] = float((decode_chain(kind, factors)[1] == labels[validation]).mean())
     best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
     return WeightChoice(best, tried[best], tried)
 
@@ -371,9 +319,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
             continue
         prior = None if network == "lstm" else prior_input(scores, checkpoint.config["prior"], source)
         spans = sequences.sequences(checkpoint.mode, data.episodes, parts[network], data.labels)
-        set_threads()
-        log_p_network[network] = predict_log_probs(
-            checkpoint.model, spans, checkpoint.standardise(data.features), prior).astype(np.float64)
+        log_p_network[network] = checkpoint.network.log_probs(spans, data.features, prior)
 
     available = [m for m in methods if (network_of(m) is None or network_of(m) in log_p_network)
                  and (m in NETWORKS or p_mln is not None)]
@@ -415,6 +361,240 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
                                                data.labels, rows == "val")
                 result.choices[name], weight = choice, choice.weight
             factors = chain_of(method, mln, evidence, starts, log_p_network.get(network), weight)
-            result.probabilities[name], result.predicted[name] = decode(kind, factors)
+            result.probabilities[name], result.predicted[name] = decode_chain(kind, factors)
             result.modes[name] = result.modes[method]
     return result
+
+
+# --- the model file and the Recognizer (export, info, predict, stream, the Python API) --------------
+
+MODEL_FORMAT = 1
+MODEL_SUFFIX = ".mlnseq"
+MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
+
+
+def needs_mln(method: str, decode: str) -> bool:
+    """Whether a method with this decoding uses the MLN (and so the predicate spec and the weights)."""
+    return method != "lstm" or decode != "none"
+
+
+def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.DataFrame | None,
+                  network: Network | None) -> dict[str, bytes]:
+    """The files of a model file, by name: the manifest (with the format version), the predicate spec, the
+    MLN weights, the network's arrays (its state dict's names, and its standardisation ``mean`` and ``std``)."""
+    entries = {MANIFEST: json.dumps({"format": MODEL_FORMAT, **manifest}, indent=1, sort_keys=True).encode()}
+    if spec_text is not None:
+        entries[SPEC] = spec_text.encode()
+    if weights is not None:
+        buffer = io.BytesIO()
+        weights.write_parquet(buffer, compression="zstd")
+        entries[WEIGHTS] = buffer.getvalue()
+    if network is not None:
+        buffer = io.BytesIO()
+        np.savez(buffer, mean=network.mean, std=network.std, **network.weights)
+        entries[NETWORK] = buffer.getvalue()
+    return entries
+
+
+def write_model(path: Path, entries: dict[str, bytes]) -> Path:
+    """Write a model file (a zip) atomically; its entries carry a fixed time, so a rewrite is byte-identical."""
+    with artifacts.atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+            for name, data in entries.items():
+                archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
+    return path
+
+
+def read_model(path: Path) -> dict[str, bytes]:
+    """A model file's entries; a file that is not one, or of another format, is one clear line."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInput(f"model file {path} not found: write one with `mlnseq export`")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            entries = {name: archive.read(name) for name in archive.namelist()}
+        manifest = json.loads(entries[MANIFEST])
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as error:
+        raise BadInput(f"{path} is not an mlnseq model file (truncated or foreign: {error}); "
+                       "write one with `mlnseq export`") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != MODEL_FORMAT:
+        found = manifest.get("format") if isinstance(manifest, dict) else None
+        version = manifest.get("mlnseq_version", "?") if isinstance(manifest, dict) else "?"
+        raise BadInput(f"{path} is model-file format {found} from mlnseq {version}; this mlnseq "
+                       f"({artifacts.package_version()}) reads format {MODEL_FORMAT}: export the model again "
+                       "with `mlnseq export`")
+    return entries
+
+
+def read_network(data: bytes, config: dict[str, Any], where: str) -> Network:
+    """A network from a model file's arrays and the configuration its manifest holds."""
+    try:
+        with np.load(io.BytesIO(data)) as arrays:
+            weights = {name: arrays[name] for name in arrays.files}
+        return Network.from_state(config, {k: v for k, v in weights.items() if k not in ("mean", "std")},
+                                  weights["mean"], weights["std"])
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile) as error:
+        raise BadInput(f"{where}: its network cannot be read ({error}); export the model again") from None
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """One frame's recognition: the class, its name and every class's probability (in class order)."""
+
+    frame: int  # index within the episode
+    label: int
+    name: str
+    probabilities: np.ndarray
+
+
+class Recognizer:
+    """A trained recogniser loaded from a model file: frames in, class probabilities out.
+
+    ``step`` takes one frame at a time (a mapping of feature name to value, or the values in feature
+    order) and keeps the state a live stream needs: the previous frame for the change predicates, the
+    network's hidden state and the filter's belief. ``reset`` starts a new episode. ``predict`` runs
+    whole recordings at once, offline decoding (viterbi) included.
+    """
+
+    def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
+        from stages.binarize import StreamingBinarizer, parse_spec
+
+        self.manifest = manifest = json.loads(entries[MANIFEST])
+        self.method, self.decode = manifest["method"], manifest["decode"]
+        self.classes: list[str] = list(manifest["classes"])
+        self.features: list[str] = list(manifest["features"])
+        self.network_weight = float(manifest.get("network_weight") or 1.0)
+        self._feature_index = {name: i for i, name in enumerate(self.features)}
+        self.network = None
+        if NETWORK in entries:
+            self.network = read_network(entries[NETWORK], manifest["network"]["model"], where)
+        self.prior = (manifest.get("network") or {}).get("prior")  # PriorLayer's MLN input, if it has one
+        self.spec: PredicateSpec | None = None
+        self.weights: pl.DataFrame | None = None
+        self.mln: MLNFactors | None = None
+        if needs_mln(self.method, self.decode):
+            self.spec = parse_spec(entries[SPEC].decode(), Path(where) / SPEC)
+            self.weights = pl.read_parquet(io.BytesIO(entries[WEIGHTS]))
+            self.columns = [c for columns in self.spec.columns().values() for c in columns]
+            self.binarizer = StreamingBinarizer(self.spec, self.features)
+            if self.decode != "none":
+                from stages.mln.factors import MLNFactors
+
+                self.mln = MLNFactors.from_weights(self.weights, self.columns, len(self.classes))
+        self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
+        self.reset()
+
+    @classmethod
+    def load(cls, path: str | Path) -> Recognizer:
+        """Load an ``.mlnseq`` file written by `mlnseq export`."""
+        return cls(read_model(Path(path)), str(path))
+
+    # -- one frame at a time ---------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """The next frame starts a new episode."""
+        self._frame = 0
+        self._evidence: np.ndarray | None = None
+        self._network = StreamingNetwork(self.network) if self.network is not None else None
+        self._filter = None
+        if self.decode != "none":
+            from stages.mln.chain import Filter
+
+            self._filter = Filter(len(self.classes))
+        if self.spec is not None:
+            self.binarizer.reset()
+
+    def vector(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> np.ndarray:
+        """A frame's feature values in the model's order, as float64; refuses missing and non-finite values."""
+        if isinstance(frame, Mapping):
+            missing = [name for name in self.features if name not in frame]
+            if missing:
+                raise BadInput(f"missing feature {', '.join(map(repr, missing))}")
+            values = [frame[name] for name in self.features]
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+                bad = next(n for n, v in zip(self.features, values)
+                           if not isinstance(v, (int, float)) or isinstance(v, bool))
+                raise BadInput(f"feature {bad!r} is {frame[bad]!r}, not a number")
+            vector = np.array(values, dtype=np.float64)
+        else:
+            vector = np.asarray(frame, dtype=np.float64).reshape(-1)
+            if vector.shape != (len(self.features),):
+                raise BadInput(f"a frame has {len(self.features)} feature values ({', '.join(self.features)}), "
+                               f"got {vector.size}")
+        if not np.isfinite(vector).all():
+            bad = self.features[int(np.flatnonzero(~np.isfinite(vector))[0])]
+            raise BadInput(f"feature {bad!r} is {vector[self._feature_index[bad]]}, not a finite number")
+        return vector
+
+    def step(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> Prediction:
+        """Recognise the next frame of the current episode from its raw features."""
+        x = self.vector(frame)
+        evidence = self.binarizer.step(x) if self.spec is not None else None
+        p_mln = prior = unary = None
+        if evidence is not None:
+            p_mln, prior, unary = self._mln_row(evidence.tobytes())
+        log_p_network = None if self._network is None else self._network.step(x, prior)
+        if self._filter is None:
+            probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
+        else:
+            factor = np.zeros(len(self.classes)) if self.method in NETWORKS else unary.copy()
+            if self.method != "mln":
+                factor += self.network_weight * log_p_network
+            pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            probabilities = np.exp(self._filter.step(factor, pairwise))
+        self._evidence = evidence
+        label = int(np.argmax(probabilities))
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities)
+        self._frame += 1
+        return prediction
+
+    def _mln_of(self, evidence: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The MLN's per-frame class probabilities, PriorLayer input and chain factor of one evidence row."""
+        from stages.mln import classifier
+
+        row = np.frombuffer(evidence, dtype=bool)[None]
+        table = pl.DataFrame({name: row[:, i] for i, name in enumerate(self.columns)})
+        scores = classifier.class_scores(table, self.weights, len(self.classes))
+        source = self.manifest.get("source", "")
+        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))[0]
+        prior = None if self.prior is None else prior_input(scores, self.prior, source)[0]
+        unary = self.mln.unary(row)[0] if self.mln is not None else None
+        return p_mln, prior, unary
+
+    # -- whole recordings --------------------------------------------------------------------------
+
+    def predict(self, features: np.ndarray, episodes: np.ndarray | None = None,
+                decode: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
+        model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
+        model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline)."""
+        from stages.binarize import binarize
+
+        decode = self.decode if decode is None else decode
+        if decode != self.decode and decode != "none" and self.mln is None:
+            raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
+                           "transition factors; export it again with --decode filter or viterbi")
+        features = np.asarray(features, dtype=np.float64)
+        episodes = np.zeros(len(features), dtype=np.int64) if episodes is None else np.asarray(episodes)
+        spans = sequences.runs(episodes)
+        starts = chain_starts(episodes)
+        scores = p_mln = prior = evidence = None
+        if self.spec is not None:
+            from stages.mln import classifier
+
+            keys = {"episode": episodes, "frame": np.concatenate([np.arange(s.stop - s.start) for s in spans]),
+                    "label": np.zeros(len(features)), "split": np.full(len(features), "test")}
+            frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
+            predicates = binarize(frames, self.spec)
+            evidence = predicates.select(self.columns).to_numpy().astype(bool)
+            scores = classifier.class_scores(predicates, self.weights, len(self.classes))
+            source = self.manifest.get("source", "")
+            p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))
+            if self.prior is not None:
+                prior = prior_input(scores, self.prior, source)
+        log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
+        if decode == "none":
+            probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
+            return probabilities, probabilities.argmax(1)
+        factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight)
+        return decode_chain(decode, factors)

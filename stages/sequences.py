@@ -12,7 +12,6 @@ same part (train, val, test, ...). Two modes, chosen at training:
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 MODES = ("segment", "stream")
 
@@ -67,13 +66,13 @@ def training_units(
     return windows(blocks(episodes, parts), window)
 
 
-def pad(spans: list[slice], values: np.ndarray, fill: float = 0.0) -> torch.Tensor:
+def pad(spans: list[slice], values: np.ndarray, fill: float = 0.0) -> np.ndarray:
     """Stack the rows of each span into a [len(spans), longest, ...] tensor, padded at the end."""
     longest = max(s.stop - s.start for s in spans)
     out = np.full((len(spans), longest, *values.shape[1:]), fill, dtype=values.dtype)
     for i, span in enumerate(spans):
         out[i, : span.stop - span.start] = values[span]
-    return torch.from_numpy(out)
+    return out
 
 
 def lengths(spans: list[slice]) -> np.ndarray:

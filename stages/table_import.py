@@ -99,9 +99,14 @@ def _refuse_numbers_with_typos(table: pl.DataFrame, path: Path, keys: set[str], 
                                         "or name the feature columns with --features", csv_header)
 
 
-def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dict]:
-    """Read, check and assemble the frames (split column still absent) and their metadata."""
+def import_table(source: Path, columns: TableColumns, for_prediction: bool = False) -> tuple[pl.DataFrame, dict]:
+    """Read, check and assemble the frames and their metadata.
+
+    ``for_prediction`` (new recordings for a trained model): the label column is optional (absent: every
+    label is -1 and the metadata says ``labelled: false``), one class is enough, and every frame is test.
+    """
     files = table_files(Path(source))
+    labelled = True
     parts = []
     feature_names: list[str] | None = None
     for file_number, path in enumerate(files):
@@ -109,11 +114,14 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
         is_csv = path.suffix.lower() == ".csv"
         episode_col = columns.episode or ("episode" if "episode" in table.columns else None)
         time_col = columns.time or ("frame" if "frame" in table.columns else None)
-        missing = [n for n in (columns.label, episode_col, time_col, *columns.features)
+        if for_prediction and file_number == 0:
+            labelled = columns.label in table.columns
+        label_col = columns.label if labelled else None
+        missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
         if missing:
             raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}")
-        keys = {columns.label, episode_col, time_col, "split"} - {None}
+        keys = {columns.label, episode_col, time_col, "split"} - {None}  # never a feature, even when absent
         names = list(columns.features) or [
             c for c in table.columns if c not in keys and table[c].dtype.is_numeric()
         ]
@@ -143,7 +151,7 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
             raise _row_error(path, episode.is_null(), "episode is empty", is_csv)
         part = table.select(names).with_columns(
             episode=episode.cast(pl.String) if len(files) == 1 else pl.lit(f"{file_number}:") + episode.cast(pl.String),
-            label=table[columns.label],
+            label=table[label_col] if label_col else pl.lit(-1),
             time=table[time_col] if time_col else pl.int_range(pl.len()),
             split=table["split"].cast(pl.String) if "split" in table.columns else pl.lit(None, pl.String),
             file=pl.lit(str(path)),
@@ -152,15 +160,20 @@ def import_table(source: Path, columns: TableColumns) -> tuple[pl.DataFrame, dic
         parts.append(part)
     frames = pl.concat(parts, how="vertical_relaxed")
     _check_time(frames)
-    labels, classes = _label_indices(frames, columns.classes)
-    order = {name: i for i, name in enumerate(dict.fromkeys(frames["episode"].to_list()))}
+    if labelled:
+        labels, classes = _label_indices(frames, columns.classes, min_classes=1 if for_prediction else 2)
+    else:
+        labels, classes = np.full(frames.height, -1, dtype=np.int16), list(columns.classes)
+    names = list(dict.fromkeys(frames["episode"].to_list()))
+    order = {name: i for i, name in enumerate(names)}
     episode_index = np.array([order[e] for e in frames["episode"].to_list()], dtype=np.int32)
     within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
-    keys = {"episode": episode_index, "frame": within, "label": labels, "split": _split(frames, episode_index)}
+    split = np.full(frames.height, "test") if for_prediction else _split(frames, episode_index)
+    keys = {"episode": episode_index, "frame": within, "label": labels, "split": split}
     table = artifacts.frames_table(keys, {n: frames[n].cast(pl.Float64).to_numpy() for n in feature_names})
     table = table.sort(["episode", "frame"], maintain_order=True)
     meta = {"source": "table", "source_files": [str(p.resolve()) for p in files],
-            "classes": classes, "features": list(feature_names)}
+            "classes": classes, "features": list(feature_names), "labelled": labelled, "episode_names": names}
     return table, meta
 
 
@@ -199,7 +212,7 @@ def _check_time(frames: pl.DataFrame) -> None:
         raise BadInput(f"{first['file']}:{first['row']}: time {what}; each episode's frames must rise strictly")
 
 
-def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...]) -> tuple[np.ndarray, list[str]]:
+def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
     labels = frames["label"]
     if labels.is_null().any():
         first = frames.filter(labels.is_null()).row(0, named=True)
@@ -225,6 +238,6 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...]) -> tuple[np.n
             bad = frames.row(unknown[0], named=True)
             raise BadInput(f"{bad['file']}:{bad['row']}: label {bad['label']!r} is not one of --classes")
         indices = np.array([lookup[t] for t in text], dtype=np.int64)
-    if len(set(indices.tolist())) < 2:
+    if len(set(indices.tolist())) < min_classes:
         raise BadInput(f"the labels hold a single class ({names[int(indices[0])]!r}); mlnseq needs two or more")
     return indices.astype(np.int16), names

@@ -1,10 +1,9 @@
-"""The networks: shapes, causality under padding, PriorLayer input, per-frame streaming."""
+"""The networks: shapes, causality under padding, PriorLayer input."""
 
-import numpy as np
 import pytest
 import torch
 
-from stages.models import ModelConfig, SequenceClassifier, StreamingClassifier
+from stages.models import ModelConfig, SequenceClassifier
 
 
 @pytest.mark.parametrize("cell", ["lstm", "gru"])
@@ -29,16 +28,3 @@ def test_prior_layer_reads_the_mln_input_and_requires_it():
     assert not torch.allclose(a, b)
     with pytest.raises(ValueError):
         model(x)
-
-
-def test_streaming_steps_match_the_whole_sequence():
-    torch.manual_seed(0)
-    model = SequenceClassifier(ModelConfig(n_features=3, n_classes=4)).eval()
-    raw = np.random.default_rng(0).normal(5.0, 2.0, size=(9, 3)).astype(np.float32)
-    mean, std = raw.mean(0), raw.std(0)
-    whole = model(torch.from_numpy((raw - mean) / std)[None])[0][0].exp().detach().numpy()
-    stream = StreamingClassifier(model, mean, std)
-    stepped = np.stack([stream.step(frame) for frame in raw])
-    np.testing.assert_allclose(stepped, whole, rtol=1e-5, atol=1e-6)
-    stream.reset()
-    np.testing.assert_allclose(stream.step(raw[0]), whole[0], rtol=1e-5, atol=1e-6)

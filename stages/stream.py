@@ -1,0 +1,161 @@
+"""stream: recognise live frames, one per input line, answering each at once.
+
+Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
+frame); the first line that is not blank decides which. An ``episode`` key or column starts a new
+episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
+next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}}``. Everything is causal
+and stateful (the previous frame for the change predicates, the network's state, the filter's belief).
+
+A bad line (not JSON, a missing feature, NaN, inf or a non-number) is reported on stderr with its line
+number and skipped; with ``strict`` it stops the stream (exit 2). Keys the model does not use (a
+timestamp, say) are ignored, and said once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import signal
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stages.errors import BadInput
+from stages.recognizer import Recognizer
+
+EPISODE = "episode"
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """Options of `mlnseq stream`."""
+
+    model: Path
+    strict: bool = False
+
+
+@dataclass
+class StreamSummary:
+    """What a stream did: frames answered, lines skipped, episodes seen."""
+
+    frames: int = 0
+    skipped: int = 0
+    episodes: int = 0
+
+
+class InputLine(BadInput):
+    """One input line that cannot be a frame; names the line."""
+
+
+def frames_of(lines: Iterable[str]) -> Iterator[tuple[int, dict[str, Any] | InputLine]]:
+    """(line number, the frame as a mapping, or the error that line makes) for every non-blank line."""
+    header: list[str] | None = None
+    json_lines: bool | None = None
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        if json_lines is None:
+            json_lines = line.lstrip().startswith("{")
+            if not json_lines:
+                header = next(csv.reader([line]))
+                continue
+        if json_lines:
+            try:
+                frame = json.loads(line)
+            except ValueError as error:
+                yield number, InputLine(f"line {number}: not JSON ({error})")
+                continue
+            if not isinstance(frame, dict):
+                yield number, InputLine(f"line {number}: expected a JSON object of feature -> value")
+                continue
+            yield number, frame
+            continue
+        row = next(csv.reader([line]))
+        if len(row) != len(header):
+            yield number, InputLine(f"line {number}: {len(row)} fields, the header has {len(header)}")
+            continue
+        yield number, {name: _number(value) if name != EPISODE else value for name, value in zip(header, row)}
+
+
+def _number(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text  # the recogniser names the feature that is not a number
+
+
+@contextlib.contextmanager
+def answering_before_interrupt() -> Iterator[Callable[[bool], None]]:
+    """Ctrl-C while a frame is being answered takes effect once it is answered; while waiting for input, at
+    once. Yields ``busy(flag)`` to mark the answering."""
+    state = {"busy": False, "pending": False}
+
+    def handler(signum: int, frame: Any) -> None:
+        if state["busy"]:
+            state["pending"] = True
+        else:
+            raise KeyboardInterrupt
+
+    def busy(flag: bool) -> None:
+        state["busy"] = flag
+        if not flag and state["pending"]:
+            raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: Ctrl-C is the caller's
+        yield lambda flag: None
+        return
+    try:
+        yield busy
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def run(options: StreamOptions, lines: Iterable[str], emit: Callable[[str], None],
+        warn: Callable[[str], None]) -> StreamSummary:
+    """Answer every frame of ``lines`` with one JSON line through ``emit``; report bad lines through ``warn``."""
+    model = Recognizer.load(options.model)
+    for note in model.manifest.get("notes", []):
+        warn(f"note: {note}")
+    if model.decode == "viterbi":
+        warn("note: viterbi needs a whole recording; a stream filters online with the same factors")
+    used = set(model.features) | {EPISODE}
+    ignored: set[str] = set()
+    summary = StreamSummary()
+    episode: Any = None
+    with answering_before_interrupt() as busy:
+        for number, frame in frames_of(lines):
+            busy(True)
+            try:
+                if isinstance(frame, InputLine):
+                    raise frame
+                unused = set(frame) - used - ignored
+                if unused:
+                    ignored |= unused
+                    warn(f"note: line {number}: keys the model does not use are ignored: {', '.join(sorted(unused))}")
+                if not summary.episodes or frame.get(EPISODE) != episode:
+                    if summary.episodes:
+                        model.reset()
+                    episode = frame.get(EPISODE)
+                    summary.episodes += 1
+                try:
+                    prediction = model.step(frame)
+                except BadInput as error:
+                    raise InputLine(f"line {number}: {error}") from None
+            except InputLine as error:
+                summary.skipped += 1
+                if options.strict:
+                    raise
+                warn(f"error: {error}")
+                busy(False)
+                continue
+            emit(json.dumps({
+                EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
+                "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
+            }))
+            summary.frames += 1
+            busy(False)
+    return summary
