@@ -14,7 +14,7 @@ from typer.core import TyperGroup
 from mlnseq_cli import config as project_config
 from mlnseq_cli.console import console, reported_errors
 
-from mlnseq_cli import binarize, collect, conflate, formulas, learn_weights, report, train
+from mlnseq_cli import binarize, collect, conflate, export, formulas, info, learn_weights, predict, report, stream, train
 from mlnseq_cli import eval as eval_command
 
 GLOBAL_FLAGS = ("--verbose",)
@@ -93,6 +93,10 @@ app.command("train")(train.train)
 app.command("conflate")(conflate.conflate)
 app.command("eval")(eval_command.evaluate)
 app.command("report")(report.report)
+app.command("export")(export.export)
+app.command("info")(info.info)
+app.command("predict")(predict.predict)
+app.command("stream")(stream.stream)
 
 
 config_app = typer.Typer(help="Inspect the project file (mlnseq.toml).", no_args_is_help=True)

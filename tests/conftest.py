@@ -75,3 +75,29 @@ def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
     conflate.run(workdir, conflate.ConflateOptions())
     evaluate.run(workdir, evaluate.EvalOptions())
     return workdir
+
+
+@pytest.fixture(scope="session")
+def desk_stream_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
+    """The DESK MLN workdir with lstm and priorlayer trained in stream mode (3 epochs, a validation part held
+    out) and conflated: a model a live stream can use; read-only."""
+    from stages import conflate, train
+
+    workdir = tmp_path_factory.mktemp("desk-stream")
+    for path in desk_mln_workdir.iterdir():
+        shutil.copy(path, workdir / path.name)
+    for method in ("lstm", "priorlayer"):
+        train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
+    conflate.run(workdir, conflate.ConflateOptions())
+    return workdir
+
+
+@pytest.fixture(scope="session")
+def desk_test_recording(tmp_path_factory, desk_frames_workdir) -> Path:
+    """The DESK test split as a user's recording: a CSV of frame, label and the three motion channels."""
+    import polars as pl
+
+    frames = pl.read_parquet(desk_frames_workdir / "frames.parquet").filter(pl.col("split") == "test")
+    path = tmp_path_factory.mktemp("recording") / "desk-test.csv"
+    frames.select("frame", "label", "arm_distance", "left_gripper", "right_gripper").write_csv(path)
+    return path

@@ -46,3 +46,27 @@ def test_own_data_example_runs_as_documented(tmp_path: Path) -> None:
     accuracy = dict(zip(metrics["method"], metrics["value"]))
     assert set(accuracy) == {"lstm", "mln", "priorlayer", "conflation", "combined"}
     assert min(accuracy.values()) > 0.5  # four classes: chance is 0.25
+
+
+ROBOT_LOOP = Path(__file__).resolve().parents[1] / "examples" / "robot-loop"
+
+
+@pytest.mark.slow
+def test_robot_loop_example_runs_as_documented(tmp_path: Path, desk_stream_workdir: Path, desk_test_recording: Path) -> None:
+    """The README's commands in a copy laid out as documented: the workdir two folders up."""
+    folder = tmp_path / "examples" / "robot-loop"
+    shutil.copytree(ROBOT_LOOP, folder)
+    shutil.copytree(desk_stream_workdir, tmp_path / "mlnseq-work")
+    pl.read_csv(desk_test_recording).head(1000).write_csv(folder / "recording.csv")
+    commands = documented_commands(ROBOT_LOOP / "README.md")
+    assert [c.split()[:2] for c in commands] == [["mlnseq", "export"], ["python", "robot_loop.py"]]
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    outputs = []
+    for command in commands:
+        done = subprocess.run(command, shell=True, cwd=folder, env=env, capture_output=True, text=True)
+        assert done.returncode == 0, f"{command}: {done.stderr}"
+        outputs.append(done.stdout)
+    changes = [line for line in outputs[-1].splitlines() if line.startswith("frame ")]
+    labels = pl.read_csv(folder / "recording.csv")["label"].to_numpy()
+    assert 1 <= len(changes) < (labels[1:] != labels[:-1]).sum() * 4  # changes of activity, not a flicker per frame
+    assert outputs[-1].splitlines()[-1].startswith("1000 frames, ")

@@ -1,0 +1,32 @@
+"""`mlnseq export`: one model file with all a recogniser needs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.markup import escape
+
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from stages import export as stage
+
+Defaults = stage.ExportOptions
+
+
+def export(
+    method: Annotated[str, typer.Option(help="lstm, mln, priorlayer, conflation or combined.")] = Defaults.method,
+    decode: Annotated[str, typer.Option(help="none (per frame), filter (online chain decoding) or viterbi (offline; stream filters).")] = Defaults.decode,
+    mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper or exact (as conflate --mln-mode).")] = Defaults.mln_mode,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The model file \\[default: WORKDIR/METHOD[+DECODE].mlnseq].", dir_okay=False)] = None,
+    workdir: WorkdirOption = DEFAULT,
+) -> None:
+    """Read WORKDIR's frames.parquet, predicates.parquet, weights.parquet and models/*.pt; write one model file (.mlnseq) holding the features and their standardisation, the predicate spec, the MLN weights, the network, the fusion and decoding (its network factor weight chosen on the validation part), the classes and the input digests, for `mlnseq predict`, `mlnseq stream` and the Python API."""
+    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output)
+    with reported_errors():
+        exported = stage.run(workdir, options)
+    for note in exported.manifest["notes"]:
+        console.print(f"[yellow]note[/]: {escape(note)}")
+    weight = exported.manifest["network_weight"]
+    console.print(f"[green]export[/]: wrote {exported.path} ({method}, decode {decode}"
+                  + ("" if weight is None else f", network factor weight {weight:g}") + ")")

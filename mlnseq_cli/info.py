@@ -1,0 +1,54 @@
+"""`mlnseq info`: what a model file holds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from mlnseq_cli.console import console, reported_errors
+from stages import recognizer
+
+
+def info(
+    model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
+    as_json: Annotated[bool, typer.Option("--json", help="Print the manifest as JSON.")] = False,
+) -> None:
+    """Read MODEL (.mlnseq); print its method and decoding, classes, features, network, MLN formulas, notes, the mlnseq version that wrote it and the digests of the workdir files it came from."""
+    with reported_errors():
+        entries = recognizer.read_model(model)
+        recognizer.Recognizer(entries, str(model))  # loads, or says in one line why it cannot
+    manifest = json.loads(entries[recognizer.MANIFEST])
+    if as_json:
+        print(json.dumps(manifest, indent=1, sort_keys=True))
+        return
+    table = Table(title=f"{model}", box=None, show_header=False)
+    weight = manifest.get("network_weight")
+    accuracy = manifest.get("validation_frame_accuracy")
+    rows = [
+        ("method", recognizer.decoded_name(manifest["method"], manifest["decode"])),
+        ("network factor weight", "–" if weight is None else f"{weight:g}"
+         + ("" if accuracy is None else f" (validation frame accuracy {accuracy:.1%})")),
+        ("classes", ", ".join(manifest["classes"])),
+        ("features", ", ".join(manifest["features"])),
+        ("source", manifest.get("source", "")),
+    ]
+    network = manifest.get("network")
+    if network:
+        model_config = network["model"]
+        rows.append(("network", f"{network['name']}: {model_config['cell']} of {model_config['hidden_size']}, "
+                                f"{network['mode']} mode, seed {network['seed']}, epoch {network['kept_epoch']}"
+                                + (f", PriorLayer input {network['prior']}" if network.get("prior") else "")))
+    if recognizer.WEIGHTS in entries:
+        rows.append(("MLN", f"{len(manifest['predicates'])} predicate columns, mln-mode {manifest['mln_mode']}"))
+    rows += [("written by", f"mlnseq {manifest['mlnseq_version']}, {manifest['created']}, format {manifest['format']}"),
+             ("inputs", ", ".join(f"{k} {v}" for k, v in manifest["inputs"].items()))]
+    for name, value in rows:
+        table.add_row(name, escape(value))
+    console.print(table)
+    for note in manifest.get("notes", []):
+        console.print(f"[yellow]note[/]: {escape(note)}")

@@ -1,0 +1,36 @@
+"""`mlnseq stream`: recognise live frames from stdin, one JSON line out per frame."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from mlnseq_cli.console import fail, reported_errors
+from stages import stream as stage
+
+
+def stream(
+    model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
+    strict: Annotated[bool, typer.Option(help="Stop at the first bad input line (exit 2) instead of skipping it.")] = False,
+) -> None:
+    """Read frames from stdin, one per line: JSON objects of feature name -> value (an "episode" key, when its value changes, starts a new episode), or CSV rows after a header line. Write one JSON line per frame at once: {"episode", "frame", "class", "probabilities"}. A bad line is reported on stderr with its number and skipped (--strict: exit 2). Ctrl-C: exit 130, every frame read so far answered."""
+    options = stage.StreamOptions(model=model, strict=strict)
+
+    def emit(line: str) -> None:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
+
+    def warn(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    with reported_errors():
+        try:
+            stage.run(options, sys.stdin, emit, warn)
+        except KeyboardInterrupt:
+            raise fail("interrupted; every frame read so far was answered", 130) from None
+        except BrokenPipeError:  # the reader went away (e.g. `| head`): nothing is left to answer
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's own advice for SIGPIPE

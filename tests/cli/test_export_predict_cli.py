@@ -1,0 +1,47 @@
+"""`mlnseq export`, `info` and `predict` through the CLI: the model file, what it holds, new recordings."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from mlnseq_cli.main import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory, desk_stream_workdir) -> Path:
+    return Path(shutil.copytree(desk_stream_workdir, tmp_path_factory.mktemp("cli") / "work"))
+
+
+def test_export_then_info_then_predict(workdir, desk_test_recording, tmp_path):
+    done = runner.invoke(app, ["export", "--method", "conflation", "-w", str(workdir)])
+    assert done.exit_code == 0, done.output
+    model = workdir / "conflation.mlnseq"
+    assert f"wrote {model}" in done.output.replace("\n", "")
+    shown = runner.invoke(app, ["info", str(model)])
+    assert shown.exit_code == 0, shown.output
+    for needle in ("conflation", "S1 approach peg", "arm_distance, left_gripper, right_gripper", "lstm: lstm of 32",
+                   "stream mode", "frames.parquet"):
+        assert needle in shown.output, needle
+    out = tmp_path / "out.parquet"
+    predicted = runner.invoke(app, ["predict", str(model), "--source", str(desk_test_recording), "-o", str(out)])
+    assert predicted.exit_code == 0, predicted.output
+    assert "20,924 frames, 1 episodes" in predicted.output and "labelled recordings" in predicted.output
+    assert out.exists()
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["export", "--method", "hmm"], "unknown --method 'hmm'"),
+    (["export", "--decode", "smooth"], "unknown --decode 'smooth'"),
+    (["info", "absent.mlnseq"], "model file absent.mlnseq not found"),
+    (["predict", "absent.mlnseq", "--source", "x.csv"], "model file absent.mlnseq not found"),
+])
+def test_bad_usage_is_one_line_and_exit_2(workdir, args, needle):
+    done = runner.invoke(app, args if args[0] != "export" else [*args, "-w", str(workdir)])
+    assert done.exit_code == 2, done.output
+    assert done.stderr.strip().count("\n") == 0 and needle in done.stderr

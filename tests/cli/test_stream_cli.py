@@ -1,0 +1,106 @@
+"""`mlnseq stream` as a real subprocess with pipes: each frame answered at once, equal to `predict` frame by
+frame; bad lines said with their number and skipped (or fatal with --strict); Ctrl-C answers what it read."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from stages import export, predict
+
+MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
+FRAMES = 2000  # of the DESK test recording, through the pipe
+TIMEOUT_S = 120
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory, desk_stream_workdir) -> Path:
+    return export.run(desk_stream_workdir, export.ExportOptions(
+        method="combined", output=tmp_path_factory.mktemp("model") / "combined.mlnseq")).path
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, desk_test_recording) -> Path:
+    path = tmp_path_factory.mktemp("stream") / "head.csv"
+    pl.read_csv(desk_test_recording).head(FRAMES).write_csv(path)
+    return path
+
+
+def stream(model: Path, text: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([MLNSEQ, "stream", str(model), *args], input=text, capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+
+
+def test_a_csv_stream_equals_predict_frame_by_frame(model, recording, tmp_path):
+    done = stream(model, recording.read_text())
+    assert done.returncode == 0, done.stderr
+    answers = [json.loads(line) for line in done.stdout.splitlines()]
+    expected = predict.run(predict.PredictOptions(model=model, source=recording, output=tmp_path / "p.parquet")).table
+    assert len(answers) == FRAMES == expected.height
+    assert [a["class"] for a in answers] == expected["class"].to_list()
+    assert [a["frame"] for a in answers] == list(range(FRAMES)) and {a["episode"] for a in answers} == {0}
+    classes = list(answers[0]["probabilities"])
+    got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
+    np.testing.assert_allclose(got, expected.select(f"p_{c}" for c in classes).to_numpy(), atol=1e-5)
+    assert "keys the model does not use are ignored: frame, label" in done.stderr
+
+
+def test_json_lines_with_episodes_and_bad_lines_go_on(model, recording):
+    rows = pl.read_csv(recording).head(6).to_dicts()
+    lines = [json.dumps({**rows[0], "episode": "a"}), "not json", json.dumps({**rows[1], "episode": "a"}),
+             json.dumps({"episode": "a", "arm_distance": 1.0}), '{"episode": "a", "arm_distance": NaN, '
+             '"left_gripper": 1, "right_gripper": 1}', json.dumps({**rows[2], "arm_distance": "far", "episode": "a"}),
+             json.dumps({**rows[0], "episode": "b"}), "[1, 2]", json.dumps({**rows[1], "episode": "b"})]
+    done = stream(model, "\n".join(lines) + "\n")
+    assert done.returncode == 0, done.stderr
+    answers = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [(a["episode"], a["frame"]) for a in answers] == [("a", 0), ("a", 1), ("b", 0), ("b", 1)]
+    assert answers[2]["probabilities"] == answers[0]["probabilities"]  # b restarts as a did
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert [e.split(":")[1].strip() for e in errors] == ["line 2", "line 4", "line 5", "line 6", "line 8"]
+    assert "missing feature 'left_gripper', 'right_gripper'" in errors[1] and "is nan" in errors[2]
+    assert "'far', not a number" in errors[3] and "not JSON" in errors[0]
+
+
+def test_strict_stops_at_the_first_bad_line(model, recording):
+    text = recording.read_text().splitlines()
+    done = stream(model, "\n".join([*text[:4], "1,2,oops,0.5,0.5", *text[4:8]]) + "\n", "--strict")
+    assert done.returncode == 2
+    assert len(done.stdout.splitlines()) == 3
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "line 5" in errors[0] and "'arm_distance' is 'oops'" in errors[0]
+
+
+def test_each_frame_is_answered_before_the_next_is_read_and_ctrl_c_exits_130(model, recording):
+    lines = recording.read_text().splitlines()
+    process = subprocess.Popen([MLNSEQ, "stream", str(model)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, bufsize=1)
+    try:
+        process.stdin.write(lines[0] + "\n")
+        for line in lines[1:51]:
+            process.stdin.write(line + "\n")
+            process.stdin.flush()
+            assert json.loads(process.stdout.readline())["class"]  # answered while stdin stays open
+        time.sleep(0.5)
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=TIMEOUT_S)
+    finally:
+        process.kill()
+    assert process.returncode == 130, err
+    assert out == "" and "interrupted; every frame read so far was answered" in err
+
+
+def test_a_truncated_model_file_is_one_line_and_exit_2(model, tmp_path):
+    broken = tmp_path / "broken.mlnseq"
+    broken.write_bytes(model.read_bytes()[:500])
+    done = stream(broken, "")
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.count("\n") == 1 and "not an mlnseq model file" in done.stderr
