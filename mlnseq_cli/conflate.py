@@ -14,10 +14,13 @@ from stages import conflate as stage
 def conflate(
     mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper (the authors' normalised clamped sums) or exact (softmax of the scores).")] = stage.ConflateOptions.mln_mode,
     decode: Annotated[str, typer.Option(help="none (per frame, the paper), filter (online chain decoding), viterbi (offline), all, or a comma list.")] = "none",
+    network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight chosen on the validation part)."""
-    options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode))
+    with reported_errors():
+        options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
+                                        network_weight=stage.parse_network_weight(network_weight))
     with reported_errors():
         result = stage.run(workdir, options)
     for note in result.notes:

@@ -31,6 +31,7 @@ class ConflateOptions:
 
     mln_mode: str = "paper"
     decode: tuple[str, ...] = ("none",)  # any of none, filter, viterbi
+    network_weight: float | None = None  # decoded methods' network factor: None = chosen on validation
 
     def validate(self) -> None:
         if self.mln_mode not in MLN_MODES:
@@ -39,6 +40,8 @@ class ConflateOptions:
             if kind not in DECODES:
                 raise BadInput(f"unknown --decode {kind!r}: choose from {', '.join(DECODES)}, all, "
                                "or a comma list such as none,viterbi")
+        if self.network_weight is not None and not self.network_weight > 0:
+            raise BadInput(f"--network-weight must be positive (or auto), got {self.network_weight}")
 
     @property
     def decodes(self) -> tuple[str, ...]:
@@ -50,6 +53,16 @@ def parse_decode(text: str) -> tuple[str, ...]:
     """``--decode`` as written: one name, ``all``, or a comma list."""
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     return DECODES if names == ("all",) else names
+
+
+def parse_network_weight(text: str) -> float | None:
+    """``--network-weight`` as written: auto (None: chosen on validation) or a number."""
+    if text == "auto":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise BadInput(f"--network-weight must be auto or a number, got {text!r}") from None
 
 
 def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray],
@@ -77,7 +90,8 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     """Read frames, models and MLN weights from ``workdir``; write ``predictions.parquet``."""
     options.validate()
     workdir = Path(workdir)
-    predicted = recognizer.predict_workdir(workdir, options.mln_mode, options.decodes)
+    predicted = recognizer.predict_workdir(workdir, options.mln_mode, options.decodes,
+                                           network_weight=options.network_weight)
     methods = [recognizer.decoded_name(m, d) for d in options.decodes for m in recognizer.METHODS
                if recognizer.decoded_name(m, d) in predicted.probabilities]
     table = predictions_table(predicted.keys, {m: predicted.probabilities[m] for m in methods}, predicted.predicted)
@@ -85,10 +99,11 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     path = artifacts.write_table(
         table, workdir / artifacts.PREDICTIONS, "predictions",
         {"methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": options.mln_mode,
-         "decode": list(options.decodes), "classes": meta["classes"], "source": meta.get("source", ""),
+         "decode": list(options.decodes), "network_weight_option": options.network_weight, "classes": meta["classes"], "source": meta.get("source", ""),
          "network_weights": {m: {"weight": c.weight, "validation_frame_accuracy": c.accuracy,
                                  "tried": {str(w): a for w, a in c.tried.items()}}
                              for m, c in predicted.choices.items()},
+         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
          "notes": predicted.notes},
         inputs=predicted.inputs,
     )

@@ -272,18 +272,20 @@ class WorkdirPredictions:
     predicted: dict[str, np.ndarray]  # method name -> [n] class index
     modes: dict[str, str]  # method name -> segment | stream | frame
     choices: dict[str, WeightChoice]  # decoded network methods -> the network factor's weight
+    validation: dict[str, float]  # method name -> frame accuracy on the networks' validation part (if any)
     inputs: list[Path]
     notes: list[str]
     meta: dict[str, Any]  # frames.parquet's metadata
 
 
 def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("none",),
-                    methods: Sequence[str] = METHODS) -> WorkdirPredictions:
+                    methods: Sequence[str] = METHODS, network_weight: float | None = None) -> WorkdirPredictions:
     """Run every trained network and the MLN over a workdir's frames and fuse and decode them.
 
     A method whose inputs are absent is left out with a note. A decoded network method's network
-    factor weight is chosen on the validation part its network held out in training (never on test);
-    a network trained without one keeps the weight 1, and a note says so.
+    factor weight is ``network_weight`` when given, else chosen on the validation part its network
+    held out in training (never on test); a network trained without one keeps the weight 1, and a
+    note says so.
     """
     from stages.mln import classifier
 
@@ -326,16 +328,19 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     if not available:
         raise MissingArtifact(f"nothing to predict with in {workdir}: run `mlnseq learn-weights` "
                               "and/or `mlnseq train` first")
-    result = WorkdirPredictions(frames.select(artifacts.KEY_COLUMNS), {}, {}, {}, {}, inputs, notes, meta)
+    result = WorkdirPredictions(frames.select(artifacts.KEY_COLUMNS), {}, {}, {}, {}, {}, inputs, notes, meta)
     for method in available:
         network = network_of(method)
         probabilities = fuse(method, None if network is None else np.exp(log_p_network[network]), p_mln)
         result.probabilities[method], result.predicted[method] = probabilities, probabilities.argmax(1)
         result.modes[method] = "frame" if network is None else checkpoints[network].mode
 
+    validation = np.zeros(len(frames), dtype=bool)  # every network holds out the same units, given the same options
+    for network_parts in parts.values():
+        validation |= network_parts == "val"
     decoding = [d for d in decodes if d != "none"]
     if not decoding:
-        return result
+        return _scored(result, data.labels, validation)
     if weights is None:
         raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
     from stages.mln.factors import MLNFactors
@@ -346,7 +351,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
         notes.append(f"{artifacts.WEIGHTS} has no temporal formula (Next): decoding uses uniform transitions")
     evidence = predicates.select(columns).to_numpy().astype(bool)
     unvalidated = sorted(n for n, c in checkpoints.items() if not c.config.get("val_spans"))
-    if unvalidated:
+    if unvalidated and network_weight is None:
         notes.append(f"{', '.join(unvalidated)} trained without a validation part (`train --select val_accuracy`): "
                      "its decoded methods keep the network factor's weight 1")
     split_parts = np.where(data.splits == "test", "test", "train")
@@ -356,13 +361,23 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
             rows = parts.get(network, split_parts)
             starts = chain_starts(data.episodes, rows)
             weight = 1.0
-            if network is not None:
+            if network is not None and network_weight is not None:
+                weight = network_weight
+            elif network is not None:
                 choice = choose_network_weight(method, kind, mln, evidence, starts, log_p_network[network],
                                                data.labels, rows == "val")
                 result.choices[name], weight = choice, choice.weight
             factors = chain_of(method, mln, evidence, starts, log_p_network.get(network), weight)
             result.probabilities[name], result.predicted[name] = decode_chain(kind, factors)
             result.modes[name] = result.modes[method]
+    return _scored(result, data.labels, validation)
+
+
+def _scored(result: WorkdirPredictions, labels: np.ndarray, validation: np.ndarray) -> WorkdirPredictions:
+    """Each method's frame accuracy on the validation rows: what a choice among methods may look at."""
+    if validation.any():
+        result.validation.update({name: float((predicted[validation] == labels[validation]).mean())
+                                  for name, predicted in result.predicted.items()})
     return result
 
 
