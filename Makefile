@@ -70,7 +70,7 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 MLN_SOURCES := $(wildcard stages/mln/*.py)
 TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
 
-$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) stages/report.py mlnseq_cli/report.py
+$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
 
 # Frames: Fetch simulated once with the paper's split (first 126 frames train); DESK imported.
