@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
-import torch
 
 from stages import artifacts, sequences, train
 from stages.errors import BadInput, MissingArtifact
@@ -66,6 +65,8 @@ def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray]) 
 
 def network_probabilities(checkpoint: train.Checkpoint, data: train.FrameData) -> np.ndarray:
     """Run a trained network over every frame in its sequence mode; class probabilities [n, C]."""
+    import torch
+
     train.set_threads()
     spans = sequences.sequences(checkpoint.mode, data.episodes, data.splits, data.labels)
     features = checkpoint.standardise(data.features)

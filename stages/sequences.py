@@ -11,8 +11,12 @@ same part (train, val, test, ...). Two modes, chosen at training:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
 
 MODES = ("segment", "stream")
 
@@ -69,6 +73,8 @@ def training_units(
 
 def pad(spans: list[slice], values: np.ndarray, fill: float = 0.0) -> torch.Tensor:
     """Stack the rows of each span into a [len(spans), longest, ...] tensor, padded at the end."""
+    import torch
+
     longest = max(s.stop - s.start for s in spans)
     out = np.full((len(spans), longest, *values.shape[1:]), fill, dtype=values.dtype)
     for i, span in enumerate(spans):
