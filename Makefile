@@ -73,20 +73,24 @@ TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
 
-# Frames: Fetch simulated once with the paper's split (first 126 frames train); DESK imported.
+# Frames: Fetch simulated once with the paper's split (first 126 frames train), its episodes kept in
+# FETCH_CACHE; every other Fetch dataset waits for it and reads the same episodes back; DESK imported.
+FETCH_CACHE := $(RUNS)/cache
+FETCH_COLLECT = $(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --cache $(FETCH_CACHE) --workdir $(@D)
+
 $(RUNS)/fetch/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --workdir $(@D)
+	$(FETCH_COLLECT)
 
 $(RUNS)/desk/frames.parquet: $(DESK_FILES) stages/collect.py
 	$(STAGE) collect --env desk --source $(DESK_DIR) --workdir $(@D)
 
 # The richer predicate spec needs the goal: the same Fetch episodes with the 6 goal values added.
-$(RUNS)/fetch-rich/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --goals --episodes $(FETCH_EPISODES) --workdir $(@D)
+$(RUNS)/fetch-rich/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+	$(FETCH_COLLECT) --goals
 
 # Data efficiency: the same Fetch episodes, the first F of them train (the MLN learns on those only).
-$(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --workdir $(@D) --train-frames \
+$(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+	$(FETCH_COLLECT) --train-frames \
 	  $$(awk 'BEGIN { n = int($* * $(FETCH_EPISODES) + 0.5); print (n < 1 ? 1 : n) * $(FETCH_EPISODE_FRAMES) }')
 
 .SECONDEXPANSION:
