@@ -40,10 +40,10 @@ FRACTION_SEEDS ?= $(SEEDS)
 MODES ?= segment stream
 JOBS ?= 2
 DESK_DIR ?= ../shared/data/desk-taurus
-FETCH_SPEC ?= examples/fetch.binarize.toml
+FETCH_SPEC ?= stages/specs/fetch.binarize.toml
 FETCH_RICH_SPEC ?= examples/fetch-rich.binarize.toml
-DESK_SPEC ?= examples/desk.binarize.toml
-FORMULAS_SPEC ?= examples/paper.mln
+DESK_SPEC ?= stages/specs/desk.binarize.toml
+FORMULAS_SPEC ?= stages/specs/paper.mln
 # steps of one FetchPickAndPlace-v4 episode (EPISODE_STEPS in stages/fetch_demos.py)
 FETCH_EPISODE_FRAMES := 50
 

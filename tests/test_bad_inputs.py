@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, collect
+from stages import artifacts, binarize, collect
 
 runner = CliRunner()
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -238,7 +238,7 @@ def test_unreadable_inputs_are_refused(workdir, tmp_path):
     finally:
         frames.chmod(0o644)
     spec = tmp_path / "locked.binarize.toml"
-    spec.write_text((Path(__file__).parents[1] / "examples" / "desk.binarize.toml").read_text())
+    spec.write_text(binarize.default_spec_path("desk").read_text())
     spec.chmod(0)
     folder = tmp_path / "episodes"
     folder.mkdir()

@@ -33,7 +33,7 @@ def test_bare_binarize_after_collect_writes_the_paper_predicates(desk_workdir):
     frames, frames_meta = artifacts.read_table(desk_workdir / artifacts.FRAMES, "frames")
     assert predicates.select(artifacts.KEY_COLUMNS).equals(frames.select(artifacts.KEY_COLUMNS))
     assert meta["classes"] == frames_meta["classes"] and meta["source"] == "desk"
-    assert meta["spec"]["path"].endswith("examples/desk.binarize.toml") and "previous_scale" in meta["spec"]["text"]
+    assert meta["spec"]["path"].endswith("stages/specs/desk.binarize.toml") and "previous_scale" in meta["spec"]["text"]
     assert set(meta["inputs"]) == {artifacts.FRAMES, meta["spec"]["path"]}
     assert set(meta["predicates"]) == {"arm_distance", "left_gripper", "right_gripper", "grippers"}
     assert predicates.columns[4:] == [c for name in ("arm_distance", "left_gripper", "right_gripper", "grippers")
