@@ -290,9 +290,7 @@ def test_a_full_disk_mid_write_leaves_every_artifact_as_it_was(workdir, monkeypa
 
     import torch
 
-    from stages import train
-
-    monkeypatch.setattr(train.torch, "save", write_half_then_fill_the_disk(torch.save))
+    monkeypatch.setattr(torch, "save", write_half_then_fill_the_disk(torch.save))  # train's checkpoint
     refused(workdir, "train", "--epochs", 1, needles=("cannot write", "lstm.pt", "No space left on device"))
 
 
