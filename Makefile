@@ -6,16 +6,21 @@ VENV := .venv
 PY := $(VENV)/bin/python
 MLNSEQ := $(VENV)/bin/mlnseq
 SETUP_DONE := $(VENV)/.setup-done
+PRACMLN_DONE := $(VENV)/.pracmln-done
 
 .PHONY: help setup test bench reproduce report clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
 
-setup: $(SETUP_DONE) ## Create .venv with mlnseq, its test dependencies and pracmln
+setup: $(SETUP_DONE) $(PRACMLN_DONE) ## Create .venv with mlnseq, its test dependencies and pracmln
 
-$(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/install_pracmln.sh
+$(SETUP_DONE): pyproject.toml scripts/setup.sh
 	bash scripts/setup.sh
+
+# pracmln (the paper's MLN engine) is optional: the tests compare against it, the reproduction does not use it.
+$(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
+	bash scripts/install_pracmln.sh $(VENV) && touch $@
 
 test: setup ## Run the test suite
 	$(VENV)/bin/pytest -q
@@ -40,10 +45,10 @@ FRACTION_SEEDS ?= $(SEEDS)
 MODES ?= segment stream
 JOBS ?= 2
 DESK_DIR ?= ../shared/data/desk-taurus
-FETCH_SPEC ?= examples/fetch.binarize.toml
+FETCH_SPEC ?= stages/specs/fetch.binarize.toml
 FETCH_RICH_SPEC ?= examples/fetch-rich.binarize.toml
-DESK_SPEC ?= examples/desk.binarize.toml
-FORMULAS_SPEC ?= examples/paper.mln
+DESK_SPEC ?= stages/specs/desk.binarize.toml
+FORMULAS_SPEC ?= stages/specs/paper.mln
 # steps of one FetchPickAndPlace-v4 episode (EPISODE_STEPS in stages/fetch_demos.py)
 FETCH_EPISODE_FRAMES := 50
 
@@ -60,7 +65,7 @@ SEED_DIRS := $(call seed_dirs,fetch,$(MODES),$(SEEDS)) $(call seed_dirs,fetch-ri
   $(foreach d,$(FRACTION_DATASETS),$(call seed_dirs,$(d),segment,$(FRACTION_SEEDS))) \
   $(if $(HAVE_DESK),$(call seed_dirs,desk,$(MODES),$(SEEDS)))
 
-reproduce: setup ## Set up, then rebuild the paper's results from the real data into reports/REPORT.md
+reproduce: $(SETUP_DONE) ## Set up (without pracmln), then rebuild the paper's results into reports/REPORT.md
 	@start=$$(date +%s); $(MAKE) --no-print-directory -j$(JOBS) -Otarget report \
 	  && echo "reproduce: $(REPORT) is up to date after $$(( $$(date +%s) - start )) s"
 
@@ -70,23 +75,27 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 MLN_SOURCES := $(wildcard stages/mln/*.py)
 TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
 
-$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) stages/report.py mlnseq_cli/report.py
+$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
 
-# Frames: Fetch simulated once with the paper's split (first 126 frames train); DESK imported.
+# Frames: Fetch simulated once with the paper's split (first 126 frames train), its episodes kept in
+# FETCH_CACHE; every other Fetch dataset waits for it and reads the same episodes back; DESK imported.
+FETCH_CACHE := $(RUNS)/cache
+FETCH_COLLECT = $(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --cache $(FETCH_CACHE) --workdir $(@D)
+
 $(RUNS)/fetch/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --workdir $(@D)
+	$(FETCH_COLLECT)
 
 $(RUNS)/desk/frames.parquet: $(DESK_FILES) stages/collect.py
 	$(STAGE) collect --env desk --source $(DESK_DIR) --workdir $(@D)
 
 # The richer predicate spec needs the goal: the same Fetch episodes with the 6 goal values added.
-$(RUNS)/fetch-rich/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --goals --episodes $(FETCH_EPISODES) --workdir $(@D)
+$(RUNS)/fetch-rich/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+	$(FETCH_COLLECT) --goals
 
 # Data efficiency: the same Fetch episodes, the first F of them train (the MLN learns on those only).
-$(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py
-	$(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --workdir $(@D) --train-frames \
+$(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+	$(FETCH_COLLECT) --train-frames \
 	  $$(awk 'BEGIN { n = int($* * $(FETCH_EPISODES) + 0.5); print (n < 1 ? 1 : n) * $(FETCH_EPISODE_FRAMES) }')
 
 .SECONDEXPANSION:

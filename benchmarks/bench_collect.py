@@ -25,7 +25,7 @@ def main() -> None:
     env.close()
 
     started = time.perf_counter()
-    collected = fetch_demos.collect_fetch(collect.CollectOptions(env="fetch", episodes=episodes, seed=0))
+    collected = collect.collect_fetch(collect.CollectOptions(env="fetch", episodes=episodes, seed=0))
     elapsed = time.perf_counter() - started
     frames = collected.frames.height
     per_episode = (elapsed - setup) / episodes

@@ -13,7 +13,7 @@ from stages import binarize as stage
 
 
 def binarize(
-    spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: examples/<source>.binarize.toml, chosen by the frames' source].", dir_okay=False)] = None,
+    spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: the built-in spec of the frames' source, stages/specs/<source>.binarize.toml].", dir_okay=False)] = None,
     table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:

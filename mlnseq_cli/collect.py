@@ -20,6 +20,7 @@ def collect(
     seed: Annotated[int, typer.Option(help="fetch: seed of resets and action noise.")] = 0,
     train_frames: Annotated[Optional[int], typer.Option(help="The first K frames form the training split \\[default: 126 fetch, 1405 desk].")] = None,
     goals: Annotated[bool, typer.Option(help="fetch: add the achieved and desired goal as features.")] = False,
+    cache: Annotated[Optional[Path], typer.Option(help="fetch: folder keeping simulated episodes; a collection of the same episodes, seed and simulator reads them back instead of simulating.", file_okay=False)] = None,
     label_column: Annotated[str, typer.Option(help="table: the label column (class index or name).")] = "label",
     episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
@@ -30,7 +31,7 @@ def collect(
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
     options = stage.CollectOptions(
         env=env, source=source, channels=channels, episodes=episodes, seed=seed,
-        train_frames=train_frames, goals=goals,
+        train_frames=train_frames, goals=goals, cache=cache,
         columns=stage.TableColumns(
             label=label_column, episode=episode_column, time=time_column,
             classes=_names(classes), features=_names(features),

@@ -11,7 +11,7 @@ epochs = 40
 
 It is read from ``--config FILE``, else from ``WORKDIR/mlnseq.toml`` when that exists. Its values become
 the commands' defaults, so flags on the command line override them. Relative paths in it are taken
-relative to the file's own folder.
+relative to the file's own folder. `mlnseq config show` prints every option in force.
 """
 
 from __future__ import annotations
@@ -19,8 +19,12 @@ from __future__ import annotations
 import re
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+import typer
+from rich.table import Table
+
+from mlnseq_cli.console import console, reported_errors
 from stages.artifacts import DEFAULT_WORKDIR
 from stages.errors import BadInput
 
@@ -106,3 +110,25 @@ def options_in_force(commands: dict[str, Any], default_map: dict[str, dict[str, 
                 value = value()
             rows.append((name, param.opts[0], str(value), origin))
     return rows
+
+
+app = typer.Typer(name="config", help="Inspect the project file (mlnseq.toml).", no_args_is_help=True,
+                  rich_markup_mode="rich")
+
+
+@app.command("show")
+def show(
+    ctx: typer.Context,
+    workdir: Annotated[Path, typer.Option("--workdir", "-w", help="Workdir whose mlnseq.toml to read.")] = DEFAULT_WORKDIR,
+) -> None:
+    """Print every command's options in force and where each came from (default or the project file)."""
+    root_ctx = ctx.find_root()
+    group = root_ctx.command
+    with reported_errors():
+        commands = group.stage_commands(root_ctx)
+        path = find(root_ctx.params.get("config"), workdir)
+        default_map = load(path, commands) if path else {}
+    table = Table("command", "option", "value", "from", title=f"options in force ({path or 'no project file'})")
+    for row in options_in_force(commands, default_map, str(path)):
+        table.add_row(*row)
+    console.print(table)

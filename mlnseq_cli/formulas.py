@@ -13,7 +13,7 @@ from stages.mln.grounding import is_template
 
 
 def formulas(
-    spec: Annotated[Optional[Path], typer.Option(help="A .mln file of formulas and `+var` templates \\[default: examples/paper.mln, the paper's Has(+w,p) => Topic(+c,p)].")] = None,
+    spec: Annotated[Optional[Path], typer.Option(help="A .mln file of formulas and `+var` templates \\[default: the built-in stages/specs/paper.mln, the paper's Has(+w,p) => Topic(+c,p)].")] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet and the spec; write WORKDIR/formulas.mln (pracmln syntax, templates kept)."""

@@ -11,7 +11,6 @@ from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import artifacts
-from stages import learn_weights as stage
 
 
 def learn_weights(
@@ -20,6 +19,8 @@ def learn_weights(
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln."""
+    from stages import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
+
     options = stage.LearnWeightsOptions(formulas=formulas, engine=engine)
     with reported_errors():
         options.validate()

@@ -1,28 +1,72 @@
-"""The mlnseq application: registers the stage commands in pipeline order."""
+"""The mlnseq application: registers the stage commands in pipeline order.
+
+A command's module, and the stage behind it with its libraries (torch, MuJoCo, matplotlib), is imported
+only when that command runs or shows its own help; `mlnseq --help` lists the commands by the summaries
+below and imports none of them.
+"""
 
 from __future__ import annotations
 
+import functools
+import importlib
 import os
-import sys
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any, NamedTuple, Optional
 
 import typer
-from rich.table import Table
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
-from mlnseq_cli import config as project_config
-from mlnseq_cli.console import console, reported_errors
 
-from mlnseq_cli import binarize, collect, conflate, export, formulas, info, learn_weights, predict, report, stream, train
-from mlnseq_cli import eval as eval_command
+class Command(NamedTuple):
+    module: str  # in mlnseq_cli
+    function: str  # the typer command function, or a typer.Typer for a group of commands
+    summary: str  # its line in `mlnseq --help`; `mlnseq COMMAND --help` shows the docstring
 
+
+COMMANDS = {
+    "collect": Command("collect", "collect", "Make or import a dataset's frames: WORKDIR/frames.parquet."),
+    "binarize": Command("binarize", "binarize", "Turn frames into boolean predicates: WORKDIR/predicates.parquet."),
+    "formulas": Command("formulas", "formulas", "Write the domain knowledge as WORKDIR/formulas.mln."),
+    "learn-weights": Command("learn_weights", "learn_weights",
+                             "Learn the formulas' weights on the training split: WORKDIR/weights.parquet."),
+    "train": Command("train", "train", "Fit the LSTM (or GRU), alone or with the MLN PriorLayer: WORKDIR/models/."),
+    "conflate": Command("conflate", "conflate",
+                        "Run every trained model and the MLN on all frames and combine them: "
+                        "WORKDIR/predictions.parquet."),
+    "eval": Command("eval", "evaluate", "Score the predictions on the test split: WORKDIR/metrics.parquet."),
+    "report": Command("report", "report", "The paper's tables and figures from a `make reproduce` run: REPORT.md."),
+    "export": Command("export", "export", "Gather a trained method into one model file: WORKDIR/METHOD.mlnseq."),
+    "info": Command("info", "info", "Print what a model file holds."),
+    "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
+    "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
+    "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
+}
 GLOBAL_FLAGS = ("--verbose",)
 GLOBAL_OPTIONS = ("--config",)
 
 
 class MlnseqGroup(TyperGroup):
-    """Accepts the global options anywhere on the line and loads the project file before a command runs."""
+    """Imports a command when it is asked for, accepts the global options anywhere on the line and loads the
+    project file before a command runs."""
+
+    listing = False  # while the group's own help is drawn: commands by their summaries, none imported
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: Any, name: str) -> Any:
+        if name not in COMMANDS:
+            return None
+        if self.listing:
+            return TyperCommand(name, help=COMMANDS[name].summary)
+        return _load(name)
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        self.listing = True
+        try:
+            super().format_help(ctx, formatter)
+        finally:
+            self.listing = False
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         front, rest, i = [], [], 0
@@ -41,8 +85,10 @@ class MlnseqGroup(TyperGroup):
 
     def invoke(self, ctx: Any) -> Any:
         args = [*ctx._protected_args, *ctx.args]
-        command = self.get_command(ctx, args[0]) if args else None
-        if command is not None and args[0] != "config":
+        if args and args[0] in COMMANDS and args[0] != "config":
+            from mlnseq_cli import config as project_config
+            from mlnseq_cli.console import reported_errors
+
             with reported_errors():
                 path = project_config.find(ctx.params.get("config"), _workdir_in(args[1:]))
                 if path is not None:
@@ -51,6 +97,18 @@ class MlnseqGroup(TyperGroup):
 
     def stage_commands(self, ctx: Any) -> dict[str, Any]:
         return {name: self.get_command(ctx, name) for name in self.list_commands(ctx) if name != "config"}
+
+
+@functools.cache
+def _load(name: str) -> Any:
+    """The click command of one entry of COMMANDS, its module imported now."""
+    command = COMMANDS[name]
+    target = getattr(importlib.import_module(f"mlnseq_cli.{command.module}"), command.function)
+    if isinstance(target, typer.Typer):
+        return typer.main.get_group(target)
+    single = typer.Typer(add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
+    single.command(name)(target)
+    return typer.main.get_command(single)
 
 
 def _workdir_in(args: list[str]) -> Optional[Path]:
@@ -80,45 +138,10 @@ def root(
         Optional[Path], typer.Option("--config", help="Project file of options \\[default: WORKDIR/mlnseq.toml].")
     ] = None,
 ) -> None:
-    """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval, report."""
+    """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval, report; then
+    export a trained method and recognise new recordings (predict) or live frames (stream)."""
     if verbose:
         os.environ["MLNSEQ_VERBOSE"] = "1"
-
-
-app.command("collect")(collect.collect)
-app.command("binarize")(binarize.binarize)
-app.command("formulas")(formulas.formulas)
-app.command("learn-weights")(learn_weights.learn_weights)
-app.command("train")(train.train)
-app.command("conflate")(conflate.conflate)
-app.command("eval")(eval_command.evaluate)
-app.command("report")(report.report)
-app.command("export")(export.export)
-app.command("info")(info.info)
-app.command("predict")(predict.predict)
-app.command("stream")(stream.stream)
-
-
-config_app = typer.Typer(help="Inspect the project file (mlnseq.toml).", no_args_is_help=True)
-app.add_typer(config_app, name="config")
-
-
-@config_app.command("show")
-def config_show(
-    ctx: typer.Context,
-    workdir: Annotated[Path, typer.Option("--workdir", "-w", help="Workdir whose mlnseq.toml to read.")] = project_config.DEFAULT_WORKDIR,
-) -> None:
-    """Print every command's options in force and where each came from (default or the project file)."""
-    root_ctx = ctx.find_root()
-    group = root_ctx.command
-    with reported_errors():
-        commands = group.stage_commands(root_ctx)
-        path = project_config.find(root_ctx.params.get("config"), workdir)
-        default_map = project_config.load(path, commands) if path else {}
-    table = Table("command", "option", "value", "from", title=f"options in force ({path or 'no project file'})")
-    for row in project_config.options_in_force(commands, default_map, str(path)):
-        table.add_row(*row)
-    console.print(table)
 
 
 def main() -> None:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import time
+from collections.abc import Iterator
 from typing import Annotated
 
 import polars as pl
 import typer
 from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from stages import train as stage
@@ -35,8 +39,8 @@ def train(
     )
     with reported_errors():
         options.validate()
-        with console.status(f"training {method} ({mode} mode, {epochs} epochs)"):
-            result = stage.run(workdir, options)
+        with epoch_progress(f"{method} ({mode} mode)", epochs) as progress:
+            result = stage.run(workdir, options, progress)
     trained = result.trained
     for warning in trained.warnings:
         console.print(f"[yellow]warning[/]: {escape(warning)}")  # a warning may hold [..]: not markup
@@ -46,3 +50,30 @@ def train(
         f"[green]train[/]: wrote {result.checkpoint} ({method}, {trained.n_train_units} training sequences, "
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
     )
+
+
+@contextlib.contextmanager
+def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
+    """On a terminal, a progress bar over the epochs; into a pipe or file (Make's log), one plain line at
+    each tenth of the epochs."""
+    if console.is_terminal:
+        columns = (TextColumn("training {task.description}: epoch {task.completed}/{task.total}"), BarColumn(),
+                   TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
+        with Progress(*columns, console=console, transient=True) as bar:
+            task = bar.add_task(what, total=epochs, scores="")
+            yield lambda done: bar.update(task, completed=done.epoch, scores=_scores(done))
+        return
+    started = time.monotonic()
+
+    def line(done: stage.EpochDone) -> None:
+        if done.epoch == done.epochs or 10 * done.epoch // done.epochs > 10 * (done.epoch - 1) // done.epochs:
+            left = (time.monotonic() - started) / done.epoch * (done.epochs - done.epoch)
+            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {left:.0f} s left",
+                          soft_wrap=True, highlight=False)
+
+    yield line
+
+
+def _scores(done: stage.EpochDone) -> str:
+    val = "–" if done.val_accuracy is None else f"{done.val_accuracy:.1%}"
+    return f"loss {done.loss:.3f}, train {done.train_accuracy:.1%}, val {val}"

@@ -13,6 +13,7 @@ import datetime as dt
 import hashlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterable, Iterator
 from importlib import metadata as importlib_metadata
@@ -120,13 +121,42 @@ def _umask() -> int:
     return mask
 
 
+def _writer_running(pid: int) -> bool:
+    if os.name != "posix":  # no harmless probe of another process here: assume it still writes
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+def remove_leftovers(path: Path) -> list[Path]:
+    """Delete the hidden temporary files (``.NAME.PID.*.tmp``) that writes of ``path`` by processes no longer
+    running (killed mid-write) left beside it; a write still in progress keeps its own. Returns the deleted."""
+    leftover = re.compile(rf"\.+{re.escape(path.name)}\.(?:(\d+)\.)?.*\.tmp\Z")
+    removed = []
+    for candidate in path.parent.glob(".*.tmp"):
+        found = leftover.match(candidate.name)
+        if found and not (found.group(1) and _writer_running(int(found.group(1)))):
+            candidate.unlink(missing_ok=True)
+            removed.append(candidate)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it over ``path`` only if the block succeeds."""
+    """Yield a temporary path beside ``path``; rename it over ``path`` only if the block succeeds.
+
+    The temporary file's name holds the writer's process id; the leftovers of earlier writers that were
+    killed are removed first."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        remove_leftovers(path)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
     except OSError as error:
         raise BadInput(f"cannot write {path}: {error.strerror or error}; choose a writable --workdir") from error
     os.close(fd)

@@ -1,6 +1,6 @@
 """binarize: turn ``frames.parquet`` into ``predicates.parquet``, one boolean column per ground predicate.
 
-A spec (TOML, see ``examples/*.binarize.toml``) declares derived channels and predicates. Channels:
+A spec (TOML, see ``stages/specs/*.binarize.toml``) declares derived channels and predicates. Channels:
 
 - ``[[channel]] kind = "distance"``: Euclidean distance between two 3-D points (``from``, ``to``: three
   columns each), optionally rounded to ``decimals``.
@@ -13,7 +13,7 @@ Predicates (paper section IV), each a one-hot group of columns named ``<predicat
   increase (> threshold), decrease (< -threshold), else static.
 - ``gripper``: open (x > ``open_above``), else closed (x < ``closed_below``), else opening / closing by a
   change beyond ``threshold``, else static. ``previous_scale`` multiplies the previous value before that
-  change test (default 1; the DESK spec sets 100, see ``examples/desk.binarize.toml``).
+  change test (default 1; the DESK spec sets 100, see ``stages/specs/desk.binarize.toml``).
 - ``pair``: the conjunction of two earlier predicates (``of``), one value per combination, first-major.
 
 The previous frame is the row before in the same episode, ordered by frame. The first frame of an
@@ -24,10 +24,11 @@ frames of each file with themselves instead; mlnseq differs from them only on th
 from __future__ import annotations
 
 import bisect
+import importlib.resources
 import re
 import tomllib
-from dataclasses import dataclass, field
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -37,14 +38,13 @@ import polars as pl
 from stages import artifacts
 from stages.errors import BadInput
 
-EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
 NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
 
 
 def default_spec_path(source: str) -> Path:
-    """The built-in spec of a frames source: ``examples/<source>.binarize.toml``."""
-    return EXAMPLES_DIR / f"{source}.binarize.toml"
+    """The built-in spec of a frames source, shipped in the package: ``stages/specs/<source>.binarize.toml``."""
+    return Path(importlib.resources.files("stages") / "specs" / f"{source}.binarize.toml")
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ class PredicateSpec:
 class BinarizeOptions:
     """Options of `mlnseq binarize`."""
 
-    spec: Path | None = None  # default: examples/<frames source>.binarize.toml
+    spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
 
     def validate(self) -> None:
         if self.spec is not None and not Path(self.spec).is_file():

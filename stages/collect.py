@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts
+from stages import artifacts, fetch_demos
 from stages.errors import BadInput
 from stages.table_import import TableColumns, import_table
 
@@ -61,6 +61,7 @@ class CollectOptions:
     train_frames: int | None = None  # first K frames train; default 126 (fetch), 1,405 (desk)
     goals: bool = False  # fetch: add achieved and desired goal to the 25 observation values
     columns: TableColumns = TableColumns()  # table: which columns are keys and features
+    cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
 
     def validate(self) -> None:
         if self.env not in ENVS:
@@ -182,6 +183,44 @@ def collect_table(options: CollectOptions) -> Collected:
     return Collected(frames, meta, inputs=tuple(Path(name) for name in meta["source_files"]))
 
 
+def collect_fetch(options: CollectOptions, progress: Progress | None = None) -> Collected:
+    """Simulate ``options.episodes`` Fetch demonstrations (or read them from ``options.cache``); the first
+    ``train_frames`` frames form the train split."""
+    controller = fetch_demos.Controller()
+    demos = fetch_demos.demonstrations(options.episodes, options.seed, progress, controller, options.cache)
+    steps = fetch_demos.EPISODE_STEPS
+    n_frames = options.episodes * steps
+    train_frames = fetch_demos.DEFAULT_TRAIN_FRAMES if options.train_frames is None else options.train_frames
+    values = np.concatenate([d.observations for d in demos])
+    features = list(fetch_demos.OBSERVATION_FEATURES)
+    if options.goals:
+        values = np.concatenate([values, np.concatenate([d.goals for d in demos])], axis=1)
+        features += fetch_demos.GOAL_FEATURES
+    frames = artifacts.frames_table(
+        {
+            "episode": np.repeat(np.arange(options.episodes), steps),
+            "frame": np.tile(np.arange(steps), options.episodes),
+            "label": np.concatenate([d.labels for d in demos]),
+            "split": _split(n_frames, train_frames),
+        },
+        {name: values[:, i] for i, name in enumerate(features)},
+    )
+    successes = [d.success for d in demos]
+    meta = {
+        "source": "fetch",
+        "env_id": fetch_demos.ENV_ID,
+        "versions": fetch_demos.versions(),
+        "classes": list(fetch_demos.CLASSES),
+        "features": features,
+        "train_frames": train_frames,
+        "episode_steps": steps,
+        "controller": asdict(controller),
+        "success_rate": float(np.mean(successes)),
+        "episode_success": successes,
+    }
+    return Collected(frames, meta)
+
+
 def collect(options: CollectOptions, progress: Progress | None = None) -> Collected:
     """Make the frames of ``options.env`` (no file is written)."""
     options.validate()
@@ -189,15 +228,13 @@ def collect(options: CollectOptions, progress: Progress | None = None) -> Collec
         return collect_desk(options)
     if options.env == "table":
         return collect_table(options)
-    from stages import fetch_demos  # imports MuJoCo; only the fetch source needs it
-
-    return fetch_demos.collect_fetch(options, progress)
+    return collect_fetch(options, progress)
 
 
 def run(workdir: Path, options: CollectOptions, progress: Progress | None = None) -> tuple[Path, Collected]:
     """Collect and write ``workdir/frames.parquet`` atomically."""
     collected = collect(options, progress)
-    options_record = json.loads(json.dumps(asdict(options), default=str))
+    options_record = json.loads(json.dumps({k: v for k, v in asdict(options).items() if k != "cache"}, default=str))
     meta = {"options": options_record, "seed": options.seed, **collected.meta}
     path = artifacts.write_table(
         collected.frames, Path(workdir) / artifacts.FRAMES, "frames", meta, inputs=collected.inputs

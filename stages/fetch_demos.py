@@ -6,23 +6,29 @@ above the block with the gripper opening (reach), then down onto it while closin
 goal (transport), then it holds still with the gripper closed to the end of the episode (place). A phase
 ends when its error falls below a threshold and never comes back. Gaussian noise on the commanded motion
 makes episodes with the same layout differ; object and goal come from the environment's own seeded reset.
+
+Simulated episodes can be kept in a cache folder (``collect --cache DIR``), one file per collection keyed
+by everything that decides the episodes: their count and seed, the controller's settings, this module's
+source and the simulator's versions. `make reproduce` simulates Fetch once and builds every Fetch
+dataset (paper split, goals, data-efficiency splits) from the same cached episodes.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
+import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from importlib import metadata as importlib_metadata
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from stages import artifacts
-
-if TYPE_CHECKING:
-    from stages.collect import Collected, CollectOptions
+from stages.errors import BadInput
 
 ENV_ID = "FetchPickAndPlace-v4"
 EPISODE_STEPS = 50  # the environment's time limit; 25 steps per second
@@ -136,52 +142,60 @@ def versions() -> dict[str, str]:
     return {name: importlib_metadata.version(name) for name in ("gymnasium-robotics", "gymnasium", "mujoco")}
 
 
-def collect_fetch(
-    options: CollectOptions,
-    progress: Callable[[int, int], None] | None = None,
-    controller: Controller = Controller(),
-) -> Collected:
-    """Simulate ``options.episodes`` demonstrations; the first ``train_frames`` frames form the train split."""
-    from stages.collect import Collected
-
+def simulate(
+    episodes: int, seed: int, progress: Callable[[int, int], None] | None = None, controller: Controller = Controller()
+) -> list[Demonstration]:
+    """Run ``episodes`` scripted demonstrations; episode ``e`` depends only on ``(seed, e)``."""
     env = make_env()
     try:
         demos = []
-        for episode in range(options.episodes):
-            reset_seed, rng = episode_seeds(options.seed, episode)
+        for episode in range(episodes):
+            reset_seed, rng = episode_seeds(seed, episode)
             demos.append(demonstrate(env, reset_seed, rng, controller))
             if progress is not None:
-                progress(episode + 1, options.episodes)
+                progress(episode + 1, episodes)
     finally:
         env.close()
+    return demos
 
-    n_frames = options.episodes * EPISODE_STEPS
-    train_frames = DEFAULT_TRAIN_FRAMES if options.train_frames is None else options.train_frames
-    values = np.concatenate([d.observations for d in demos])
-    features = list(OBSERVATION_FEATURES)
-    if options.goals:
-        values = np.concatenate([values, np.concatenate([d.goals for d in demos])], axis=1)
-        features += GOAL_FEATURES
-    frames = artifacts.frames_table(
-        {
-            "episode": np.repeat(np.arange(options.episodes), EPISODE_STEPS),
-            "frame": np.tile(np.arange(EPISODE_STEPS), options.episodes),
-            "label": np.concatenate([d.labels for d in demos]),
-            "split": np.where(np.arange(n_frames) < train_frames, "train", "test"),
-        },
-        {name: values[:, i] for i, name in enumerate(features)},
-    )
-    successes = [d.success for d in demos]
-    meta = {
-        "source": "fetch",
-        "env_id": ENV_ID,
-        "versions": versions(),
-        "classes": list(CLASSES),
-        "features": features,
-        "train_frames": train_frames,
-        "episode_steps": EPISODE_STEPS,
-        "controller": asdict(controller),
-        "success_rate": float(np.mean(successes)),
-        "episode_success": successes,
+
+# --- the episode cache --------------------------------------------------------------------------------
+
+CACHE_ARRAYS = ("observations", "goals", "labels", "success")
+
+
+def cache_path(cache: Path, episodes: int, seed: int, controller: Controller) -> Path:
+    """The cache file of one collection: named by a digest of all that decides its episodes."""
+    key = {
+        "env_id": ENV_ID, "episode_steps": EPISODE_STEPS, "episodes": episodes, "seed": seed,
+        "controller": asdict(controller), "source": artifacts.file_digest(Path(__file__)),
+        "versions": {**versions(), "numpy": np.__version__},
     }
-    return Collected(frames, meta)
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+    return Path(cache) / f"fetch-{episodes}x{seed}-{digest}.npz"
+
+
+def demonstrations(
+    episodes: int, seed: int, progress: Callable[[int, int], None] | None = None,
+    controller: Controller = Controller(), cache: Path | None = None,
+) -> list[Demonstration]:
+    """:func:`simulate`, or the same episodes read back from ``cache`` when simulated there before."""
+    if cache is None:
+        return simulate(episodes, seed, progress, controller)
+    path = cache_path(cache, episodes, seed, controller)
+    if path.exists():
+        return _read_cache(path)
+    demos = simulate(episodes, seed, progress, controller)
+    with artifacts.atomic_path(path) as tmp:
+        with open(tmp, "wb") as handle:  # a file object: np.savez would append .npz to the temporary name
+            np.savez(handle, **{name: np.stack([getattr(d, name) for d in demos]) for name in CACHE_ARRAYS})
+    return demos
+
+
+def _read_cache(path: Path) -> list[Demonstration]:
+    try:
+        with np.load(path, allow_pickle=False) as saved:
+            arrays = [saved[name] for name in CACHE_ARRAYS]
+    except Exception as error:  # numpy raises several types for a damaged archive
+        raise BadInput(f"{path} is not a readable episode cache ({error}); delete it to simulate again") from error
+    return [Demonstration(o, g, y, bool(s)) for o, g, y, s in zip(*arrays)]

@@ -7,6 +7,7 @@ typo fails now with its line and column rather than at learning.
 
 from __future__ import annotations
 
+import importlib.resources
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,12 +16,12 @@ from stages.errors import BadInput
 from stages.mln.grounding import DECLARATIONS, class_constant, check_mln, name_classes
 from stages.mln.syntax import MLN, format_weighted, parse_mln
 
-DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "examples" / "paper.mln"
+DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
 
 
 @dataclass(frozen=True)
 class FormulasOptions:
-    spec: Path | None = None  # .mln of hand-written formulas and templates; default examples/paper.mln
+    spec: Path | None = None  # .mln of hand-written formulas and templates; default the built-in paper.mln
 
     @property
     def spec_path(self) -> Path:

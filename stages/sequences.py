@@ -67,7 +67,7 @@ def training_units(
 
 
 def pad(spans: list[slice], values: np.ndarray, fill: float = 0.0) -> np.ndarray:
-    """Stack the rows of each span into a [len(spans), longest, ...] tensor, padded at the end."""
+    """Stack the rows of each span into a [len(spans), longest, ...] array, padded at the end."""
     longest = max(s.stop - s.start for s in spans)
     out = np.full((len(spans), longest, *values.shape[1:]), fill, dtype=values.dtype)
     for i, span in enumerate(spans):

@@ -12,18 +12,22 @@ and the last epoch is kept. The test split is only ever logged (for the curves),
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import polars as pl
-import torch
 
 from stages import artifacts, sequences
 from stages.errors import BadInput
-from stages.models import CELLS, ModelConfig, SequenceClassifier
 from stages.recognizer import NETWORKS, PRIORS, FrameData, mln_class_scores, prior_input, save_checkpoint
+
+if TYPE_CHECKING:  # torch loads only when a network is built or run
+    import torch
+
+    from stages.models import ModelConfig, SequenceClassifier
 
 METHODS = NETWORKS
 SELECTS = ("none", "val_accuracy")
@@ -51,6 +55,8 @@ class TrainOptions:
     val_fraction: float = 0.2
 
     def validate(self) -> None:
+        from stages.models import CELLS
+
         choices = {"method": METHODS, "mode": sequences.MODES, "cell": CELLS, "prior": PRIORS,
                    "select": SELECTS, "device": DEVICES}
         for name, allowed in choices.items():
@@ -65,8 +71,11 @@ class TrainOptions:
                 raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
-        if self.device == "cuda" and not torch.cuda.is_available():
-            raise BadInput("--device cuda: no CUDA GPU is visible to torch here; use --device cpu")
+        if self.device == "cuda":
+            import torch
+
+            if not torch.cuda.is_available():
+                raise BadInput("--device cuda: no CUDA GPU is visible to torch here; use --device cpu")
 
 
 @dataclass
@@ -84,15 +93,19 @@ class Trained:
     warnings: list[str] = field(default_factory=list)
 
 
-def set_threads() -> None:
-    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
-    torch.set_num_threads(1)
-
-
 def resolve_device(name: str) -> torch.device:
+    import torch
+
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def set_threads() -> None:
+    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
+    import torch
+
+    torch.set_num_threads(1)
 
 
 def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, list[slice], list[slice]]:
@@ -118,13 +131,14 @@ def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, li
     return parts.astype(str), fit_units, val_units
 
 
-@torch.inference_mode()
 def predict_log_probs(
     model: SequenceClassifier, spans: list[slice], features: np.ndarray, prior: np.ndarray | None,
     device: torch.device,
 ) -> np.ndarray:
     """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence): the per-epoch
     evaluation of training (recognition runs the trained network through stages/inference.py)."""
+    import torch
+
     model.eval()
     out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
     ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
@@ -132,7 +146,8 @@ def predict_log_probs(
         batch = ordered[i : i + INFERENCE_BATCH]
         x = torch.from_numpy(sequences.pad(batch, features)).to(device)
         p = None if prior is None else torch.from_numpy(sequences.pad(batch, prior)).to(device)
-        log_probs = model(x, p)[0].cpu().numpy()
+        with torch.inference_mode():
+            log_probs = model(x, p)[0].cpu().numpy()
         for j, span in enumerate(batch):
             out[span] = log_probs[j, : span.stop - span.start]
     return out
@@ -146,8 +161,38 @@ def _accuracy_and_loss(log_probs: np.ndarray, labels: np.ndarray, rows: np.ndarr
     return float((lp.argmax(1) == y).mean()), float(-lp[np.arange(len(y)), y].mean())
 
 
-def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: torch.device) -> Trained:
+def sgd_step(parameters: list[torch.Tensor], learning_rate: float) -> None:
+    """Plain SGD, the update torch.optim.SGD makes without momentum (whose first use imports torch._dynamo,
+    a second or two of every training run's start-up)."""
+    import torch
+
+    with torch.no_grad():
+        for parameter in parameters:
+            parameter.add_(parameter.grad, alpha=-learning_rate)
+
+
+@dataclass(frozen=True)
+class EpochDone:
+    """What :func:`fit` tells its progress callback after each epoch (frame accuracy and NLL of the parts)."""
+
+    epoch: int
+    epochs: int
+    loss: float  # on the training sequences
+    train_accuracy: float
+    val_accuracy: float | None  # None without a validation part (--select none)
+
+
+Progress = Callable[[EpochDone], None]
+
+
+def fit(
+    data: FrameData, config: ModelConfig, options: TrainOptions, device: torch.device, progress: Progress | None = None
+) -> Trained:
     """Train a network on the training split of ``data``; log train/val/test accuracy each epoch."""
+    import torch
+
+    from stages.models import SequenceClassifier
+
     torch.manual_seed(options.seed)
     rng = np.random.default_rng(options.seed)
     parts, fit_units, val_units = assign_parts(data, options)
@@ -165,7 +210,7 @@ def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: tor
                         "the model cannot predict them well")
 
     model = SequenceClassifier(config).to(device)
-    optimizer = torch.optim.SGD(model.parameters(), lr=options.learning_rate)
+    parameters = list(model.parameters())
     x_all = torch.from_numpy(sequences.pad(fit_units, features)).to(device)
     p_all = None if prior is None else torch.from_numpy(sequences.pad(fit_units, prior)).to(device)
     y_all = torch.from_numpy(sequences.pad(fit_units, data.labels, fill=-100)).to(device)
@@ -194,16 +239,22 @@ def fit(data: FrameData, config: ModelConfig, options: TrainOptions, device: tor
             ).view(y.shape)
             # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
             loss = (frame_loss.sum(1) / n_all[index]).mean()
-            optimizer.zero_grad()
+            for parameter in parameters:
+                parameter.grad = None
             loss.backward()
-            optimizer.step()
+            sgd_step(parameters, options.learning_rate)
 
         spans = [s for name in eval_spans for s in eval_spans[name]]
         log_probs = predict_log_probs(model, spans, features, prior, device)
+        measured = {}
         for name, rows in part_rows.items():
             if rows.any():
-                accuracy, nll = _accuracy_and_loss(log_probs, data.labels, rows)
+                accuracy, nll = measured[name] = _accuracy_and_loss(log_probs, data.labels, rows)
                 log_rows.append({"epoch": epoch, "split": name, "accuracy": accuracy, "loss": nll})
+        if progress is not None:
+            val = measured.get("val")
+            progress(EpochDone(epoch, options.epochs, measured["train"][1], measured["train"][0],
+                               None if val is None else val[0]))
         if options.select == "val_accuracy":
             accuracy = _accuracy_and_loss(log_probs, data.labels, part_rows["val"])[0]
             if accuracy > best_accuracy:
@@ -229,8 +280,10 @@ class TrainResult:
     device: str
 
 
-def run(workdir: Path, options: TrainOptions) -> TrainResult:
+def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) -> TrainResult:
     """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
+    from stages.models import ModelConfig
+
     options.validate()
     workdir = Path(workdir)
     set_threads()
@@ -249,7 +302,7 @@ def run(workdir: Path, options: TrainOptions) -> TrainResult:
         cell=options.cell, prior_layer=options.method == "priorlayer",
     )
     device = resolve_device(options.device)
-    trained = fit(data, config, options, device)
+    trained = fit(data, config, options, device, progress)
 
     checkpoint_config = {
         "method": options.method,

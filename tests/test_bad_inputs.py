@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, collect
+from stages import artifacts, binarize, collect
 
 runner = CliRunner()
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -244,7 +244,7 @@ def test_unreadable_inputs_are_refused(workdir, tmp_path):
     finally:
         frames.chmod(0o644)
     spec = tmp_path / "locked.binarize.toml"
-    spec.write_text((Path(__file__).parents[1] / "examples" / "desk.binarize.toml").read_text())
+    spec.write_text(binarize.default_spec_path("desk").read_text())
     spec.chmod(0)
     folder = tmp_path / "episodes"
     folder.mkdir()
@@ -296,9 +296,7 @@ def test_a_full_disk_mid_write_leaves_every_artifact_as_it_was(workdir, monkeypa
 
     import torch
 
-    from stages import train
-
-    monkeypatch.setattr(train.torch, "save", write_half_then_fill_the_disk(torch.save))
+    monkeypatch.setattr(torch, "save", write_half_then_fill_the_disk(torch.save))  # train's checkpoint
     refused(workdir, "train", "--epochs", 1, needles=("cannot write", "lstm.pt", "No space left on device"))
 
 

@@ -4,7 +4,7 @@ The stages run as real subprocesses of the CLI. ``tests/stall_driver.py`` runs t
 hook that marks a known point (the simulation or the training loop running, or a temporary file half
 written and the process hung there), so the kill lands where the test says, not at a lucky moment.
 After each kill the previous artifacts are byte-identical, nothing but a hidden temporary file is
-left, and the next run of the stage succeeds.
+left, and the next run of the stage succeeds and removes that file.
 """
 
 from __future__ import annotations
@@ -35,6 +35,10 @@ runner = CliRunner()
 def snapshot(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.rglob(".*.tmp"))
 
 
 def visible(files: dict[str, str]) -> dict[str, str]:
@@ -108,10 +112,11 @@ def test_sigkill_mid_write_of_frames_keeps_the_previous_frames(fetch_workdir):
     kill(process)
     after = snapshot(fetch_workdir)
     assert visible(after) == before
-    leftovers = set(after) - set(before)
-    assert len(leftovers) == 1 and all(Path(n).name.startswith(".frames.parquet.") for n in leftovers), leftovers
+    new_files = set(after) - set(before)
+    assert len(new_files) == 1 and all(Path(n).name.startswith(".frames.parquet.") for n in new_files), new_files
     ok("binarize", "-w", fetch_workdir)  # the previous frames still read
     ok("collect", "--env", "fetch", "--episodes", 3, "--seed", 1, "-w", fetch_workdir)
+    assert leftovers(fetch_workdir) == []  # the rerun removed the killed run's temporary file
     frames, meta = artifacts.read_table(fetch_workdir / artifacts.FRAMES, "frames")
     assert meta["seed"] == 1 and frames.height == 150
 
@@ -146,10 +151,12 @@ def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk
     kill(process)
     after = snapshot(desk_workdir)
     assert visible(after) == before  # the model and its log both as they were
-    leftovers = [Path(n).name for n in set(after) - set(before)]  # the hidden temp (and the temp's temp)
-    assert leftovers and all(n.startswith(".") and n.endswith(".tmp") and "lstm.pt" in n for n in leftovers)
+    leftovers_now = [Path(n).name for n in set(after) - set(before)]  # the hidden temp (and the temp's temp)
+    assert leftovers_now and all(n.startswith(".") and n.endswith(".tmp") and "lstm.pt" in n for n in leftovers_now)
     ok("conflate", "-w", desk_workdir)
+    assert len(leftovers(desk_workdir)) == len(leftovers_now)  # conflate leaves other artifacts' files alone
     ok("train", "--epochs", 1, "--seed", 7, "-w", desk_workdir)
+    assert leftovers(desk_workdir) == []  # the temporary file and the temp's temp are gone
     assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 7
 
 

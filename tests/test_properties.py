@@ -1,6 +1,6 @@
 """Property-based tests of the two hand-written inputs: the .mln parser and the predicate spec loader.
 
-Random text, structured documents and mutations of the real files in examples/ never end in an
+Random text, structured documents and mutations of the real files in examples/ and stages/specs/ never end in an
 unexpected exception: they parse, or they raise the one-line BadInput that names the file (and the
 line where there is one). Binarizing with any spec that loads never crashes either. Through the CLI a
 few broken files give exit 2 and a single stderr line, no traceback.
@@ -27,8 +27,8 @@ from stages.mln.grounding import check_mln
 from stages.mln.syntax import format_weighted, parse_mln
 
 REPO = Path(__file__).resolve().parents[1]
-MLN_FILES = sorted(REPO.glob("examples/**/*.mln"))
-SPEC_FILES = sorted(REPO.glob("examples/**/*.binarize.toml"))
+MLN_FILES = sorted([*REPO.glob("examples/**/*.mln"), *REPO.glob("stages/specs/*.mln")])
+SPEC_FILES = sorted([*REPO.glob("examples/**/*.binarize.toml"), *REPO.glob("stages/specs/*.binarize.toml")])
 
 # Derandomized so CI sees the same examples every run; no deadline (the 2-core CI box is slow).
 FAST = settings(max_examples=150, deadline=None, derandomize=True, database=None,

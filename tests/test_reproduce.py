@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from stages import report
+from stages.report import loading
 
 pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
 
@@ -60,7 +60,7 @@ def test_the_report_has_every_section_and_figure(reduced):
         assert f"]({name})" in text
         assert (reports / name).read_bytes()[:4] == b"\x89PNG", name
     assert "**Not run:**" not in text
-    assert set(report.load_run(reduced["root"] / "runs").datasets) == {
+    assert set(loading.load_run(reduced["root"] / "runs").datasets) == {
         "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5"}
 
 
@@ -71,7 +71,7 @@ def test_every_stage_prints_one_timed_summary(reduced):
 
 
 def test_a_second_run_does_no_work(reduced):
-    timings = reduced["root"] / "runs" / report.TIMINGS
+    timings = reduced["root"] / "runs" / loading.TIMINGS
     before = timings.read_text()
     assert make(reduced["command"], "-q", str(reduced["root"] / "reports" / "REPORT.md")).returncode == 0
     again = make(reduced["command"], "-j2", "report")

@@ -8,7 +8,6 @@ from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
 from stages import artifacts
-from stages.binarize import default_spec_path
 
 runner = CliRunner()
 
@@ -33,7 +32,7 @@ def test_bare_binarize_after_collect_writes_the_paper_predicates(desk_workdir):
     frames, frames_meta = artifacts.read_table(desk_workdir / artifacts.FRAMES, "frames")
     assert predicates.select(artifacts.KEY_COLUMNS).equals(frames.select(artifacts.KEY_COLUMNS))
     assert meta["classes"] == frames_meta["classes"] and meta["source"] == "desk"
-    assert meta["spec"]["path"].endswith("examples/desk.binarize.toml") and "previous_scale" in meta["spec"]["text"]
+    assert meta["spec"]["path"].endswith("stages/specs/desk.binarize.toml") and "previous_scale" in meta["spec"]["text"]
     assert set(meta["inputs"]) == {artifacts.FRAMES, meta["spec"]["path"]}
     assert set(meta["predicates"]) == {"arm_distance", "left_gripper", "right_gripper", "grippers"}
     assert predicates.columns[4:] == [c for name in ("arm_distance", "left_gripper", "right_gripper", "grippers")
@@ -65,14 +64,14 @@ def test_an_absent_spec_file_is_a_usage_error(desk_workdir, tmp_path):
 
 
 @pytest.mark.mujoco
-def test_fetch_frames_get_the_paper_spec_by_default_and_the_rich_one_on_request(tmp_path):
+def test_fetch_frames_get_the_paper_spec_by_default_and_the_rich_one_on_request(tmp_path, repo_root):
     result = runner.invoke(app, ["collect", "--env", "fetch", "--episodes", "2", "--goals", "-w", str(tmp_path)])
     assert result.exit_code == 0, result.output
     result = runner.invoke(app, ["binarize", "-w", str(tmp_path)])
     assert result.exit_code == 0, result.output
     _, meta = artifacts.read_table(tmp_path / artifacts.PREDICATES, "predicates")
     assert meta["predicates"] == {"gripper": ["gripper_static", "gripper_increase", "gripper_decrease"]}
-    rich = default_spec_path("fetch-rich")
+    rich = repo_root / "examples" / "fetch-rich.binarize.toml"
     result = runner.invoke(app, ["binarize", "-w", str(tmp_path), "--spec", str(rich)])
     assert result.exit_code == 0, result.output
     predicates, meta = artifacts.read_table(tmp_path / artifacts.PREDICATES, "predicates")

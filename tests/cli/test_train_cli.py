@@ -1,7 +1,12 @@
 """train, conflate and eval through the CLI on the real DESK data, and their bad-input messages."""
 
 import json
+import os
+import pty
+import re
 import shutil
+import subprocess
+import sys
 
 import pytest
 from typer.testing import CliRunner
@@ -70,3 +75,43 @@ def test_eval_of_a_method_absent_from_predictions_names_the_stage(workdir):
     result = invoke("eval", "--method", "lstm", "-w", workdir)
     assert result.exit_code == 2
     assert "train --method lstm" in result.output
+
+
+def train_output(workdir, epochs: int, terminal: bool) -> str:
+    """What `mlnseq train` prints into a pipe (as in Make's log) or onto a terminal (a pseudo-terminal)."""
+    command = [sys.executable, "-m", "mlnseq_cli.main", "train", "--epochs", str(epochs), "-w", str(workdir)]
+    env = {**os.environ, "COLUMNS": "160", "MLNSEQ_VERBOSE": "", "TERM": "xterm"}
+    if not terminal:
+        return subprocess.run(command, capture_output=True, text=True, env=env, check=True).stdout
+    leader, follower = pty.openpty()
+    process = subprocess.Popen(command, stdin=follower, stdout=follower, stderr=follower, env=env)
+    os.close(follower)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(leader, 1 << 16)
+        except OSError:  # the terminal closed with the process
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    os.close(leader)
+    assert process.wait() == 0
+    return b"".join(chunks).decode("utf-8", "replace")
+
+
+def test_training_progress_in_a_log_is_a_line_per_tenth_of_the_epochs(workdir):
+    out = train_output(workdir, 20, terminal=False)
+    lines = [line for line in out.splitlines() if line.startswith("training lstm")]
+    assert [line.split(": epoch ")[1].split(",")[0] for line in lines] == [f"{e}/20" for e in range(2, 21, 2)]
+    assert all("loss " in line and "train " in line and "val –" in line and " s left" in line for line in lines)
+    assert "\r" not in out and "\x1b" not in out
+
+
+def test_training_progress_on_a_terminal_is_a_bar(workdir):
+    out = train_output(workdir, 3, terminal=True)
+    assert "\x1b[" in out  # drawn and redrawn in place
+    plain = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", out)
+    for epoch in (1, 2, 3):
+        assert f"training lstm (segment mode): epoch {epoch}/3" in plain
+    assert "loss " in plain and "train: wrote" in plain

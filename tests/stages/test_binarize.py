@@ -6,6 +6,8 @@ import numpy as np
 import polars as pl
 import pytest
 
+from pathlib import Path
+
 from stages import artifacts, collect
 from stages.fetch_demos import OBSERVATION_FEATURES
 from stages import binarize as stage
@@ -14,6 +16,7 @@ from stages.errors import BadInput
 DESK_GRIPPER_CODE = {"static": 0, "open": 1, "closed": 2, "opening": 3, "closing": 4}
 DESK_ARM_CODE = {"static": 0, "increase": 1, "decrease": 2}
 FETCH_GRIPPER_CODE = {"static": 0, "decrease": 1, "increase": 2}
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def codes(predicates: pl.DataFrame, name: str, columns: list[str], code_of: dict[str, int]) -> np.ndarray:
@@ -98,7 +101,7 @@ def test_an_episodes_first_frame_has_no_previous_frame(shared_data):
 
 def test_rich_fetch_spec_names_the_missing_goal(shared_data):
     frames = fetch_frames(shared_data)
-    spec = stage.load_spec(stage.EXAMPLES_DIR / "fetch-rich.binarize.toml")
+    spec = stage.load_spec(EXAMPLES / "fetch-rich.binarize.toml")
     where = r"fetch-rich\.binarize\.toml:\d+: key 'to' of \[\[channel\]\] 'object_goal_distance'"
     with pytest.raises(BadInput, match=rf"{where}.*'desired_goal_x'.*--goals"):
         stage.binarize(frames, spec)
@@ -109,7 +112,7 @@ def test_rich_fetch_spec_is_one_hot_and_follows_the_task(shared_data):
     # A goal for the check: where each demonstration left the object (successful demonstrations end there).
     final = frames.group_by("episode").agg(pl.col(f"object_pos_{a}").last().alias(f"desired_goal_{a}") for a in "xyz")
     frames = frames.join(final, on="episode", how="left", maintain_order="left")
-    spec = stage.load_spec(stage.EXAMPLES_DIR / "fetch-rich.binarize.toml")
+    spec = stage.load_spec(EXAMPLES / "fetch-rich.binarize.toml")
     predicates = stage.binarize(frames, spec)
     assert_one_hot(predicates, spec)
     shares = predicates.group_by("label").agg(
@@ -217,7 +220,7 @@ def test_streaming_binarizer_matches_the_batch_one_on_real_frames(desk_frames, s
     desk = desk_frames.head(3000)
     batch = stage.binarize(desk, desk_spec).select(pl.exclude(artifacts.KEY_COLUMNS)).to_numpy()
     np.testing.assert_array_equal(streamed(desk, desk_spec), batch)
-    rich = stage.load_spec(stage.EXAMPLES_DIR / "fetch-rich.binarize.toml")  # distances, bins, change
+    rich = stage.load_spec(EXAMPLES / "fetch-rich.binarize.toml")  # distances, bins, change
     goals = ("achieved_goal_x", "achieved_goal_y", "achieved_goal_z", "desired_goal_x", "desired_goal_y", "desired_goal_z")
     fetch = fetch_frames(shared_data, episode_length=50)
     fetch = fetch.with_columns([pl.col(f"object_pos_{a}").alias(f"{kind}_goal_{a}") for kind in ("achieved", "desired")

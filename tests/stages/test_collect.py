@@ -12,6 +12,7 @@ import polars as pl
 import pytest
 
 from stages import artifacts, collect, fetch_demos
+from stages.errors import BadInput
 
 # Reads an artifact with polars, pyarrow and json only, and proves no project module was loaded.
 READ_WITHOUT_PROJECT = """
@@ -153,19 +154,19 @@ def test_fetch_same_seed_same_frames_other_seed_other_frames(fetch_frames):
     frames, meta = fetch_frames
     seed = meta["seed"]
     calls = []
-    again = fetch_demos.collect_fetch(
+    again = collect.collect_fetch(
         collect.CollectOptions(episodes=2, seed=seed), progress=lambda done, total: calls.append((done, total))
     ).frames
     assert calls == [(1, 2), (2, 2)]
     # an episode depends only on (seed, episode): a shorter run repeats the longer one's first episodes
     assert again.drop("split").equals(frames.filter(pl.col("episode") < 2).drop("split"))
-    other = fetch_demos.collect_fetch(collect.CollectOptions(episodes=2, seed=seed + 1)).frames
+    other = collect.collect_fetch(collect.CollectOptions(episodes=2, seed=seed + 1)).frames
     assert not np.allclose(other["object_pos_x"].to_numpy(), again["object_pos_x"].to_numpy())
 
 
 @pytest.mark.mujoco
 def test_fetch_goals_and_train_frames_options():
-    collected = fetch_demos.collect_fetch(collect.CollectOptions(episodes=1, goals=True, train_frames=10))
+    collected = collect.collect_fetch(collect.CollectOptions(episodes=1, goals=True, train_frames=10))
     frames = collected.frames
     assert collected.meta["features"] == [*fetch_demos.OBSERVATION_FEATURES, *fetch_demos.GOAL_FEATURES]
     assert artifacts.feature_columns(frames) == collected.meta["features"]
@@ -199,3 +200,50 @@ def test_a_failed_write_leaves_no_partial_frames(tmp_path, monkeypatch, desk_fra
         collect.run(existing, options)
     assert [p.name for p in existing.iterdir()] == [artifacts.FRAMES]
     assert (existing / artifacts.FRAMES).read_bytes() == before
+
+
+# --- the episode cache ----------------------------------------------------------------------------
+
+# Collects through the stage in a fresh process; prints whether the simulator was loaded.
+COLLECT_AND_SAY_IF_SIMULATED = """
+import json, sys
+from pathlib import Path
+from stages import collect
+options = collect.CollectOptions(**json.loads(sys.argv[2]), cache=Path(sys.argv[3]))
+collect.run(Path(sys.argv[1]), options)
+print(json.dumps([name for name in ("mujoco", "gymnasium", "gymnasium_robotics") if name in sys.modules]))
+"""
+
+
+def collect_in_process(workdir: Path, cache: Path, **options) -> list[str]:
+    done = subprocess.run([sys.executable, "-c", COLLECT_AND_SAY_IF_SIMULATED, str(workdir), json.dumps(options),
+                           str(cache)], capture_output=True, text=True, check=True)
+    return json.loads(done.stdout)
+
+
+@pytest.mark.mujoco
+def test_fetch_cache_reuses_the_simulated_episodes_for_every_split_and_goal_option(tmp_path, monkeypatch):
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")  # byte-identical artifacts but for their inputs
+    cache = tmp_path / "cache"
+    assert collect_in_process(tmp_path / "first", cache, episodes=3, seed=2) != []  # simulated
+    assert len(list(cache.iterdir())) == 1
+    assert collect_in_process(tmp_path / "rich", cache, episodes=3, seed=2, goals=True, train_frames=60) == []
+    assert collect_in_process(tmp_path / "again", cache, episodes=3, seed=2) == []
+    for name, options in (("first", {}), ("rich", {"goals": True, "train_frames": 60})):
+        fresh = tmp_path / f"{name}-fresh"
+        collect.run(fresh, collect.CollectOptions(episodes=3, seed=2, **options))  # no cache: simulated
+        assert (tmp_path / name / artifacts.FRAMES).read_bytes() == (fresh / artifacts.FRAMES).read_bytes(), name
+    assert (tmp_path / "again" / artifacts.FRAMES).read_bytes() == (tmp_path / "first" / artifacts.FRAMES).read_bytes()
+    assert collect_in_process(tmp_path / "other", cache, episodes=3, seed=3) != []  # another seed: simulated
+    assert len(list(cache.iterdir())) == 2
+
+
+@pytest.mark.mujoco
+def test_a_damaged_cache_file_is_named_and_nothing_is_written(tmp_path):
+    options = collect.CollectOptions(episodes=1, seed=4, cache=tmp_path / "cache")
+    collect.run(tmp_path / "first", options)
+    [cached] = (tmp_path / "cache").iterdir()
+    cached.write_bytes(cached.read_bytes()[:100])
+    with pytest.raises(BadInput, match=f"{cached.name} is not a readable episode cache.*delete it"):
+        collect.run(tmp_path / "second", options)
+    assert not (tmp_path / "second" / artifacts.FRAMES).exists()

@@ -71,6 +71,20 @@ def test_select_keeps_the_best_validation_epoch_and_logs_val(desk_workdir):
     assert result.trained.kept_epoch == int(val["epoch"][int(np.argmax(val["accuracy"].to_numpy()))])
 
 
+def test_progress_reports_every_epoch_as_the_log_records_it(desk_workdir):
+    done = []
+    result = train.run(desk_workdir, train.TrainOptions(epochs=3, select="val_accuracy"), progress=done.append)
+    assert [(d.epoch, d.epochs) for d in done] == [(1, 3), (2, 3), (3, 3)]
+    log = result.trained.log
+    for d in done:
+        logged = {row["split"]: row for row in log.filter(pl.col("epoch") == d.epoch).iter_rows(named=True)}
+        assert (d.train_accuracy, d.loss, d.val_accuracy) == (
+            logged["train"]["accuracy"], logged["train"]["loss"], logged["val"]["accuracy"])
+    without_val = []
+    train.run(desk_workdir, train.TrainOptions(epochs=1), progress=without_val.append)
+    assert without_val[0].val_accuracy is None
+
+
 def test_priorlayer_trains_on_the_learned_mln_weights(tmp_path, desk_mln_workdir):
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)

@@ -1,0 +1,69 @@
+"""report: the paper's tables and figures from a `make reproduce` run, beside the published numbers.
+
+The run folder is laid out by the Makefile: ``RUNS/DATASET/`` holds a dataset's frames, predicates and
+MLN weights, ``RUNS/DATASET/MODE/seed-N/`` one training seed's models (with their per-epoch logs),
+predictions and metrics, and ``RUNS/timings.tsv`` one row per stage run (scripts/timed_stage.sh).
+Datasets: ``fetch`` and ``desk`` (the paper's splits), ``fetch-rich`` (the richer predicate spec) and
+``fetch-fraction-F`` (the first F of the Fetch episodes train: the data-efficiency curve).
+
+One module per part: ``loading`` reads the folder into a :class:`Run`; the pure ``tables``, ``claims``,
+``figures`` and ``rendering`` turn it into rows, statements, figures and Markdown; :func:`run` below writes
+``REPORT.md`` and the PNGs beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from stages import artifacts
+from stages.errors import BadInput
+from stages.report.figures import (
+    FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_train_vs_test, pyplot,
+)
+from stages.report.loading import PAPER_DATASETS, load_run, present
+from stages.report.rendering import render
+from stages.report.tables import efficiency_points
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """Options of `mlnseq report`."""
+
+    runs: Path = Path("runs")
+    out: Path = Path("reports")
+
+    def validate(self) -> None:
+        if not Path(self.runs).is_dir():
+            raise BadInput(f"--runs {self.runs} is not a folder: run `make reproduce` first "
+                           "(or point --runs at its RUNS)")
+
+
+@dataclass(frozen=True)
+class ReportResult:
+    path: Path
+    figures: list[Path]
+    datasets: list[str]
+    n_seed_runs: int
+
+
+def run(options: ReportOptions) -> ReportResult:
+    """Read the run folder ``options.runs``; write ``options.out/REPORT.md`` and its PNG figures."""
+    options.validate()
+    loaded = load_run(Path(options.runs))
+    out = Path(options.out)
+    drawn = {FIGURES["fig7"]: figure_test_curves(loaded), FIGURES["fig8"]: figure_train_vs_test(loaded),
+             FIGURES["efficiency"]: figure_efficiency(efficiency_points(loaded))}
+    for dataset in present(loaded, PAPER_DATASETS):
+        drawn[FIGURES["confusion"].format(dataset=dataset)] = figure_confusion(loaded, dataset)
+    written = []
+    plt = pyplot()
+    for name, figure in drawn.items():
+        with artifacts.atomic_path(out / name) as tmp:
+            figure.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
+        plt.close(figure)
+        written.append(out / name)
+    path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES))
+    n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
+    return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)
+

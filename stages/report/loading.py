@@ -1,0 +1,122 @@
+"""Reading a run folder of `make reproduce` into one :class:`Run` of tables (see ``stages.report``)."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import platform
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from stages import artifacts
+from stages.errors import BadInput
+from stages.recognizer import NETWORKS
+
+PAPER_DATASETS = ("fetch", "desk")
+RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"
+TIMINGS = "timings.tsv"  # written by scripts/timed_stage.sh: started, seconds, stage, arguments
+SEED_DIR = re.compile(r"seed-(\d+)")
+
+
+@dataclass
+class Run:
+    """Everything the report reads from a run folder, as tables."""
+
+    metrics: pl.DataFrame  # dataset, mode, seed, method, metric, item, value
+    logs: pl.DataFrame  # dataset, mode, seed, method, epoch, split, accuracy, loss
+    datasets: dict[str, dict[str, Any]]  # name -> frames metadata + n_frames, n_train, spec, classes
+    weights: dict[str, pl.DataFrame]  # dataset -> weights.parquet
+    settings: dict[str, dict[str, Any]]  # stage -> option -> sorted distinct values used
+    timings: pl.DataFrame  # started, seconds, stage, arguments (latest run of each command)
+    machine: dict[str, str] = field(default_factory=dict)
+
+
+def load_run(runs: Path) -> Run:
+    """Read every dataset folder and seed workdir of a run (see the module docstring)."""
+    metrics, logs, settings = [], [], {}
+    datasets, weights = {}, {}
+    for frames_path in sorted(runs.glob(f"*/{artifacts.FRAMES}")):
+        folder = frames_path.parent
+        _, meta = artifacts.read_table(frames_path, "frames")
+        frames = pl.read_parquet(frames_path, columns=["split"])
+        predicates = folder / artifacts.PREDICATES
+        predicates_meta = artifacts.read_metadata(predicates) if predicates.exists() else {}
+        datasets[folder.name] = {**meta, "n_frames": frames.height,
+                                 "n_train": int((frames["split"] == "train").sum()),
+                                 "spec": predicates_meta.get("options", {}).get("spec", "–")}
+        _note(settings, "binarize", predicates_meta.get("options", {}))
+        if (folder / artifacts.WEIGHTS).exists():
+            weights[folder.name], weights_meta = artifacts.read_table(folder / artifacts.WEIGHTS, "weights")
+            _note(settings, "learn-weights", {"engine": weights_meta.get("engine")})
+        for metrics_path in sorted(folder.glob(f"*/seed-*/{artifacts.METRICS}")):
+            workdir = metrics_path.parent
+            keys = {"dataset": folder.name, "mode": workdir.parent.name,
+                    "seed": int(SEED_DIR.fullmatch(workdir.name).group(1))}
+            table, metrics_meta = artifacts.read_table(metrics_path, "metrics")
+            metrics.append(table.with_columns(**{k: pl.lit(v) for k, v in keys.items()}))
+            _note(settings, "eval", metrics_meta.get("options", {}))
+            predictions_meta = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")
+            _note(settings, "conflate", {"mln_mode": predictions_meta.get("mln_mode")})
+            for method in NETWORKS:
+                log_path = artifacts.train_log_path(workdir, method)
+                if log_path.exists():
+                    log, log_meta = artifacts.read_table(log_path, "train_log")
+                    logs.append(log.with_columns(method=pl.lit(method), **{k: pl.lit(v) for k, v in keys.items()}))
+                    _note(settings, "train", {**log_meta.get("options", {}), "kept_epoch": log_meta.get("kept_epoch")},
+                          skip=("seed", "method"))
+    if not metrics:
+        raise BadInput(f"no results in {runs}: expected {runs}/DATASET/MODE/seed-N/{artifacts.METRICS}; "
+                       "run `make reproduce` first")
+    return Run(
+        metrics=pl.concat(metrics, how="diagonal_relaxed"),
+        logs=pl.concat(logs, how="diagonal_relaxed") if logs else pl.DataFrame(
+            schema={"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "loss": pl.Float64,
+                    "method": pl.String, "dataset": pl.String, "mode": pl.String, "seed": pl.Int64}),
+        datasets=datasets, weights=weights,
+        settings={stage: {k: sorted(v, key=str) for k, v in options.items()} for stage, options in settings.items()},
+        timings=read_timings(runs / TIMINGS), machine=machine(),
+    )
+
+
+def _note(settings: dict[str, dict[str, set]], stage: str, options: dict[str, Any], skip: tuple[str, ...] = ()) -> None:
+    for name, value in options.items():
+        if name not in skip and value is not None:
+            settings.setdefault(stage, {}).setdefault(name, set()).add(value if np.isscalar(value) else str(value))
+
+
+def read_timings(path: Path) -> pl.DataFrame:
+    """timings.tsv, keeping each command's latest run."""
+    schema = {"started": pl.String, "seconds": pl.Float64, "stage": pl.String, "arguments": pl.String}
+    if not path.exists():
+        return pl.DataFrame(schema=schema)
+    table = pl.read_csv(path, separator="\t", has_header=False, new_columns=list(schema), schema_overrides=schema,
+                        quote_char=None)
+    return table.group_by(["stage", "arguments"], maintain_order=True).last().select(list(schema))
+
+
+def machine() -> dict[str, str]:
+    """The machine this report runs on (the run's own, as `make reproduce` writes it last)."""
+    cpu = platform.processor() or ""
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        found = re.search(r"^model name\s*:\s*(.+)$", cpuinfo.read_text(), re.MULTILINE)
+        cpu = found.group(1) if found else cpu
+    versions = {}
+    for package in ("torch", "numpy", "polars", "mujoco", "gymnasium-robotics", "mlnseq"):
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = "not installed"
+    return {"CPU": cpu or "unknown", "cores": str(os.cpu_count()), "OS": platform.platform(),
+            "Python": platform.python_version(), **versions}
+
+
+def present(run: Run, names: tuple[str, ...]) -> list[str]:
+    """Those of ``names`` that the run has results for, in that order."""
+    have = set(run.metrics["dataset"].unique().to_list())
+    return [n for n in names if n in have]

@@ -1,0 +1,200 @@
+"""The report's numbers: statistics over seeds and the rows of every table (pure functions of a :class:`Run`)."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from stages.recognizer import METHODS
+from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, Run, present
+
+# Table III of the paper: segment accuracy (%) at half of each segment.
+PAPER_TABLE_III = {
+    "fetch": {"lstm": 71, "mln": 50, "priorlayer": 83, "conflation": 77, "combined": 84},
+    "desk": {"lstm": 68, "mln": 49, "priorlayer": 71, "conflation": 69, "combined": 72},
+}
+METHOD_NAMES = {"lstm": "LSTM", "mln": "MLN", "priorlayer": "LSTM + PriorLayer",
+                "conflation": "LSTM + Conflation", "combined": "PriorLayer + Conflation (combined)"}
+STAGE_ORDER = ("collect", "binarize", "formulas", "learn-weights", "train", "conflate", "eval", "report")
+
+
+def seed_stats(metrics: pl.DataFrame, metric: str, by: list[str]) -> pl.DataFrame:
+    """Mean, std and count over seeds of one metric (as %, or as is for edit and F1@k), grouped by ``by``."""
+    scale = 1.0 if metric in ("edit", "f1@10", "f1@25", "f1@50") else 100.0
+    return (
+        metrics.filter(pl.col("metric") == metric)
+        .group_by(by, maintain_order=True)
+        .agg((pl.col("value") * scale).mean().alias("mean"), (pl.col("value") * scale).std().alias("std"),
+             pl.col("seed").n_unique().alias("seeds"))
+    )
+
+
+def method_stats(run: Run, metric: str = "segment_accuracy", mode: str = "segment") -> pl.DataFrame:
+    """:func:`seed_stats` of one metric in one training mode, per dataset and method."""
+    return seed_stats(run.metrics.filter(pl.col("mode") == mode), metric, ["dataset", "method"])
+
+
+def fmt(mean: float | None, std: float | None = None) -> str:
+    """'66.5 ± 1.2' (std absent with one seed)."""
+    if mean is None or (isinstance(mean, float) and np.isnan(mean)):
+        return "–"
+    if std is None or np.isnan(std):
+        return f"{mean:.1f}"
+    return f"{mean:.1f} ± {std:.1f}"
+
+
+def lookup(stats: pl.DataFrame, **keys: Any) -> tuple[float | None, float | None]:
+    row = stats.filter(pl.all_horizontal(pl.col(k) == v for k, v in keys.items()))
+    return (row["mean"][0], row["std"][0]) if row.height else (None, None)
+
+
+def log_epoch_stats(logs: pl.DataFrame) -> pl.DataFrame:
+    """Per dataset, mode, method, split and epoch: accuracy (%) mean and std over seeds."""
+    return (
+        logs.group_by(["dataset", "mode", "method", "split", "epoch"])
+        .agg((pl.col("accuracy") * 100).mean().alias("mean"), (pl.col("accuracy") * 100).std().alias("std"))
+        .sort(["dataset", "mode", "method", "split", "epoch"])
+    )
+
+
+def best_test_epoch(logs: pl.DataFrame) -> pl.DataFrame:
+    """Per network: test frame accuracy (%) of each seed's best test epoch, mean and std, and the median epoch."""
+    per_seed = logs.filter(pl.col("split") == "test").group_by(["dataset", "mode", "method", "seed"]).agg(
+        (pl.col("accuracy").max() * 100).alias("best"), pl.col("epoch").sort_by("accuracy").last().alias("epoch"))
+    return per_seed.group_by(["dataset", "mode", "method"]).agg(
+        pl.col("best").mean().alias("mean"), pl.col("best").std().alias("std"), pl.col("epoch").median())
+
+
+def table_iii(run: Run) -> list[list[str]]:
+    """Paper vs mlnseq, segment mode: segment accuracy at half a segment, last epoch, mean ± std over seeds."""
+    stats = method_stats(run)
+    frame_stats = method_stats(run, "frame_accuracy")
+    best = best_test_epoch(run.logs.filter(pl.col("mode") == "segment"))
+    rows = []
+    for dataset in present(run, PAPER_DATASETS):
+        for method in METHODS:
+            this = (pl.col("dataset") == dataset) & (pl.col("method") == method)
+            seeds, best_epoch = stats.filter(this)["seeds"], best.filter(this)["epoch"]
+            rows.append([
+                dataset, METHOD_NAMES[method], str(PAPER_TABLE_III[dataset][method]),
+                fmt(*lookup(stats, dataset=dataset, method=method)), str(seeds[0]) if seeds.len() else "0",
+                fmt(*lookup(frame_stats, dataset=dataset, method=method)),
+                f"{fmt(*lookup(best, dataset=dataset, method=method))} (epoch ~{best_epoch[0]:.0f})"
+                if best_epoch.len() else "–",
+            ])
+    return rows
+
+
+def per_class_table(run: Run, dataset: str, methods: tuple[str, ...] = ("lstm", "mln", "combined")) -> list[list[str]]:
+    """Table IV: segment accuracy per true class (%), mean ± std over seeds, segment mode."""
+    stats = seed_stats(run.metrics.filter((pl.col("mode") == "segment") & (pl.col("dataset") == dataset)),
+                       "class_accuracy", ["method", "item"])
+    return [[name, *(fmt(*lookup(stats, method=m, item=name)) for m in methods)]
+            for name in run.datasets[dataset]["classes"]]
+
+
+def confusion_matrix(run: Run, dataset: str, method: str) -> np.ndarray:
+    """Segment confusion counts (true rows, predicted columns), summed over seeds, segment mode."""
+    classes = run.datasets[dataset]["classes"]
+    counts = run.metrics.filter((pl.col("dataset") == dataset) & (pl.col("mode") == "segment")
+                                & (pl.col("method") == method) & (pl.col("metric") == "confusion"))
+    matrix = np.zeros((len(classes), len(classes)))
+    for item, value in counts.select("item", "value").iter_rows():
+        true, predicted = item.split(" -> ")
+        matrix[classes.index(true), classes.index(predicted)] += value
+    return matrix
+
+
+def stream_table(run: Run) -> list[list[str]]:
+    """Stream mode (no segment boundaries at test): segment accuracy, edit and F1@k, mean ± std."""
+    columns = ("segment_accuracy", "frame_accuracy", "edit", "f1@10", "f1@25", "f1@50")
+    stats = {c: method_stats(run, c, mode="stream") for c in columns}
+    return [[dataset, METHOD_NAMES[method], *(fmt(*lookup(stats[c], dataset=dataset, method=method)) for c in columns)]
+            for dataset in present(run, PAPER_DATASETS) for method in METHODS
+            if lookup(stats["segment_accuracy"], dataset=dataset, method=method)[0] is not None]
+
+
+def rich_spec_table(run: Run) -> list[list[str]]:
+    """Fetch, segment mode: the paper's predicate spec against the richer one, per method."""
+    stats = method_stats(run)
+    return [[METHOD_NAMES[m], *(fmt(*lookup(stats, dataset=d, method=m)) for d in ("fetch", RICH))] for m in METHODS]
+
+
+def efficiency_points(run: Run) -> pl.DataFrame:
+    """Per training size (share of the Fetch frames that train) and method: segment accuracy mean, std."""
+    names = [d for d in run.datasets if d.startswith(FRACTION_PREFIX)] + present(run, ("fetch",))
+    shares = pl.DataFrame({"dataset": names,
+                           "train_share": [run.datasets[d]["n_train"] / run.datasets[d]["n_frames"] for d in names],
+                           "train_frames": [run.datasets[d]["n_train"] for d in names]},
+                          schema={"dataset": pl.String, "train_share": pl.Float64, "train_frames": pl.Int64})
+    return method_stats(run).join(shares, on="dataset").sort(["method", "train_share"])
+
+
+def efficiency_table(points: pl.DataFrame) -> list[list[str]]:
+    """One row per training size: LSTM, MLN and combined segment accuracy and the combined model's gain."""
+    rows = []
+    for (share, frames), group in points.sort("train_share").group_by(["train_share", "train_frames"],
+                                                                       maintain_order=True):
+        by = {r["method"]: r for r in group.iter_rows(named=True)}
+        gain = combined_gain(by)
+        rows.append([f"{share:.1%}", f"{frames:,}",
+                     *(fmt(by[m]["mean"], by[m]["std"]) if m in by else "–" for m in ("lstm", "mln", "combined")),
+                     "–" if gain is None else f"{gain:+.1f}"])
+    return rows
+
+
+def combined_gain(by_method: dict[str, dict[str, Any]]) -> float | None:
+    """The combined model's segment accuracy minus the LSTM's, where both were run."""
+    if "lstm" in by_method and "combined" in by_method:
+        return by_method["combined"]["mean"] - by_method["lstm"]["mean"]
+    return None
+
+
+def weights_table(run: Run, dataset: str, per_class: int = 3) -> list[list[str]]:
+    """Table II style: the strongest learned formulas of each class."""
+    from stages.learn_weights import strongest  # the MLN engine (scipy): needed when the report runs only
+
+    classes = run.datasets[dataset]["classes"]
+    rows = []
+    for row in strongest(run.weights[dataset], per_class).iter_rows(named=True):
+        name = classes[int(row["class"][1:])] if re.fullmatch(r"C\d+", row["class"] or "") else row["class"]
+        weight = "hard" if row["hard"] else f"{row['weight']:.3f}"
+        rows.append([name, weight, f"`{row['formula']}`"])
+    return rows
+
+
+def datasets_table(run: Run) -> list[list[str]]:
+    """What each dataset folder holds: source, frames, training frames, features, predicate spec, epochs."""
+    rows = []
+    for name, d in sorted(run.datasets.items()):
+        options = d.get("options", {})
+        source = d.get("source", "?") + (f", {options['episodes']} episodes, seed {options['seed']}"
+                                         if d.get("source") == "fetch" else "")
+        epochs = run.logs.filter(pl.col("dataset") == name)["epoch"].max()
+        rows.append([name, source, f"{d['n_frames']:,}", f"{d['n_train']:,}", str(len(d["features"])), d["spec"],
+                     "–" if epochs is None else str(epochs)])
+    return rows
+
+
+def timings_table(timings: pl.DataFrame) -> list[list[str]]:
+    """Per stage: runs, total, mean and longest seconds (latest run of each command)."""
+    if timings.height == 0:
+        return []
+    per_stage = timings.group_by("stage").agg(
+        pl.len().alias("runs"), pl.col("seconds").sum().alias("total"), pl.col("seconds").mean().alias("mean"),
+        pl.col("seconds").max().alias("longest"))
+    order = {stage: i for i, stage in enumerate(STAGE_ORDER)}
+    rows = sorted(per_stage.iter_rows(named=True), key=lambda r: order.get(r["stage"], len(order)))
+    return [[r["stage"], str(r["runs"]), f"{r['total']:.0f}", f"{r['mean']:.1f}", f"{r['longest']:.1f}"] for r in rows]
+
+
+def wall_seconds(timings: pl.DataFrame) -> float | None:
+    """From the first stage's start to the last stage's end."""
+    if timings.height == 0:
+        return None
+    started = timings["started"].str.to_datetime("%Y-%m-%dT%H:%M:%S").dt.epoch("s").to_numpy()
+    return float((started + timings["seconds"].to_numpy()).max() - started.min())
+
