@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, sparse
 
+from stages.mln.blas import one_thread
 from stages.mln.grounding import AtomSpace, Expanded, atom_indices, ground, is_temporal, space_of, truth
 
 
@@ -117,9 +118,10 @@ DENSE_LIMIT = 500  # learned weights up to which BFGS (pracmln's optimiser) is u
 
 
 def learn(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace, starts: np.ndarray | None = None,
-          l2: float = 0.0, gtol: float = 1e-5) -> np.ndarray:
+          l2: float = 0.0, gtol: float = 1e-5, optimiser: str | None = None) -> np.ndarray:
     """The BPLL weights of ``formulas`` on the atom matrix ``rows`` (one row per training frame; chains cut
-    where ``starts`` is True), maximising PLL - l2/2 |w|^2 over the learned weights.
+    where ``starts`` is True), maximising PLL - l2/2 |w|^2 over the learned weights. ``optimiser``: "bfgs" or
+    "l-bfgs"; None chooses by the number of learned weights (``DENSE_LIMIT``).
 
     Fixed formulas keep their weight; hard ones get +inf. The probabilities are computed as
     pracmln computes them (exp of each value's sum, then normalised), so that where they saturate
@@ -157,8 +159,8 @@ def learn(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace, starts: 
 
     n_learned = int(learned.sum())
     if n_learned:
-        with np.errstate(over="ignore", invalid="ignore"):
-            if n_learned <= DENSE_LIMIT:
+        with np.errstate(over="ignore", invalid="ignore"), one_thread():
+            if (optimiser or ("bfgs" if n_learned <= DENSE_LIMIT else "l-bfgs")) == "bfgs":
                 weights[learned] = optimize.fmin_bfgs(
                     negative_pll, np.zeros(n_learned), fprime=gradient, gtol=gtol, disp=False)
             else:
@@ -167,6 +169,13 @@ def learn(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace, starts: 
                     options={"gtol": gtol, "ftol": 0.0, "maxiter": 15000, "maxcor": 20}).x
     weights[[w.weight is None for w in formulas]] = np.inf
     return weights
+
+
+def log_pseudo_likelihood(objective: Objective, weights: np.ndarray) -> float:
+    """The PLL of ``weights`` (finite, every formula's) on a built objective, computed without overflow."""
+    when_false, when_true = objective.when_false @ weights, objective.when_true @ weights
+    observed = np.where(objective.observed, when_true, when_false)
+    return float(objective.counts @ (observed - np.logaddexp(when_false, when_true)))
 
 
 def _compact(matrix: sparse.csr_matrix) -> sparse.csr_matrix | np.ndarray:

@@ -124,30 +124,105 @@ def _restarted(factors: ChainFactors) -> ChainFactors:
 
 
 
+MAX_GROUPS = 64  # distinct (step matrix, step matrix) kinds up to which leaves are never built one by one
+_CHUNK = 256
+
+
 @dataclass(frozen=True)
 class _Steps:
-    """Each step's matrix exp(pairwise[link] + unary), scaled to total 1: transitions[index[t]] * emissions[t]."""
+    """Each step's matrix exp(pairwise[link] + unary), scaled to total 1: M_t = transitions[index[t]] * emissions[t]
+    (column-wise). Steps of one kind share their transition, so moving many vectors through leaves is one
+    matrix product per kind rather than one small product per frame."""
 
     index: np.ndarray  # [T] row of `transitions`: a pairwise row, or the chain-start row of ones
     transitions: np.ndarray  # [P + 1, C, C]
     emissions: np.ndarray  # [T, C]
     scale: np.ndarray  # [T] log of what the scaling took out of each step
 
-    def matrices(self) -> np.ndarray:
-        return np.take(self.transitions, self.index, axis=0) * self.emissions[:, None, :]
+    def matrices(self, frames: np.ndarray | slice = slice(None)) -> np.ndarray:
+        out = np.take(self.transitions, self.index[frames], axis=0)
+        out *= self.emissions[frames, None, :]
+        return out
+
+    def forward(self, vectors: np.ndarray, frames: np.ndarray | slice) -> np.ndarray:
+        """[n, C] vectors[i] @ M_frames[i], unnormalised."""
+        main, others = _kinds(self.index[frames])
+        out = _times(vectors, self.transitions[main])
+        for row, members in others:
+            out[members] = _times(vectors[members], self.transitions[row])
+        return out * self.emissions[frames]
+
+    def backward(self, vectors: np.ndarray, frames: np.ndarray | slice) -> np.ndarray:
+        """[n, C] M_frames[i] @ vectors[i], unnormalised."""
+        weighted = self.emissions[frames] * vectors
+        main, others = _kinds(self.index[frames])
+        out = _times(weighted, self.transitions[main].T)
+        for row, members in others:
+            out[members] = _times(weighted[members], self.transitions[row].T)
+        return out
+
+
+def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """rows @ matrix for many rows and a small matrix, as a stack of products of _CHUNK rows: OpenBLAS runs one
+    tall product on several threads, which on a busy machine is ten times slower than one thread."""
+    full = len(rows) - len(rows) % _CHUNK
+    if full == 0:
+        return rows @ matrix
+    out = np.empty((len(rows), matrix.shape[1]))
+    out[:full] = (np.ascontiguousarray(rows[:full]).reshape(-1, _CHUNK, rows.shape[1]) @ matrix).reshape(full, -1)
+    out[full:] = rows[full:] @ matrix
+    return out
+
+
+def _kinds(index: np.ndarray) -> tuple[int, list[tuple[int, np.ndarray]]]:
+    """The most frequent value of ``index``, and (value, positions) of each other value present."""
+    counts = np.bincount(index)
+    main = int(counts.argmax())
+    return main, [(row, np.flatnonzero(index == row)) for row in np.flatnonzero(counts).tolist() if row != main]
 
 
 def _steps(factors: ChainFactors) -> _Steps:
-    n_classes, n_rows = factors.n_classes, len(factors.pairwise)
+    n_classes = factors.n_classes
     transitions, transition_scale = _scaled(factors.pairwise, (1, 2))
     transitions = np.concatenate([transitions, np.ones((1, n_classes, n_classes))])
     transition_scale = np.concatenate([transition_scale, [0.0]])
-    index = np.where(factors.link < 0, n_rows, factors.link)
+    index = np.where(factors.link < 0, len(factors.pairwise), factors.link)
     emissions, emission_scale = _scaled(factors.unary, (1,))
     with np.errstate(divide="ignore"):  # a step's total: the transition's column sums times the emission
         total = np.log(np.einsum("nk,nk->n", transitions.sum(axis=1)[index], emissions))
-    emissions = emissions / np.exp(np.where(np.isfinite(total), total, 0.0))[:, None]
+    emissions /= np.exp(np.where(np.isfinite(total), total, 0.0))[:, None]
     return _Steps(index, transitions, emissions, transition_scale[index] + emission_scale + total)
+
+
+def _pairs(steps: _Steps, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The products M_{2i} M_{2i+1} (scaled to total 1) and their log scales: the tree's first level.
+    M_a M_b = T_a diag(e_a) T_b diag(e_b), and T_a diag(e_a) T_b = e_a @ K with K[m] = T_a[:, m] (x) T_b[m, :]."""
+    pairs = len(steps.index) // 2
+    left, right = slice(0, 2 * pairs, 2), slice(1, 2 * pairs, 2)
+    size = len(steps.transitions)
+    main, others = _kinds(steps.index[left] * size + steps.index[right])
+    if len(others) >= MAX_GROUPS:
+        products = steps.matrices(left) @ steps.matrices(right)
+    else:
+
+        def products_of(kind: int, emissions: np.ndarray) -> np.ndarray:
+            first, second = steps.transitions[kind // size], steps.transitions[kind % size]
+            outer = np.einsum("jm,mk->mjk", first, second).reshape(n_classes, -1)
+            return _times(emissions, outer).reshape(-1, n_classes, n_classes)
+
+        products = products_of(main, steps.emissions[left])
+        for kind, members in others:
+            products[members] = products_of(kind, steps.emissions[left][members])
+        products *= steps.emissions[right, None, :]
+    scale = steps.scale[left] + steps.scale[right]
+    if len(steps.index) % 2:
+        products = np.concatenate([products, steps.matrices(slice(-1, None))])
+        scale = np.concatenate([scale, steps.scale[-1:]])
+    total = products.reshape(len(products), -1).sum(axis=1)
+    with np.errstate(divide="ignore"):
+        scale += np.log(total)
+    products /= np.where(total > 0, total, 1.0)[:, None, None]
+    return products, scale
 
 
 def _up(leaves: tuple[np.ndarray, ...], combine) -> list[tuple[np.ndarray, ...]]:
@@ -168,21 +243,27 @@ def _up(leaves: tuple[np.ndarray, ...], combine) -> list[tuple[np.ndarray, ...]]
 
 
 def _down(levels: list[tuple[np.ndarray, ...]], root: np.ndarray, move, from_left: bool) -> np.ndarray:
-    """Per leaf, the value entering it from the left (``from_left``) or leaving it at the right: the root gets
-    ``root``; a child on the near side gets its parent's value, the other one that value moved through its
-    sibling (``move(values, sibling's level parts)``)."""
+    """Per node of ``levels[0]``, the value entering it from the left (``from_left``) or leaving it at the right:
+    the root gets ``root``; a child on the near side gets its parent's value, the other one that value moved
+    through its sibling (``move(values, sibling's level parts)``)."""
     value = root[None]
     for level in reversed(levels[:-1]):
-        size = len(level[0])
-        pairs = size // 2
-        out = np.empty((size, *value.shape[1:]), dtype=value.dtype)
-        near, far = (0, 1) if from_left else (1, 0)
-        out[near:2 * pairs:2] = value[:pairs]
-        out[far:2 * pairs:2] = move(value[:pairs], *(part[near:2 * pairs:2] for part in level))
-        if size % 2:
-            out[-1] = value[-1]
-        value = out
+        value = _split(value, len(level[0]), lambda values, near: move(values, *(part[near] for part in level)),
+                       from_left)
     return value
+
+
+def _split(value: np.ndarray, size: int, move, from_left: bool) -> np.ndarray:
+    """The values of ``size`` children from their parents' ``value``: see ``_down``; ``move(values, near)`` moves
+    the parents' values through the near children (an index of them)."""
+    pairs = size // 2
+    out = np.empty((size, *value.shape[1:]), dtype=value.dtype)
+    near, far = (0, 1) if from_left else (1, 0)
+    out[near:2 * pairs:2] = value[:pairs]
+    out[far:2 * pairs:2] = move(value[:pairs], slice(near, 2 * pairs, 2))
+    if size % 2:
+        out[-1] = value[-1]
+    return out
 
 
 class _Dead(Exception):
@@ -198,16 +279,18 @@ def _product(left: np.ndarray, left_scale: np.ndarray, right: np.ndarray, right_
     out /= np.where(total > 0, total, 1.0)[:, None, None]
 
 
-def _move_forward(vectors: np.ndarray, matrices: np.ndarray, _scale: np.ndarray | None = None,
-                  totals: np.ndarray | None = None) -> np.ndarray:
-    """The forward vectors moved through the matrices and normalised (their totals into ``totals``)."""
-    moved = (vectors[:, None, :] @ matrices)[:, 0]
-    total = moved.sum(axis=1)
+def _normalised(vectors: np.ndarray, totals: np.ndarray | None = None) -> np.ndarray:
+    """Each vector over its total (into ``totals``); a zero total is a dead end."""
+    total = vectors.sum(axis=1)
     if not (total > 0).all():
         raise _Dead
     if totals is not None:
         totals[:] = total
-    return moved / total[:, None]
+    return vectors / total[:, None]
+
+
+def _move_forward(vectors: np.ndarray, matrices: np.ndarray, _scale: np.ndarray) -> np.ndarray:
+    return _normalised((vectors[:, None, :] @ matrices)[:, 0])
 
 
 def _move_backward(vectors: np.ndarray, matrices: np.ndarray, _scale: np.ndarray) -> np.ndarray:
@@ -219,8 +302,7 @@ def _move_backward(vectors: np.ndarray, matrices: np.ndarray, _scale: np.ndarray
 class _Forward:
     factors: ChainFactors  # with chain starts at the dead ends
     steps: _Steps
-    matrices: np.ndarray  # [T, C, C]
-    levels: list
+    levels: list  # the tree above the steps: products of pairs of steps, then of pairs of those, ...
     log_z: float
     entering: np.ndarray | None  # [T, C] the normalised forward vector before each step (alpha_{t-1})
     alpha: np.ndarray | None  # [T, C] after it
@@ -228,20 +310,23 @@ class _Forward:
 
 
 def _forward_once(factors: ChainFactors, vectors: bool) -> _Forward:
+    n_frames, n_classes = len(factors.link), factors.n_classes
     steps = _steps(factors)
-    matrices = steps.matrices()
-    levels = _up((matrices, steps.scale), _product)
+    levels = _up(_pairs(steps, n_classes), _product) if n_frames > 1 else [(steps.matrices(), steps.scale)]
     root, root_scale = levels[-1][0][0], levels[-1][1][0]
     total = root[0].sum()  # the first step is a chain start: any vector summing to 1 enters it
     if not total > 0 or not np.isfinite(root_scale):
         raise _Dead
     log_z = float(root_scale + math.log(total))
     if not vectors:
-        return _Forward(factors, steps, matrices, levels, log_z, None, None, None)
-    entering = _down(levels, np.eye(factors.n_classes)[0], _move_forward, from_left=True)
-    moved = np.empty(len(entering))
-    alpha = _move_forward(entering, matrices, totals=moved)
-    return _Forward(factors, steps, matrices, levels, log_z, entering, alpha, moved)
+        return _Forward(factors, steps, levels, log_z, None, None, None)
+    start = np.eye(n_classes)[0]
+    entering = _down(levels, start, _move_forward, from_left=True) if n_frames > 1 else start[None]
+    if n_frames > 1:
+        entering = _split(entering, n_frames, lambda values, near: _normalised(steps.forward(values, near)), True)
+    moved = np.empty(n_frames)
+    alpha = _normalised(steps.forward(entering, slice(None)), moved)
+    return _Forward(factors, steps, levels, log_z, entering, alpha, moved)
 
 
 def _forward(factors: ChainFactors, vectors: bool = True) -> _Forward:
@@ -258,7 +343,16 @@ def _forward(factors: ChainFactors, vectors: bool = True) -> _Forward:
 
 def _backward(forward: _Forward) -> np.ndarray:
     """[T, C] the backward vector after each step (beta_t, each scaled to max 1)."""
-    return _down(forward.levels, np.ones(forward.factors.n_classes), _move_backward, from_left=False)
+    n_frames, n_classes = len(forward.factors.link), forward.factors.n_classes
+    if n_frames == 1:
+        return np.ones((1, n_classes))
+    leaving = _down(forward.levels, np.ones(n_classes), _move_backward, from_left=False)
+
+    def move(values: np.ndarray, near: np.ndarray) -> np.ndarray:
+        moved = forward.steps.backward(values, near)
+        return moved / moved.max(axis=1, keepdims=True)
+
+    return _split(leaving, n_frames, move, from_left=False)
 
 
 def _smoothed(forward: _Forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -306,18 +400,16 @@ def expectations(factors: ChainFactors) -> Expectations:
         return Expectations(0.0, np.zeros((0, n_classes)), np.zeros((n_rows, n_classes, n_classes)))
     forward = _forward(factors)
     gamma, beta, overlap = _smoothed(forward)
-    link, steps = forward.factors.link, forward.steps
+    steps = forward.steps
     # p(y_{t-1} = j, y_t = k) = alpha_{t-1}(j) M_t(j, k) beta_t(k) / n_t, M_t = transitions[link] * emissions[t],
     # with n_t = sum_k (alpha_{t-1} M_t)(k) beta_t(k) = moved_t * (alpha_t . beta_t)
+    weighted = forward.entering / (forward.moved * overlap)[:, None]
     following = steps.emissions * beta
-    norms = forward.moved * overlap
     totals = np.zeros((n_rows, n_classes, n_classes))
-    order = np.argsort(link, kind="stable")
-    bounds = np.searchsorted(link[order], np.arange(-1, n_rows + 1))
-    for row in range(n_rows):
-        frames = order[bounds[row + 1]:bounds[row + 2]]
-        if len(frames):
-            totals[row] = steps.transitions[row] * ((forward.entering[frames] / norms[frames, None]).T @ following[frames])
+    main, others = _kinds(steps.index)
+    for row, members in [(main, steps.index == main), *others]:
+        if row < n_rows:
+            totals[row] = steps.transitions[row] * (weighted[members].T @ following[members])
     return Expectations(forward.log_z, gamma, totals)
 
 

@@ -36,7 +36,8 @@ import numpy as np
 from scipy import linalg, optimize, sparse
 
 from stages.mln import chain
-from stages.mln.features import frame_counts, pair_counts
+from stages.mln.blas import one_thread
+from stages.mln.features import frame_counts, pair_counts, read_columns
 from stages.mln.grounding import AtomSpace, Expanded, is_temporal
 
 DEFAULT_L2 = 0.1
@@ -53,15 +54,17 @@ class ChainData:
     n_pairs: int
 
 
-def chain_data(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray) -> tuple[ChainData, np.ndarray, np.ndarray]:
-    """The chains, and the distinct evidence rows [R, W] and consecutive pairs [Q, 2W] they are made of."""
+def chain_data(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray, frame_columns: list[int],
+               pair_columns: list[int]) -> tuple[ChainData, np.ndarray, np.ndarray]:
+    """The chains, the distinct evidence rows [R, len(frame_columns)] and the distinct consecutive pairs
+    [Q, 2 len(pair_columns)] they are made of (rows and pairs told apart only by the columns formulas read)."""
     evidence = np.asarray(evidence, dtype=bool)
     starts = np.asarray(starts, dtype=bool).copy()
     starts[0] = True
-    rows, row = np.unique(evidence, axis=0, return_inverse=True)
+    rows, row = np.unique(evidence[:, frame_columns], axis=0, return_inverse=True)
     joined = np.flatnonzero(~starts)
-    pairs, pair = np.unique(np.concatenate([evidence[joined - 1], evidence[joined]], axis=1), axis=0,
-                            return_inverse=True)
+    pairs, pair = np.unique(np.concatenate([evidence[joined - 1][:, pair_columns], evidence[joined][:, pair_columns]],
+                                           axis=1), axis=0, return_inverse=True)
     link = np.full(len(evidence), -1, dtype=np.int64)
     link[joined] = pair.reshape(-1)
     data = ChainData(np.asarray(labels, dtype=np.int64), row.reshape(-1), link, len(rows), len(pairs))
@@ -73,19 +76,20 @@ class Objective:
 
     def __init__(self, formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray,
                  space: AtomSpace, l2: float):
-        self.data, rows, pairs = chain_data(evidence, labels, starts)
+        temporal = np.array([is_temporal(f.formula) for f in formulas], dtype=bool)
+        per_frame = [f.formula for f, t in zip(formulas, temporal) if not t]
+        between = [f.formula for f, t in zip(formulas, temporal) if t]
+        frame_columns, pair_columns = read_columns(per_frame, space.words), read_columns(between, space.words)
+        self.data, rows, pairs = chain_data(evidence, labels, starts, frame_columns, pair_columns)
         self.n_classes = n_classes = len(space.classes)
         self.l2 = l2
-        temporal = np.array([is_temporal(f.formula) for f in formulas], dtype=bool)
         hard = np.array([f.weight is None for f in formulas], dtype=bool)
         self.learned = np.array([f.weight is not None and not f.fixed for f in formulas], dtype=bool)
         self.weights = np.array([0.0 if f.weight is None else f.weight for f in formulas])
         self.temporal = temporal
-        unary = frame_counts([f.formula for f, t in zip(formulas, temporal) if not t], hard[~temporal].tolist(),
-                             rows, space)
-        width = rows.shape[1]
-        pairwise = pair_counts([f.formula for f, t in zip(formulas, temporal) if t], hard[temporal].tolist(),
-                               pairs[:, :width], pairs[:, width:], space)
+        unary = frame_counts(per_frame, hard[~temporal].tolist(), rows, _subspace(space, frame_columns))
+        pairwise = pair_counts(between, hard[temporal].tolist(), pairs[:, :len(pair_columns)],
+                               pairs[:, len(pair_columns):], _subspace(space, pair_columns))
         self.unary_counts, self.pairwise_counts = unary.matrix, pairwise.matrix
         self.unary_forbidden = unary.forbidden.reshape(self.data.n_rows, n_classes)
         self.pairwise_forbidden = pairwise.forbidden.reshape(self.data.n_pairs, n_classes, n_classes)
@@ -156,6 +160,10 @@ class Objective:
         return learned / len(data.labels)
 
 
+def _subspace(space: AtomSpace, columns: list[int]) -> AtomSpace:
+    return AtomSpace(tuple(space.words[i] for i in columns), space.classes)
+
+
 def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray,
           space: AtomSpace, l2: float = DEFAULT_L2, ftol: float = 1e-8, gtol: float = 1e-5) -> np.ndarray:
     """The weights maximising CLL - l2/2 |w|^2 on the chains of ``evidence`` (bool [T, W] over
@@ -176,8 +184,9 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
             value, gradient = objective(linalg.solve_triangular(factor, z, lower=True, trans="T"))
             return value, linalg.solve_triangular(factor, gradient, lower=True)
 
-        result = optimize.minimize(whitened, np.zeros(n_learned), jac=True, method="L-BFGS-B",
-                                   options={"gtol": gtol, "ftol": ftol, "maxiter": 5000, "maxcor": 20})
+        with one_thread():
+            result = optimize.minimize(whitened, np.zeros(n_learned), jac=True, method="L-BFGS-B",
+                                       options={"gtol": gtol, "ftol": ftol, "maxiter": 5000, "maxcor": 20})
         weights[objective.learned] = linalg.solve_triangular(factor, result.x, lower=True, trans="T")
     weights[[f.weight is None for f in formulas]] = np.inf
     return weights

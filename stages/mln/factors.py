@@ -17,9 +17,9 @@ import polars as pl
 
 from stages.errors import BadInput
 from stages.mln.chain import ChainFactors
-from stages.mln.features import frame_counts, pair_counts
+from stages.mln.features import frame_counts, pair_counts, read_columns
 from stages.mln.grounding import EVIDENCE, AtomSpace, class_constant, is_temporal
-from stages.mln.syntax import Const, Formula, MLNSyntaxError, Var, atoms, parse_formula
+from stages.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
 
 
 @dataclass(frozen=True)
@@ -84,18 +84,6 @@ def pair_scores(formulas: Sequence[LearnedFormula], previous: np.ndarray, curren
     return _scores(counts, formulas, (len(previous), n_classes, n_classes), None)
 
 
-def _read_columns(formulas: Sequence[LearnedFormula], columns: Sequence[str]) -> list[int]:
-    """The evidence columns the formulas read (all of them if some formula ranges over every word)."""
-    names: set[str] = set()
-    for item in formulas:
-        for atom in atoms(item.formula):
-            if atom.predicate == EVIDENCE:
-                if isinstance(atom.args[0], Var):
-                    return list(range(len(columns)))
-                names.add(atom.args[0].value)  # type: ignore[union-attr]
-    return [i for i, name in enumerate(columns) if name in names]
-
-
 class MLNFactors:
     """The unary and pairwise log-potentials of an MLN's learned formulas, cached per distinct evidence."""
 
@@ -104,8 +92,8 @@ class MLNFactors:
         self._per_frame = [f for f in formulas if not f.temporal]
         self._between = [f for f in formulas if f.temporal]
         self.temporal = bool(self._between)
-        self._frame_columns = _read_columns(self._per_frame, columns)
-        self._pair_columns = _read_columns(self._between, columns)
+        self._frame_columns = read_columns([f.formula for f in self._per_frame], columns)
+        self._pair_columns = read_columns([f.formula for f in self._between], columns)
         self._frame_names = [columns[i] for i in self._frame_columns]
         self._pair_names = [columns[i] for i in self._pair_columns]
         self._unary: dict[bytes, np.ndarray] = {}

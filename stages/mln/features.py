@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from stages.mln.grounding import AtomSpace, PairSpace, ground, space_of, truth
-from stages.mln.syntax import Formula
+from stages.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, space_of, truth
+from stages.mln.syntax import Formula, Var, atoms
 
 
 @dataclass(frozen=True)
@@ -82,3 +82,16 @@ def pair_counts(formulas: Sequence[Formula], hard: Sequence[bool], previous: np.
     spaces = [space_of(f, space) for f in formulas]
     parts = [_counts([f], [h], s, rows, baseline, n_classes ** 2) for f, h, s in zip(formulas, hard, spaces)]
     return Counts(sparse.hstack([p.matrix for p in parts]).tocsr(), np.logical_or.reduce([p.forbidden for p in parts]))
+
+
+def read_columns(formulas: Sequence[Formula], columns: Sequence[str]) -> list[int]:
+    """The evidence columns the formulas read (all of them if some formula ranges over every word): distinct
+    evidence rows (pairs) need only differ there."""
+    names: set[str] = set()
+    for formula in formulas:
+        for atom in atoms(formula):
+            if atom.predicate == EVIDENCE:
+                if isinstance(atom.args[0], Var):
+                    return list(range(len(columns)))
+                names.add(atom.args[0].value)  # type: ignore[union-attr]
+    return [i for i, name in enumerate(columns) if name in names]

@@ -7,12 +7,14 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
+from scipy.special import expit
 
 from stages import artifacts, binarize
 from stages import learn_weights as stage
 from stages.errors import BadInput, StaleArtifact
 from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
-from stages.mln import cll, pracmln_compat
+from stages.mln import bpll, cll, pracmln_compat
+from stages.mln.grounding import expand_templates
 from stages.mln.published_codes import desk_predicates, fetch_predicates, write_predicates
 from stages.mln.syntax import parse_mln
 
@@ -245,3 +247,20 @@ def test_pracmln_matches_native_pll_with_next(fetch_frames_workdir: Path) -> Non
 
     read_back = pracmln_parse(native.learned_mln, grammar="StandardGrammar", logic="FirstOrderLogic")
     assert [float(w) for w in read_back.weights] == pytest.approx(native.weights["weight"].to_list(), abs=1e-6)
+
+
+def test_lbfgs_reaches_the_bfgs_optimum(shared_data: Path) -> None:
+    """Many weights are learned with L-BFGS: the same pseudo-likelihood and atom probabilities as BFGS. The pairwise
+    template is redundant (Has(w) ^ Has(w) is Has(w); one-hot groups), so the weights themselves are not unique."""
+    table = desk_predicates(shared_data)[0]
+    table = table.select(*artifacts.KEY_COLUMNS, *artifacts.feature_columns(table)[:8])
+    mln = parse_mln(DECLARED + "0.0 Has(+w1,p) ^ Has(+w2,p) => Topic(+c,p)\n")
+    training = stage.training_data(table, 7)
+    expanded, _, _ = expand_templates(mln.formulas, training.space)
+    objective = bpll.build_objective(expanded, training.rows, training.space)
+    found = {name: bpll.learn(expanded, training.rows, training.space, optimiser=name) for name in ("bfgs", "l-bfgs")}
+    assert len(expanded) == 252
+    values = {name: bpll.log_pseudo_likelihood(objective, w) for name, w in found.items()}
+    assert values["l-bfgs"] == pytest.approx(values["bfgs"], abs=1e-3)
+    odds = {name: objective.when_true @ w - objective.when_false @ w for name, w in found.items()}
+    assert np.abs(expit(odds["l-bfgs"]) - expit(odds["bfgs"])).max() < 1e-4
