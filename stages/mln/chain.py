@@ -51,7 +51,7 @@ class ChainFactors:
         if len(link) and (link[0] != -1 or link.min() < -1 or link.max() >= len(pairwise)):
             raise ValueError("link must be -1 at frame 0 and index a row of pairwise (or be -1) elsewhere")
         for name, values in (("unary", unary), ("pairwise", pairwise)):
-            if np.isnan(values).any() or np.isposinf(values).any():
+            if not (values < np.inf).all():  # NaN and +inf fail the comparison
                 raise ValueError(f"{name} log-potentials must be finite or -inf")
 
     @property
@@ -62,6 +62,8 @@ class ChainFactors:
 def _scaled(values: np.ndarray, axes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """exp(values - max) over ``axes`` with finite entries clipped at -CLIP, and the max (-inf: all -inf)."""
     top = values.max(axis=axes, keepdims=True)
+    if (values > -np.inf).all():
+        return np.exp(np.maximum(values - top, -CLIP)), np.squeeze(top, axis=axes)
     finite_top = np.where(np.isfinite(top), top, 0.0)
     linear = np.exp(np.clip(values - finite_top, -CLIP, 0.0)) * np.isfinite(values)
     return linear, np.squeeze(top, axis=axes)
@@ -83,6 +85,8 @@ class Filter:
     def step(self, unary: np.ndarray, pairwise: np.ndarray | None) -> np.ndarray:
         """log p(y_t | frames so far) [C]; pairwise [C, C] joins the previous frame (None: first frame)."""
         self._advance(unary, pairwise)
+        if self._alpha.min() > 0.0:
+            return np.log(self._alpha)
         with np.errstate(divide="ignore"):
             return np.log(self._alpha)
 
@@ -124,7 +128,7 @@ def _restarted(factors: ChainFactors) -> ChainFactors:
 
 
 
-MAX_GROUPS = 64  # distinct (step matrix, step matrix) kinds up to which leaves are never built one by one
+_MAX_GROUPS = 64  # distinct (step matrix, step matrix) kinds up to which leaves are never built one by one
 _CHUNK = 256
 
 
@@ -201,7 +205,7 @@ def _pairs(steps: _Steps, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
     left, right = slice(0, 2 * pairs, 2), slice(1, 2 * pairs, 2)
     size = len(steps.transitions)
     main, others = _kinds(steps.index[left] * size + steps.index[right])
-    if len(others) >= MAX_GROUPS:
+    if len(others) >= _MAX_GROUPS:
         products = steps.matrices(left) @ steps.matrices(right)
     else:
 

@@ -8,8 +8,8 @@ log-potentials, temporal ones pairwise log-potentials, both linear in the weight
     CLL(w) - l2/2 |w|^2,   CLL(w) = sum over chains of log p(y_chain | evidence_chain; w)
 
 is concave; its gradient is the observed minus the expected formula counts, the expectations coming
-from forward-backward marginals (``stages.mln.chain``), and it is maximised with L-BFGS from zero
-weights. Without the penalty an optimum may lie at infinity (a transition never seen in training gets
+from forward-backward marginals (``stages.mln.chain``), and it is maximised with (L-)BFGS from zero
+weights (see ``learn``). Without the penalty an optimum may lie at infinity (a transition never seen in training gets
 weight -> -inf), hence ``l2`` (a Gaussian prior of variance 1/l2 on each learned weight).
 
 ``DEFAULT_L2`` was chosen on training splits only (benchmarks/bench_learn_weights.py, section "l2", prints
@@ -37,7 +37,8 @@ from scipy import linalg, optimize, sparse
 
 from stages.mln import chain
 from stages.mln.blas import one_thread
-from stages.mln.features import frame_counts, pair_counts, read_columns
+from stages.mln.bpll import DENSE_LIMIT
+from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
 from stages.mln.grounding import AtomSpace, Expanded, is_temporal
 
 DEFAULT_L2 = 0.1
@@ -55,16 +56,15 @@ class ChainData:
 
 
 def chain_data(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray, frame_columns: list[int],
-               pair_columns: list[int]) -> tuple[ChainData, np.ndarray, np.ndarray]:
-    """The chains, the distinct evidence rows [R, len(frame_columns)] and the distinct consecutive pairs
-    [Q, 2 len(pair_columns)] they are made of (rows and pairs told apart only by the columns formulas read)."""
+               pair_columns: PairColumns) -> tuple[ChainData, np.ndarray, np.ndarray]:
+    """The chains, the distinct evidence rows [R, len(frame_columns)] and the distinct consecutive pairs (their
+    keys, ``PairColumns.keys``) they are made of: rows and pairs told apart only by the columns formulas read."""
     evidence = np.asarray(evidence, dtype=bool)
     starts = np.asarray(starts, dtype=bool).copy()
     starts[0] = True
     rows, row = np.unique(evidence[:, frame_columns], axis=0, return_inverse=True)
     joined = np.flatnonzero(~starts)
-    pairs, pair = np.unique(np.concatenate([evidence[joined - 1][:, pair_columns], evidence[joined][:, pair_columns]],
-                                           axis=1), axis=0, return_inverse=True)
+    pairs, pair = np.unique(pair_columns.keys(evidence[joined - 1], evidence[joined]), axis=0, return_inverse=True)
     link = np.full(len(evidence), -1, dtype=np.int64)
     link[joined] = pair.reshape(-1)
     data = ChainData(np.asarray(labels, dtype=np.int64), row.reshape(-1), link, len(rows), len(pairs))
@@ -79,7 +79,7 @@ class Objective:
         temporal = np.array([is_temporal(f.formula) for f in formulas], dtype=bool)
         per_frame = [f.formula for f, t in zip(formulas, temporal) if not t]
         between = [f.formula for f, t in zip(formulas, temporal) if t]
-        frame_columns, pair_columns = read_columns(per_frame, space.words), read_columns(between, space.words)
+        frame_columns, pair_columns = read_columns(per_frame, space.words), PairColumns.of(between, space.words)
         self.data, rows, pairs = chain_data(evidence, labels, starts, frame_columns, pair_columns)
         self.n_classes = n_classes = len(space.classes)
         self.l2 = l2
@@ -88,8 +88,8 @@ class Objective:
         self.weights = np.array([0.0 if f.weight is None else f.weight for f in formulas])
         self.temporal = temporal
         unary = frame_counts(per_frame, hard[~temporal].tolist(), rows, _subspace(space, frame_columns))
-        pairwise = pair_counts(between, hard[temporal].tolist(), pairs[:, :len(pair_columns)],
-                               pairs[:, len(pair_columns):], _subspace(space, pair_columns))
+        pairwise = pair_counts(between, hard[temporal].tolist(), *pair_columns.rows(pairs),
+                               _subspace(space, pair_columns.read))
         self.unary_counts, self.pairwise_counts = unary.matrix, pairwise.matrix
         self.unary_forbidden = unary.forbidden.reshape(self.data.n_rows, n_classes)
         self.pairwise_forbidden = pairwise.forbidden.reshape(self.data.n_pairs, n_classes, n_classes)
@@ -165,13 +165,15 @@ def _subspace(space: AtomSpace, columns: list[int]) -> AtomSpace:
 
 
 def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray,
-          space: AtomSpace, l2: float = DEFAULT_L2, ftol: float = 1e-8, gtol: float = 1e-5) -> np.ndarray:
+          space: AtomSpace, l2: float = DEFAULT_L2, gtol: float = 1e-6, ftol: float = 1e-8) -> np.ndarray:
     """The weights maximising CLL - l2/2 |w|^2 on the chains of ``evidence`` (bool [T, W] over
     ``space.words``) with classes ``labels`` (indices into ``space.classes``), cut where ``starts``.
     Fixed formulas keep their weight; hard ones get +inf (the labels must satisfy them).
 
-    L-BFGS stops when an iteration improves the objective per frame by less than ``ftol`` (relative) or
-    the largest gradient entry per frame in the whitened coordinates is below ``gtol``."""
+    BFGS (up to ``bpll.DENSE_LIMIT`` learned weights: on the paper's template with transitions it needs a
+    third of L-BFGS's evaluations and ends higher), else L-BFGS, both in the coordinates that ``curvature``
+    whitens; they stop when the largest gradient entry per frame falls below ``gtol`` (L-BFGS also when an
+    iteration improves the objective per frame by less than ``ftol``, relatively)."""
     objective = Objective(formulas, evidence, labels, starts, space, l2)
     weights = objective.weights.copy()
     n_learned = int(objective.learned.sum())
@@ -184,9 +186,12 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
             value, gradient = objective(linalg.solve_triangular(factor, z, lower=True, trans="T"))
             return value, linalg.solve_triangular(factor, gradient, lower=True)
 
+        if n_learned <= DENSE_LIMIT:
+            method, options = "BFGS", {"gtol": gtol, "maxiter": 5000}
+        else:
+            method, options = "L-BFGS-B", {"gtol": gtol, "ftol": ftol, "maxiter": 5000, "maxcor": 20}
         with one_thread():
-            result = optimize.minimize(whitened, np.zeros(n_learned), jac=True, method="L-BFGS-B",
-                                       options={"gtol": gtol, "ftol": ftol, "maxiter": 5000, "maxcor": 20})
+            result = optimize.minimize(whitened, np.zeros(n_learned), jac=True, method=method, options=options)
         weights[objective.learned] = linalg.solve_triangular(factor, result.x, lower=True, trans="T")
     weights[[f.weight is None for f in formulas]] = np.inf
     return weights

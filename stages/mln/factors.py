@@ -17,7 +17,7 @@ import polars as pl
 
 from stages.errors import BadInput
 from stages.mln.chain import ChainFactors
-from stages.mln.features import frame_counts, pair_counts, read_columns
+from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
 from stages.mln.grounding import EVIDENCE, AtomSpace, class_constant, is_temporal
 from stages.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
 
@@ -93,9 +93,9 @@ class MLNFactors:
         self._between = [f for f in formulas if f.temporal]
         self.temporal = bool(self._between)
         self._frame_columns = read_columns([f.formula for f in self._per_frame], columns)
-        self._pair_columns = read_columns([f.formula for f in self._between], columns)
+        self._pair_columns = PairColumns.of([f.formula for f in self._between], columns)
         self._frame_names = [columns[i] for i in self._frame_columns]
-        self._pair_names = [columns[i] for i in self._pair_columns]
+        self._pair_names = [columns[i] for i in self._pair_columns.read]
         self._unary: dict[bytes, np.ndarray] = {}
         self._pairwise: dict[bytes, np.ndarray] = {}
 
@@ -107,17 +107,23 @@ class MLNFactors:
 
     def unary(self, evidence: np.ndarray) -> np.ndarray:
         """bool [T, W] -> [T, C] the per-frame formulas' log-potentials (-inf: a hard formula forbids)."""
-        keys = np.ascontiguousarray(np.asarray(evidence, dtype=bool)[:, self._frame_columns])
-        return self._cached(self._unary, keys, lambda rows: frame_scores(
-            self._per_frame, rows, self._frame_names, self.n_classes))
+        evidence = np.asarray(evidence, dtype=bool)
+        if len(evidence) == 1:  # a live stream: one frame at a time
+            return self._one(self._unary, evidence[0, self._frame_columns], self._frame_scores)
+        return self._many(self._unary, evidence[:, self._frame_columns], self._frame_scores)
 
     def pairwise(self, previous: np.ndarray, current: np.ndarray) -> np.ndarray:
         """bool [T, W] x2 -> [T, C, C] the temporal formulas' log-potentials of (class at t-1, class at t)."""
-        width = len(self._pair_columns)
-        keys = np.ascontiguousarray(np.concatenate([np.asarray(previous, dtype=bool)[:, self._pair_columns],
-                                                    np.asarray(current, dtype=bool)[:, self._pair_columns]], axis=1))
-        return self._cached(self._pairwise, keys, lambda rows: pair_scores(
-            self._between, rows[:, :width], rows[:, width:], self._pair_names, self.n_classes))
+        keys = self._pair_columns.keys(np.asarray(previous, dtype=bool), np.asarray(current, dtype=bool))
+        if len(keys) == 1:
+            return self._one(self._pairwise, keys[0], self._pair_scores)
+        return self._many(self._pairwise, keys, self._pair_scores)
+
+    def _frame_scores(self, rows: np.ndarray) -> np.ndarray:
+        return frame_scores(self._per_frame, rows, self._frame_names, self.n_classes)
+
+    def _pair_scores(self, keys: np.ndarray) -> np.ndarray:
+        return pair_scores(self._between, *self._pair_columns.rows(keys), self._pair_names, self.n_classes)
 
     def chain(self, evidence: np.ndarray, starts: np.ndarray, per_frame: bool = True) -> ChainFactors:
         """The chain factors of frames whose chains start where ``starts`` (bool [T]) is True (frame 0 always).
@@ -130,26 +136,28 @@ class MLNFactors:
         if n_frames:
             starts[0] = True
         joined = np.flatnonzero(~starts)
-        keys = np.concatenate([evidence[joined - 1][:, self._pair_columns], evidence[joined][:, self._pair_columns]], axis=1)
-        distinct, inverse = np.unique(keys, axis=0, return_inverse=True)
-        width = len(self._pair_columns)
-        pairwise = self.pairwise(distinct[:, :width], distinct[:, width:]) if len(distinct) else \
-            np.zeros((0, self.n_classes, self.n_classes))
+        distinct, inverse = np.unique(self._pair_columns.keys(evidence[joined - 1], evidence[joined]), axis=0,
+                                      return_inverse=True)
+        pairwise = self._many(self._pairwise, distinct, self._pair_scores)
         link = np.full(n_frames, -1, dtype=np.int64)
         link[joined] = inverse.reshape(-1)
         return ChainFactors(unary, pairwise, link)
 
-    def _cached(self, cache: dict[bytes, np.ndarray], keys: np.ndarray, compute) -> np.ndarray:
-        if len(keys) == 1:  # a live stream: one frame at a time
-            key = keys[0].tobytes()
-            if key not in cache:
-                cache[key] = compute(keys)[0]
-            return cache[key][None].copy()
+    @staticmethod
+    def _one(cache: dict[bytes, np.ndarray], key: np.ndarray, compute) -> np.ndarray:
+        name = key.tobytes()
+        values = cache.get(name)
+        if values is None:
+            values = cache[name] = compute(key[None])[0]
+        return values[None].copy()
+
+    @staticmethod
+    def _many(cache: dict[bytes, np.ndarray], keys: np.ndarray, compute) -> np.ndarray:
         distinct, inverse = np.unique(keys, axis=0, return_inverse=True)
         missing = [i for i, row in enumerate(distinct) if row.tobytes() not in cache]
         if missing:
             for row, values in zip(distinct[missing], compute(distinct[missing])):
                 cache[row.tobytes()] = values
-        values = np.stack([cache[row.tobytes()] for row in distinct]) if len(distinct) else \
-            np.zeros((0, *([self.n_classes] * (2 if cache is self._pairwise else 1))))
-        return values[inverse.reshape(-1)]
+        if not len(distinct):
+            return compute(distinct)
+        return np.stack([cache[row.tobytes()] for row in distinct])[inverse.reshape(-1)]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from stages.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, space_of, truth
+from stages.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, next_atom, space_of, truth
 from stages.mln.syntax import Formula, Var, atoms
 
 
@@ -86,12 +86,49 @@ def pair_counts(formulas: Sequence[Formula], hard: Sequence[bool], previous: np.
 
 def read_columns(formulas: Sequence[Formula], columns: Sequence[str]) -> list[int]:
     """The evidence columns the formulas read (all of them if some formula ranges over every word): distinct
-    evidence rows (pairs) need only differ there."""
-    names: set[str] = set()
-    for formula in formulas:
-        for atom in atoms(formula):
-            if atom.predicate == EVIDENCE:
-                if isinstance(atom.args[0], Var):
-                    return list(range(len(columns)))
-                names.add(atom.args[0].value)  # type: ignore[union-attr]
-    return [i for i, name in enumerate(columns) if name in names]
+    evidence rows need only differ there."""
+    return sorted(set().union(*(_read(f, columns, frame=None) for f in formulas)))
+
+
+def _read(formula: Formula, columns: Sequence[str], frame: str | None) -> set[int]:
+    """The columns of the formula's Has atoms (on frame variable ``frame`` only, unless None)."""
+    read: set[int] = set()
+    for atom in atoms(formula):
+        if atom.predicate != EVIDENCE or (frame is not None and atom.args[-1].name != frame):  # type: ignore[union-attr]
+            continue
+        if isinstance(atom.args[0], Var):
+            return set(range(len(columns)))
+        read.add(list(columns).index(atom.args[0].value))  # type: ignore[union-attr]
+    return read
+
+
+@dataclass(frozen=True)
+class PairColumns:
+    """The evidence columns temporal formulas read on the earlier and on the later frame of a pair: distinct
+    pairs need only differ there."""
+
+    previous: list[int]
+    current: list[int]
+    read: list[int]  # both, in column order: the words of the rows ``rows`` rebuilds
+
+    @classmethod
+    def of(cls, formulas: Sequence[Formula], columns: Sequence[str]) -> "PairColumns":
+        previous, current = set(), set()
+        for formula in formulas:
+            earlier, later = (term.name for term in next_atom(formula).args)  # type: ignore[union-attr]
+            previous |= _read(formula, columns, earlier)
+            current |= _read(formula, columns, later)
+        return cls(sorted(previous), sorted(current), sorted(previous | current))
+
+    def keys(self, previous: np.ndarray, current: np.ndarray) -> np.ndarray:
+        """bool [n, W] x2 -> [n, |previous| + |current|]: what tells pairs apart."""
+        return np.concatenate([previous[:, self.previous], current[:, self.current]], axis=1)
+
+    def rows(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The earlier and later frames' rows over ``read`` (columns a frame's formulas do not read: false)."""
+        position = {column: i for i, column in enumerate(self.read)}
+        previous = np.zeros((len(keys), len(self.read)), dtype=bool)
+        current = np.zeros((len(keys), len(self.read)), dtype=bool)
+        previous[:, [position[c] for c in self.previous]] = keys[:, :len(self.previous)]
+        current[:, [position[c] for c in self.current]] = keys[:, len(self.previous):]
+        return previous, current

@@ -104,3 +104,22 @@ def test_a_formula_over_a_missing_column_is_refused(desk: pl.DataFrame, desk_tem
     columns = [c for c in artifacts.feature_columns(desk) if c != "left_gripper_closed"]
     with pytest.raises(BadInput, match="left_gripper_closed, which predicates.parquet lacks"):
         MLNFactors.from_weights(desk_temporal, columns, 7)
+
+
+def test_transitions_that_read_evidence(shared_data: Path) -> None:
+    table = fetch_predicates(shared_data)[0]
+    columns = artifacts.feature_columns(table)
+    mln = parse_mln("Has(word, page)\nTopic(class, page)\nNext(page, page)\n"
+                    "0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n"
+                    '0.0 Topic(+c1, p) ^ Next(p, q) ^ Has("gripper_closing", q) => Topic(+c2, q)\n')
+    weights = stage.learn(table, 4, mln).weights
+    weight = dict(zip(weights["formula"], weights["weight"]))
+    evidence = table.select(columns).to_numpy()
+    factors = MLNFactors.from_weights(weights, columns, 4).chain(evidence, chain.chain_starts(table["episode"].to_numpy()))
+    assert len(factors.pairwise) == 2  # the later frame closes its gripper or not: two transition matrices
+    closing = evidence[:, columns.index("gripper_closing")]
+    with_closing = factors.pairwise[factors.link[np.flatnonzero(closing & (factors.link >= 0))[0]]]
+    without = factors.pairwise[factors.link[np.flatnonzero(~closing & (factors.link >= 0))[0]]]
+    extra = weight['Topic("C0",p) ^ Next(p,q) ^ Has("gripper_closing",q) => Topic("C1",q)'] \
+        - weight['Topic("C0",p) ^ Next(p,q) ^ Has("gripper_closing",q) => Topic("C0",q)']
+    assert (with_closing - without)[0, 1] - (with_closing - without)[0, 0] == pytest.approx(extra)
