@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 from rich.table import Table
@@ -15,13 +15,19 @@ from stages import artifacts
 
 def learn_weights(
     formulas: Annotated[Path, typer.Argument(help="The .mln file: relative to the current folder, else to the workdir.")] = Path(artifacts.FORMULAS),
-    engine: Annotated[str, typer.Option(help="native (vectorised BPLL) or pracmln (the paper's engine, slow).")] = "native",
+    engine: Annotated[str, typer.Option(help="native (vectorised) or pracmln (the paper's engine, slow; pll only).")] = "native",
+    objective: Annotated[Optional[str], typer.Option(
+        help="pll (pracmln's pseudo-likelihood) or cll (exact conditional likelihood of each episode's classes); "
+             "default: cll when a formula uses Next, else pll.", show_default=False)] = None,
+    l2: Annotated[Optional[float], typer.Option(
+        help="L2 penalty (Gaussian prior) on the learned weights; default: 0 for pll, 0.1 for cll.",
+        show_default=False)] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln."""
     from stages import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
 
-    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine)
+    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2)
     with reported_errors():
         options.validate()
         path, learned = stage.run(workdir, options)
@@ -34,4 +40,13 @@ def learn_weights(
         weight = "hard" if row["hard"] else f"{row['weight']:.3f}" + (" (fixed)" if row["fixed"] else "")
         table.add_row(row["class"], weight, row["formula"])
     console.print(table)
-    console.print(f"[green]learn-weights[/] ({engine}): wrote {path} ({learned.weights.height} formulas) and {artifacts.LEARNED_MLN}")
+    transitions = stage.strongest_temporal(learned.weights)
+    if transitions.height:
+        table = Table(title="temporal formulas: hard, then the strongest")
+        table.add_column("weight", justify="right")
+        table.add_column("formula")
+        for row in transitions.iter_rows(named=True):
+            table.add_row("hard" if row["hard"] else f"{row['weight']:.3f}", row["formula"])
+        console.print(table)
+    console.print(f"[green]learn-weights[/] ({engine}, {learned.objective}, l2 {learned.l2:g}): wrote {path} "
+                  f"({learned.weights.height} formulas) and {artifacts.LEARNED_MLN}")

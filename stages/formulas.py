@@ -13,7 +13,7 @@ from pathlib import Path
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.mln.grounding import DECLARATIONS, class_constant, check_mln, name_classes
+from stages.mln.grounding import class_constant, check_mln, default_declarations, name_classes
 from stages.mln.syntax import MLN, format_weighted, parse_mln
 
 DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
@@ -46,8 +46,8 @@ def read_spec(path: Path) -> MLN:
     except (OSError, UnicodeDecodeError) as error:
         raise BadInput(f"cannot read {path}: {error}") from error
     mln = parse_mln(text, str(path))
-    if not mln.predicates:  # formulas only: the paper's two predicates
-        defaults = parse_mln(DECLARATIONS)
+    if not mln.predicates:  # formulas only: the paper's two predicates (and Next if used)
+        defaults = parse_mln(default_declarations(mln))
         mln.predicates, mln.mutex = defaults.predicates, defaults.mutex
     if not mln.formulas:
         raise BadInput(f"{path} holds no formula: add e.g. `0.0 Has(+w, p) => Topic(+c, p)`")

@@ -1,13 +1,17 @@
-"""learn-weights: learn the formulas' weights on the training split (pracmln's BPLL objective).
+"""learn-weights: learn the formulas' weights on the training split.
 
 Reads predicates.parquet and a .mln file; writes ``weights.parquet`` (one row per expanded
-formula: formula, class, weight, fixed, hard, template) and ``learned.mln``, the weighted,
-expanded formulas as a .mln pracmln can read. Engines: ``native`` (stages.mln.bpll) and
-``pracmln`` (the paper's engine, through stages.mln.pracmln_compat).
+formula: formula, class, weight, fixed, hard, template, temporal) and ``learned.mln``, the weighted,
+expanded formulas as a .mln pracmln can read. Objectives: ``pll``, pracmln's pseudo-likelihood
+(stages.mln.bpll), and ``cll``, the exact conditional likelihood of each chain's classes given its
+evidence (stages.mln.cll), the default when a formula uses Next. Engines: ``native`` and ``pracmln``
+(the paper's engine, pll only, through stages.mln.pracmln_compat). The chains are the runs of training
+frames of one episode (a change of split within an episode cuts it).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -17,21 +21,33 @@ import polars as pl
 from stages import artifacts
 from stages.errors import BadInput, MlnseqError
 from stages.formulas import formulas_for, read_spec
-from stages.mln import bpll, pracmln_compat
-from stages.mln.grounding import CLASS, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates
-from stages.mln.syntax import MLN, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
+from stages.mln import bpll, cll, pracmln_compat
+from stages.mln.chain import chain_starts
+from stages.mln.grounding import (
+    CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
+    space_of, truth,
+)
+from stages.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
 
 ENGINES = ("native", "pracmln")
+OBJECTIVES = ("pll", "cll")
+SHOWN_FRAMES = 5  # frames named when a hard formula is broken
 
 
 @dataclass(frozen=True)
 class LearnWeightsOptions:
     formulas: Path = Path(artifacts.FORMULAS)  # relative to the current folder, else to the workdir
     engine: str = "native"
+    objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
+    l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
 
     def validate(self) -> None:
         if self.engine not in ENGINES:
             raise BadInput(f"unknown --engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
+        if self.objective is not None and self.objective not in OBJECTIVES:
+            raise BadInput(f"unknown --objective {self.objective!r}: choose one of {', '.join(OBJECTIVES)}")
+        if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
+            raise BadInput(f"--l2 must be a number >= 0, got {self.l2}")
 
     def formulas_path(self, workdir: Path) -> Path:
         path = Path(self.formulas)
@@ -45,11 +61,35 @@ class Learned:
     weights: pl.DataFrame
     learned_mln: str
     warnings: list[str]
+    objective: str = "pll"
+    l2: float = 0.0
 
 
-def training_space(predicates: pl.DataFrame, n_classes: int) -> tuple[AtomSpace, np.ndarray, list[str]]:
-    """The constants the training split shows, its atom matrix, and warnings for unseen classes."""
-    train = predicates.filter(predicates["split"] == "train")
+@dataclass(frozen=True)
+class Training:
+    """The training split as the learners see it."""
+
+    space: AtomSpace  # the predicate columns and the classes the training split shows
+    rows: np.ndarray  # bool [n, words + present classes]: each frame's atoms
+    labels: np.ndarray  # [n] class of each frame (0 .. n_classes - 1)
+    starts: np.ndarray  # bool [n]: where a chain starts
+    episodes: np.ndarray  # [n] for messages
+    frames: np.ndarray
+    warnings: list[str]
+
+    @property
+    def evidence(self) -> np.ndarray:
+        return self.rows[:, :len(self.space.words)]
+
+    def frame_name(self, index: int) -> str:
+        return f"episode {self.episodes[index]} frame {self.frames[index]}"
+
+
+def training_data(predicates: pl.DataFrame, n_classes: int) -> Training:
+    """The constants the training split shows, its atom matrix and chains, and warnings for unseen classes."""
+    starts = chain_starts(predicates["episode"].to_numpy(), predicates["split"].to_numpy())
+    is_train = (predicates["split"] == "train").to_numpy()
+    train = predicates.filter(pl.Series(is_train))
     if train.height == 0:
         raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with training frames")
     columns = artifacts.feature_columns(predicates)
@@ -66,23 +106,58 @@ def training_space(predicates: pl.DataFrame, n_classes: int) -> tuple[AtomSpace,
     space = AtomSpace(tuple(words), tuple(class_constant(k) for k in present))
     rows = atom_matrix(evidence[:, [columns.index(w) for w in words]], None, 0)
     one_hot = labels[:, None] == np.array(present)[None, :]
-    return space, np.concatenate([rows, one_hot], axis=1), warnings
+    return Training(space, np.concatenate([rows, one_hot], axis=1), labels, starts[is_train],
+                    train["episode"].to_numpy(), train["frame"].to_numpy(), warnings)
 
 
-def database(rows: np.ndarray, space: AtomSpace) -> str:
-    """The training frames as a pracmln database: one page P<i> per frame, true atoms only."""
+def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: str) -> None:
+    """Refuse a hard formula that the training frames (or consecutive pairs) break, naming the frames."""
+    pairs = np.flatnonzero(~training.starts)
+    pair_rows = np.concatenate([training.rows[pairs - 1], training.rows[pairs]], axis=1)
+    for item in expanded:
+        if item.weight is not None:
+            continue
+        space = space_of(item.formula, training.space)
+        rows, frames = (pair_rows, pairs) if is_temporal(item.formula) else (training.rows, np.arange(len(training.rows)))
+        broken = np.zeros(len(rows), dtype=bool)
+        for grounding in ground(item.formula, space):
+            broken |= ~truth(grounding, rows, space)
+        if broken.any():
+            named = ", ".join(training.frame_name(i) for i in frames[broken][:SHOWN_FRAMES])
+            more = f" and {broken.sum() - SHOWN_FRAMES} more" if broken.sum() > SHOWN_FRAMES else ""
+            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula {format_formula(item.formula)} is "
+                           f"false at {broken.sum()} training frame(s): {named}{more}; fix their labels, or give the "
+                           "formula a weight to make it soft")
+
+
+def resolve_objective(options: LearnWeightsOptions, temporal: bool) -> tuple[str, float]:
+    objective = options.objective or ("cll" if temporal else "pll")
+    if options.engine == "pracmln" and objective != "pll":
+        raise BadInput(f"--engine pracmln learns by pseudo-likelihood only; add --objective pll "
+                       f"({'the formulas use Next, so the default is cll' if temporal else 'or use --engine native'})")
+    l2 = options.l2 if options.l2 is not None else (cll.DEFAULT_L2 if objective == "cll" else 0.0)
+    return objective, l2
+
+
+def database(training: Training, temporal: bool) -> str:
+    """The training frames as a pracmln database: one page P<i> per frame, true atoms only, and (``temporal``)
+    Next(P<i>, P<i+1>) between consecutive frames of a chain."""
+    space = training.space
     names = [f'Has("{w}",P{{i}})' for w in space.words] + [f'Topic("{c}",P{{i}})' for c in space.classes]
-    lines = [name.format(i=i) for i, row in enumerate(rows) for name, on in zip(names, row) if on]
+    lines = [name.format(i=i) for i, row in enumerate(training.rows) for name, on in zip(names, row) if on]
+    lines += [f"{NEXT}(P{i - 1},P{i})" for i in np.flatnonzero(~training.starts)] if temporal else []
     return "\n".join(lines) + "\n"
 
 
-def pracmln_weights(mln: MLN, expanded: list[Expanded], space: AtomSpace, rows: np.ndarray) -> np.ndarray:
+def pracmln_weights(mln: MLN, expanded: list[Expanded], training: Training, l2: float) -> np.ndarray:
     """Learn with pracmln itself (it expands the templates) and match its formulas to ``expanded``."""
     kept = sorted({e.template for e in expanded})
-    text = "".join(f"{n}({', '.join(d)})\n" for n, d in mln.predicates.items())
+    temporal = any(is_temporal(mln.formulas[i].formula) for i in kept)
+    text = "".join(f"{n}({', '.join(d)})\n" for n, d in mln.predicates.items() if n != NEXT or temporal)
     text += "".join(format_weighted(mln.formulas[i]) + "\n" for i in kept)
     fixed = [mln.formulas[i].weight is not None and mln.formulas[i].weight != 0.0 for i in kept]
-    learned = {format_formula(parse_formula(f, "pracmln")): w for f, w in pracmln_compat.learn_weights(text, database(rows, space), fixed)}
+    learned = {format_formula(parse_formula(f, "pracmln")): w for f, w in pracmln_compat.learn_weights(
+        text, database(training, temporal), fixed, evidence=(NEXT,) if temporal else (), l2=l2)}
     weights = []
     for item in expanded:
         key = format_formula(item.formula)
@@ -93,20 +168,39 @@ def pracmln_weights(mln: MLN, expanded: list[Expanded], space: AtomSpace, rows: 
 
 
 def head_class(item: Expanded) -> str | None:
-    """The class a formula is about: its one Topic constant, else None."""
-    constants = {a.args[0].value for a in atoms(item.formula) if a.predicate == CLASS and hasattr(a.args[0], "value")}
+    """The class a formula is about: its one Topic constant (a temporal formula: on the later frame), else None."""
+    joined = next_atom(item.formula)
+    constants = {a.args[0].value for a in atoms(item.formula) if a.predicate == CLASS and isinstance(a.args[0], Const)
+                 and (joined is None or a.args[-1] == joined.args[1])}
     return constants.pop() if len(constants) == 1 else None
 
 
-def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native") -> Learned:
-    """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure)."""
-    space, rows, warnings = training_space(predicates, n_classes)
-    expanded, left_out, expand_warnings = expand_templates(mln.formulas, space)
+def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native", objective: str | None = None,
+          l2: float | None = None, where: str = artifacts.FORMULAS) -> Learned:
+    """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure); ``where`` names
+    the formulas in messages."""
+    options = LearnWeightsOptions(engine=engine, objective=objective, l2=l2)
+    options.validate()
+    training = training_data(predicates, n_classes)
+    warnings = list(training.warnings)
+    expanded, left_out, expand_warnings = expand_templates(mln.formulas, training.space)
     warnings += expand_warnings
-    if engine == "native":
-        weights = bpll.learn(expanded, rows, space)
+    uses_next = [item for item in mln.formulas if is_temporal(item.formula)]
+    objective, l2 = resolve_objective(options, bool(uses_next))
+    if uses_next and training.starts.all():
+        raise BadInput(f"{where}:{uses_next[0].line}: {format_formula(uses_next[0].formula)} uses {NEXT}, but every "
+                       "episode of the training split has one frame: no transitions can be learned; collect longer "
+                       f"episodes or remove the formulas with {NEXT}")
+    check_hard(expanded, mln, training, where)
+    if not expanded:
+        weights = np.zeros(0)
+    elif engine == "pracmln":
+        weights = pracmln_weights(mln, expanded, training, l2)
+    elif objective == "pll":
+        weights = bpll.learn(expanded, training.rows, training.space, training.starts, l2=l2)
     else:
-        weights = pracmln_weights(mln, expanded, space, rows) if expanded else np.zeros(0)
+        states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(n_classes)))
+        weights = cll.learn(expanded, training.evidence, training.labels, training.starts, states, l2=l2)
     every = expanded + left_out
     values = np.concatenate([weights, np.zeros(len(left_out))])
     table = pl.DataFrame(
@@ -117,28 +211,42 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
             "fixed": [e.fixed for e in every],
             "hard": [e.weight is None for e in every],
             "template": [e.template for e in every],
+            "temporal": [is_temporal(e.formula) for e in every],
         },
         schema={"formula": pl.String, "class": pl.String, "weight": pl.Float64, "fixed": pl.Boolean,
-                "hard": pl.Boolean, "template": pl.Int32},
+                "hard": pl.Boolean, "template": pl.Int32, "temporal": pl.Boolean},
     )
-    return Learned(table, render_learned(mln, every, values, engine), warnings)
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2), warnings, objective, l2)
 
 
-def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str) -> str:
-    lines = [f"// mlnseq learn-weights ({engine} BPLL): weighted, expanded formulas", ""]
-    lines += [f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items()] + [""]
+def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
+                   l2: float) -> str:
+    temporal = any(is_temporal(e.formula) for e in formulas)
+    lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas", ""]
+    lines += [f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items() if name != NEXT or temporal]
+    lines += [""]
     lines += [format_weighted(WeightedFormula(e.formula, None if e.weight is None else float(w)))
               for e, w in zip(formulas, weights)]
     return "\n".join(lines) + "\n"
 
 
 def strongest(weights: pl.DataFrame, per_class: int = 3) -> pl.DataFrame:
-    """The ``per_class`` largest weights of each class (hard formulas first)."""
+    """The ``per_class`` largest weights of each class among the per-frame formulas (hard formulas first)."""
+    per_frame = weights.filter(~pl.col("temporal")) if "temporal" in weights.columns else weights
     return (
-        weights.filter(pl.col("class").is_not_null())
+        per_frame.filter(pl.col("class").is_not_null())
         .sort(["class", "hard", "weight"], descending=[False, True, True])
         .group_by("class", maintain_order=True).head(per_class)
     )
+
+
+def strongest_temporal(weights: pl.DataFrame, count: int = 5) -> pl.DataFrame:
+    """The hard temporal formulas, then the ``count`` temporal formulas of largest |weight|."""
+    if "temporal" not in weights.columns:
+        return weights.clear()
+    temporal = weights.filter(pl.col("temporal"))
+    return pl.concat([temporal.filter(pl.col("hard")),
+                      temporal.filter(~pl.col("hard")).sort(pl.col("weight").abs(), descending=True).head(count)])
 
 
 def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
@@ -153,10 +261,10 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
-    learned = learn(predicates, len(classes), mln, options.engine)
+    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path))
     record = {k: str(v) for k, v in asdict(options).items()}
-    table_meta = {"options": record, "engine": options.engine, "classes": classes,
-                  "source": meta.get("source"), "warnings": learned.warnings}
+    table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
+                  "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # both or neither
         staged.write_text(learned.learned_mln, encoding="utf-8")
         path = artifacts.write_table(learned.weights, workdir / artifacts.WEIGHTS, "weights", table_meta,

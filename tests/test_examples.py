@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -10,6 +11,7 @@ import sys
 from pathlib import Path
 
 import polars as pl
+import pyarrow.parquet as pq
 import pytest
 
 OWN_DATA = Path(__file__).resolve().parents[1] / "examples" / "own-data"
@@ -42,6 +44,10 @@ def test_own_data_example_runs_as_documented(tmp_path: Path) -> None:
     assert (expert["class"], expert["weight"]) == ("C3", 2.0)
     learned = conjunctions.filter(~pl.col("fixed")).row(0, named=True)
     assert learned["class"] == "C2" and learned["weight"] != 0.0
+    order = weights.filter(pl.col("hard"))
+    assert order.height == 4 and order["temporal"].all()
+    meta = json.loads(pq.read_schema(work / "weights.parquet").metadata[b"mlnseq"])
+    assert meta["objective"] == "cll"  # the order rules use Next: learn-weights defaults to the chain objective
     metrics = pl.read_parquet(work / "metrics.parquet").filter(pl.col("metric") == "segment_accuracy")
     accuracy = dict(zip(metrics["method"], metrics["value"]))
     assert set(accuracy) == {"lstm", "mln", "priorlayer", "conflation", "combined"}

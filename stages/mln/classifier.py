@@ -13,8 +13,6 @@ from scipy.special import log_softmax
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.mln.grounding import CLASS, AtomSpace, atom_matrix, class_constant, ground, truth
-from stages.mln.syntax import MLNSyntaxError, atoms, parse_formula
 
 HARD_WEIGHT = 1000.0  # a hard formula's weight in the scores: far above any learned weight
 MODES = ("paper", "exact")
@@ -23,33 +21,15 @@ MODES = ("paper", "exact")
 def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, n_classes: int) -> np.ndarray:
     """[n_frames, n_classes] float64: per frame, sum of the weights of the formulas whose body (the
     evidence part) is true in that frame and whose head is Topic(C<k>) — i.e. the formulas that are
-    satisfied only if the class is k. Row order = predicates' row order."""
+    satisfied only if the class is k. Row order = predicates' row order. Temporal formulas (Next) are
+    left out: they are factors between frames (stages.mln.factors)."""
+    from stages.mln.factors import frame_scores, parse_weights
+
     words = tuple(artifacts.feature_columns(predicates))
-    space = AtomSpace(words, tuple(class_constant(k) for k in range(n_classes)))
     evidence = predicates.select(words).to_numpy().astype(bool) if words else np.zeros((predicates.height, 0), bool)
+    per_frame = [f for f in parse_weights(weights, words, n_classes) if not f.temporal]
     unique, inverse = np.unique(evidence, axis=0, return_inverse=True)
-    no_class = atom_matrix(unique, None, n_classes)
-    scores = np.zeros((len(unique), n_classes))
-    for text, weight, hard in weights.select("formula", "weight", "hard").iter_rows():
-        if weight == 0.0 and not hard:
-            continue
-        weight = HARD_WEIGHT if hard else weight
-        try:
-            formula = parse_formula(text, "weights.parquet")
-        except MLNSyntaxError as error:
-            raise BadInput(f"{error}; rerun `mlnseq learn-weights`") from error
-        for atom in atoms(formula):
-            if not space.contains(atom):
-                raise BadInput(f"weights.parquet formula {text} uses {atom.args[0]}, which predicates.parquet lacks")
-        for grounding in ground(formula, space):
-            baseline = truth(grounding, no_class, space)
-            if not any(a.predicate == CLASS for a in atoms(grounding)):
-                continue
-            for k in range(n_classes):
-                with_class = no_class.copy()
-                with_class[:, len(words) + k] = True
-                scores[:, k] += weight * (truth(grounding, with_class, space).astype(float) - baseline)
-    return scores[inverse.reshape(-1)]
+    return frame_scores(per_frame, unique, words, n_classes, hard_weight=HARD_WEIGHT)[inverse.reshape(-1)]
 
 
 def paper_prior(scores: np.ndarray, source: str) -> np.ndarray:

@@ -1,10 +1,17 @@
-"""Bind an MLN to mlnseq's per-frame database and ground its formulas.
+"""Bind an MLN to mlnseq's database of frames and ground its formulas.
 
 The database has two predicates, as in the paper: ``Has(<predicate column>, <frame>)`` is true
 when that boolean column of predicates.parquet is true in the frame, and ``Topic(C<k>, <frame>)``
-when the frame's label is k. Every formula relates atoms of one frame: each atom's last argument
-is the same frame variable. A frame's atoms form one row of a boolean matrix (the columns first,
-then the classes), so a ground formula is evaluated on all frames at once.
+when the frame's label is k; and one relation, ``Next(<frame>, <frame>)``, true exactly when the
+second frame follows the first in one chain (consecutive rows of one episode and split).
+
+A per-frame formula relates atoms of one frame: each atom's last argument is the same frame
+variable. A temporal formula relates two consecutive frames: exactly one ``Next(p, q)`` atom with
+two different frame variables, every other atom on p or q, and it must hold whenever ``Next(p, q)``
+is false (``Next`` in the body), so that pairs of frames that are not consecutive count for nothing
+and the formula is a factor between neighbours. A frame's atoms form one row of a boolean matrix (the
+columns first, then the classes), a consecutive pair's atoms the previous row then the current one,
+so a ground formula is evaluated on all frames or pairs at once.
 """
 
 from __future__ import annotations
@@ -18,13 +25,16 @@ import numpy as np
 
 from stages.errors import BadInput
 from stages.mln.syntax import (
-    MLN, And, Atom, Const, Equiv, Formula, Implies, Not, Or, Var, WeightedFormula, atoms, format_formula,
-    map_atoms, substitute,
+    MLN, And, Atom, Const, Equiv, Formula, Implies, MLNSyntaxError, Not, Or, Var, WeightedFormula, atoms,
+    format_formula, map_atoms, substitute,
 )
 
 EVIDENCE = "Has"
 CLASS = "Topic"
+NEXT = "Next"
 DECLARATIONS = f"{EVIDENCE}(word, page)\n{CLASS}(class, page)\n"
+NEXT_DECLARATION = f"{NEXT}(page, page)\n"
+MAX_CHECKED_ATOMS = 20  # a temporal formula's distinct atoms: its Next-false check enumerates 2^n worlds
 
 
 def class_constant(label: int) -> str:
@@ -49,16 +59,69 @@ class AtomSpace:
     def constants(self, predicate: str) -> tuple[str, ...]:
         return self.words if predicate == EVIDENCE else self.classes
 
-    def index(self, atom: Atom) -> int:
+    def index(self, atom: Atom) -> int | None:
+        """The atom's column in a frame's row (None for Next, which is not a frame's atom)."""
+        if atom.predicate == NEXT:
+            return None
         value = atom.args[0].value  # type: ignore[union-attr]
         if atom.predicate == EVIDENCE:
             return self._word_index[value]  # type: ignore[attr-defined]
         return len(self.words) + self._class_index[value]  # type: ignore[attr-defined]
 
     def contains(self, atom: Atom) -> bool:
+        if atom.predicate == NEXT:
+            return True
         value = atom.args[0].value  # type: ignore[union-attr]
         table = self._word_index if atom.predicate == EVIDENCE else self._class_index  # type: ignore[attr-defined]
         return value in table
+
+
+@dataclass(frozen=True)
+class PairSpace:
+    """The atoms of two consecutive frames, the earlier one's first: a temporal formula is evaluated on
+    rows [previous frame's atoms | current frame's atoms], where its Next atom is true."""
+
+    frame: AtomSpace
+    previous: str  # the frame variables of Next(previous, current)
+    current: str
+
+    @property
+    def size(self) -> int:
+        return 2 * self.frame.size
+
+    def constants(self, predicate: str) -> tuple[str, ...]:
+        return self.frame.constants(predicate)
+
+    def index(self, atom: Atom) -> int | None:
+        index = self.frame.index(atom)
+        if index is None:
+            return None
+        return index + (self.frame.size if atom.args[-1].name == self.current else 0)  # type: ignore[union-attr]
+
+    def contains(self, atom: Atom) -> bool:
+        return self.frame.contains(atom)
+
+
+def next_atom(formula: Formula) -> Atom | None:
+    """The formula's Next atom, if any."""
+    return next((a for a in atoms(formula) if a.predicate == NEXT), None)
+
+
+def is_temporal(formula: Formula) -> bool:
+    return next_atom(formula) is not None
+
+
+def space_of(formula: Formula, frame: AtomSpace) -> AtomSpace | PairSpace:
+    """Where the formula is evaluated: one frame's atoms, or a consecutive pair's (temporal formulas)."""
+    joined = next_atom(formula)
+    if joined is None:
+        return frame
+    return PairSpace(frame, joined.args[0].name, joined.args[1].name)  # type: ignore[union-attr]
+
+
+def default_declarations(mln: MLN) -> str:
+    """The declarations a file of formulas only gets: the paper's two predicates, and Next if it is used."""
+    return DECLARATIONS + (NEXT_DECLARATION if any(is_temporal(f.formula) for f in mln.formulas) else "")
 
 
 def name_classes(mln: MLN, class_names: list[str]) -> MLN:
@@ -71,7 +134,7 @@ def name_classes(mln: MLN, class_names: list[str]) -> MLN:
         first = atom.args[0] if atom.args else None
         if atom.predicate == CLASS and isinstance(first, Const) and first.value not in paper_form \
                 and first.value in constants:
-            return Atom(atom.predicate, (Const(constants[first.value]), *atom.args[1:]))
+            return Atom(atom.predicate, (Const(constants[first.value]), *atom.args[1:]), atom.column)
         return atom
 
     mln.formulas = [replace(item, formula=map_atoms(item.formula, rename)) for item in mln.formulas]
@@ -79,12 +142,13 @@ def name_classes(mln: MLN, class_names: list[str]) -> MLN:
 
 
 def check_mln(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
-    """Refuse what mlnseq's database cannot ground: other predicates, cross-frame atoms, unknown constants."""
+    """Refuse what mlnseq's database cannot ground: other predicates, atoms across frames that are not joined
+    by Next, unknown constants."""
     for name, domains in mln.predicates.items():
-        if name not in (EVIDENCE, CLASS) or len(domains) != 2:
+        if name not in (EVIDENCE, CLASS, NEXT) or len(domains) != 2:
             raise BadInput(
                 f"{where}: predicate {name}({', '.join(domains)}) is not in mlnseq's database, which holds "
-                f"only {EVIDENCE}(word, page) and {CLASS}(class, page)"
+                f"only {EVIDENCE}(word, page), {CLASS}(class, page) and {NEXT}(page, page)"
             )
     if any(any(flags) for flags in mln.mutex.values()):
         raise BadInput(f"{where}: mutually exclusive arguments ('!') are not supported; declare {CLASS}(class, page)")
@@ -93,40 +157,92 @@ def check_mln(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
 
 
 def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
-    at = f"{where}:{item.line}"
-    frame_vars, first_domain = set(), {}
+    def at(atom: Atom | None = None) -> str:
+        return f"{where}:{item.line}:{atom.column if atom is not None and atom.column else item.column}"
+
+    frame_vars, first_domain, joins = set(), {}, []
     for atom in atoms(item.formula):
         if atom.predicate not in mln.predicates:
             declared = ", ".join(mln.predicates) or "none"
-            raise BadInput(f"{at}: unknown predicate {atom.predicate} (declared: {declared})")
+            hint = f"; declare {NEXT}(page, page) to join consecutive frames" if atom.predicate == NEXT else ""
+            raise BadInput(f"{at(atom)}: unknown predicate {atom.predicate} (declared: {declared}){hint}")
+        if atom.predicate == NEXT:
+            names = [t.name for t in atom.args if isinstance(t, Var) and not t.expand]
+            if len(atom.args) != 2 or len(names) != 2 or names[0] == names[1]:
+                raise MLNSyntaxError(
+                    f"{at(atom)}: syntax error: {NEXT} takes two different frame variables, {NEXT}(p, q) for the "
+                    f"frame q right after p; found {format_formula(atom)}")
+            joins.append(atom)
+            frame_vars.update(names)
+            continue
         if len(atom.args) != 2:
-            raise BadInput(f"{at}: {atom.predicate} takes 2 arguments, {format_formula(atom)} has {len(atom.args)}")
+            raise BadInput(f"{at(atom)}: {atom.predicate} takes 2 arguments, {format_formula(atom)} has {len(atom.args)}")
         first, frame = atom.args
         if not isinstance(frame, Var) or frame.expand:
-            raise BadInput(f"{at}: the last argument of {format_formula(atom)} must be the frame variable (e.g. p)")
+            raise BadInput(f"{at(atom)}: the last argument of {format_formula(atom)} must be the frame variable (e.g. p)")
         frame_vars.add(frame.name)
         known = words if atom.predicate == EVIDENCE else classes
         if isinstance(first, Const) and first.value not in known:
             if atom.predicate == EVIDENCE:
                 close = difflib.get_close_matches(first.value, sorted(known), n=3)
                 hint = f"did you mean {', '.join(close)}?" if close else "see the columns of predicates.parquet"
-                raise BadInput(f"{at}: unknown constant {first.value!r} in {format_formula(atom)}: "
+                raise BadInput(f"{at(atom)}: unknown constant {first.value!r} in {format_formula(atom)}: "
                                f"no such predicate column; {hint}")
-            raise BadInput(f"{at}: unknown constant {first.value!r} in {format_formula(atom)}: classes are "
+            raise BadInput(f"{at(atom)}: unknown constant {first.value!r} in {format_formula(atom)}: classes are "
                            f"{', '.join(sorted(known, key=lambda c: int(c[1:])))} (C<k> in the frames' class order)")
-        if isinstance(first, Var):
-            if first_domain.setdefault(first.name, atom.predicate) != atom.predicate:
-                raise BadInput(f"{at}: variable {first.name} ranges over both words and classes")
-            if first.name in frame_vars:
-                raise BadInput(f"{at}: variable {first.name} is used both as frame and as constant")
-    if len(frame_vars) > 1:
-        raise BadInput(f"{at}: all atoms must share one frame variable, found {', '.join(sorted(frame_vars))}")
+        if isinstance(first, Var) and first_domain.setdefault(first.name, atom.predicate) != atom.predicate:
+            raise BadInput(f"{at(atom)}: variable {first.name} ranges over both words and classes")
+    clash = sorted(frame_vars & set(first_domain))
+    if clash:
+        raise BadInput(f"{at()}: variable {clash[0]} is used both as frame and as constant")
+    if not joins:
+        if len(frame_vars) > 1:
+            raise BadInput(f"{at()}: all atoms must share one frame variable, found {', '.join(sorted(frame_vars))}; "
+                           f"to relate consecutive frames, add {NEXT}(p, q) to the body")
+        return
+    if len(joins) > 1:
+        raise BadInput(f"{at(joins[1])}: a formula joins two consecutive frames with one {NEXT} atom, found {len(joins)}")
+    joined = joins[0]
+    previous, current = (t.name for t in joined.args)  # type: ignore[union-attr]
+    for atom in atoms(item.formula):
+        if atom.predicate != NEXT and atom.args[-1].name not in (previous, current):  # type: ignore[union-attr]
+            raise BadInput(f"{at(atom)}: {format_formula(atom)} is on frame {atom.args[-1].name}, but "  # type: ignore[union-attr]
+                           f"{format_formula(joined)} joins only {previous} and {current}")
+    if not holds_without_next(item.formula, at()):
+        raise BadInput(
+            f"{at()}: {format_formula(item.formula)} must hold whenever {format_formula(joined)} is false (frames that "
+            f"are not consecutive), else every pair of frames counts: put {format_formula(joined)} in the body, "
+            f"e.g. Topic(c1, {previous}) ^ {format_formula(joined)} => Topic(c2, {current})")
+
+
+@dataclass(frozen=True)
+class _Propositions:
+    """Each distinct atom of one formula as a column of a truth table; Next is the last column."""
+
+    columns: dict[tuple, int]
+
+    def index(self, atom: Atom) -> int:
+        return len(self.columns) if atom.predicate == NEXT else self.columns[(atom.predicate, atom.args)]
+
+
+def holds_without_next(formula: Formula, where: str = "formula") -> bool:
+    """Whether the formula is true in every world where its Next atom is false (its other atoms taken as
+    independent propositions: a sufficient check)."""
+    keys = list(dict.fromkeys((a.predicate, a.args) for a in atoms(formula) if a.predicate != NEXT))
+    if len(keys) > MAX_CHECKED_ATOMS:
+        raise BadInput(f"{where}: a temporal formula may hold at most {MAX_CHECKED_ATOMS} distinct atoms, "
+                       f"this one has {len(keys)}")
+    worlds = (np.arange(2 ** len(keys))[:, None] >> np.arange(len(keys))[None, :]) & 1
+    worlds = np.concatenate([worlds.astype(bool), np.zeros((len(worlds), 1), dtype=bool)], axis=1)
+    return bool(truth(formula, worlds, _Propositions({k: i for i, k in enumerate(keys)})).all())
 
 
 def _first_vars(formula: Formula, expand: bool) -> dict[str, str]:
     """Variables in first-argument position (expanding or not) -> their predicate."""
     found: dict[str, str] = {}
     for atom in atoms(formula):
+        if atom.predicate == NEXT:
+            continue
         first = atom.args[0]
         if isinstance(first, Var) and first.expand == expand:
             found.setdefault(first.name, atom.predicate)
@@ -185,10 +301,13 @@ def ground(formula: Formula, space: AtomSpace) -> list[Formula]:
     ]
 
 
-def truth(formula: Formula, rows: np.ndarray, space: AtomSpace, flip: int = -1) -> np.ndarray:
-    """Truth of a ground formula on each row of the atom matrix, with atom ``flip`` negated."""
+def truth(formula: Formula, rows: np.ndarray, space, flip: int = -1) -> np.ndarray:
+    """Truth of a ground formula on each row of the atom matrix of ``space`` (an AtomSpace, or a PairSpace
+    whose rows are consecutive pairs: Next is true), with atom ``flip`` negated."""
     if isinstance(formula, Atom):
         index = space.index(formula)
+        if index is None:
+            return np.ones(len(rows), dtype=bool)
         column = rows[:, index]
         return ~column if index == flip else column
     if isinstance(formula, Not):
@@ -211,5 +330,6 @@ def atom_matrix(evidence: np.ndarray, labels: np.ndarray | None, n_classes: int)
     return np.concatenate([evidence.astype(bool), one_hot], axis=1)
 
 
-def atom_indices(formula: Formula, space: AtomSpace) -> list[int]:
-    return sorted({space.index(a) for a in atoms(formula)})
+def atom_indices(formula: Formula, space) -> list[int]:
+    """The columns of the formula's atoms in the rows of ``space`` (Next, not a frame's atom, has none)."""
+    return sorted({i for a in atoms(formula) if (i := space.index(a)) is not None})

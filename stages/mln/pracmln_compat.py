@@ -64,17 +64,26 @@ def import_pracmln() -> types.ModuleType:
         ) from error
 
 
-def learn_weights(mln_text: str, db_text: str, fixed: list[bool]) -> list[tuple[str, float]]:
-    """Run pracmln's BPLL_CG on one database; (formula text as pracmln writes it, weight) per formula.
+def learn_weights(mln_text: str, db_text: str, fixed: list[bool], evidence: tuple[str, ...] = (),
+                  l2: float = 0.0) -> list[tuple[str, float]]:
+    """Run pracmln's pseudo-likelihood learner on one database; (formula text as pracmln writes it, weight) per formula.
 
     ``fixed`` flags the formulas of ``mln_text`` (in order) whose weight is held constant;
     pracmln expands `+var` templates itself, an expanded formula inherits its template's flag.
+    With no ``evidence`` predicates: BPLL_CG, every ground atom scored given the others (the paper's
+    learner). With some (Next): DBPLL_CG with those as evidence, whose atoms are conditioned on but
+    not scored. ``l2`` > 0 adds pracmln's Gaussian prior of standard deviation 1/sqrt(l2).
     """
     import_pracmln()
     from pracmln.mln.base import parse_mln
     from pracmln.mln.database import parse_db
-    from pracmln.mln.learning.bpll import BPLL_CG
+    from pracmln.mln.learning.bpll import BPLL_CG, DBPLL_CG
 
+    params = {"multicore": False, "verbose": False}
+    if evidence:
+        params["epreds"] = list(evidence)
+    if l2 > 0:
+        params["prior_stdev"] = 1.0 / l2 ** 0.5
     sink = _sink()
     try:
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink), warnings.catch_warnings():
@@ -82,7 +91,7 @@ def learn_weights(mln_text: str, db_text: str, fixed: list[bool]) -> list[tuple[
             mln = parse_mln(mln_text, grammar="StandardGrammar", logic="FirstOrderLogic")
             mln.fixweights = list(fixed)
             databases = parse_db(mln, db_text)
-            learned = mln.learn(databases, method=BPLL_CG, multicore=False, verbose=False)
+            learned = mln.learn(databases, method=DBPLL_CG if evidence else BPLL_CG, **params)
     except Exception as error:  # pracmln raises bare Exceptions with its own messages
         raise MlnseqError(f"pracmln failed: {type(error).__name__}: {error}") from error
     return [(str(formula), float(weight)) for formula, weight in zip(learned.formulas, learned.weights)]

@@ -34,6 +34,7 @@ Term = Union[Var, Const]
 class Atom:
     predicate: str
     args: tuple[Term, ...]
+    column: int = field(default=0, compare=False)  # 1-based position in its line (0: unknown)
 
 
 @dataclass(frozen=True)
@@ -199,7 +200,7 @@ class _Parser:
         while self.accept(","):
             args.append(self.term())
         self.expect(")", "',' or ')'")
-        return Atom(name.text, tuple(args))
+        return Atom(name.text, tuple(args), name.column)
 
     def term(self) -> Term:
         token = self.peek()
@@ -350,4 +351,4 @@ def map_atoms(formula: Formula, change: Callable[[Atom], Atom]) -> Formula:
 def substitute(formula: Formula, binding: dict[str, str]) -> Formula:
     """Replace variables named in ``binding`` by constants."""
     return map_atoms(formula, lambda atom: Atom(atom.predicate, tuple(
-        Const(binding[t.name]) if isinstance(t, Var) and t.name in binding else t for t in atom.args)))
+        Const(binding[t.name]) if isinstance(t, Var) and t.name in binding else t for t in atom.args), atom.column))

@@ -46,8 +46,8 @@ def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) ->
 @pytest.mark.parametrize(
     ("spec", "message"),
     [
-        ('0.0 Has("left_gripper_closed",p) => Topc("C4",p)\n', "spec.mln:1: unknown predicate Topc"),
-        ('\n0.0 Has("left_gripper_clsed",p) => Topic("C4",p)\n', "spec.mln:2: unknown constant 'left_gripper_clsed'"),
+        ('0.0 Has("left_gripper_closed",p) => Topc("C4",p)\n', "spec.mln:1:37: unknown predicate Topc"),
+        ('\n0.0 Has("left_gripper_clsed",p) => Topic("C4",p)\n', "spec.mln:2:5: unknown constant 'left_gripper_clsed'"),
         ('0.0 Has("left_gripper_closed",p) => Topic("C9",p)\n', "unknown constant 'C9'"),
         ('0.0 Has("left_gripper_closed",p) => Topic("C4",q)\n', "one frame variable"),
         ('0.0 Has("left_gripper_closed",p) ^^ Topic("C4",p)\n', "spec.mln:1:35:"),
@@ -61,3 +61,49 @@ def test_bad_specs_are_refused(workdir: Path, tmp_path: Path, spec: str, message
         stage.run(workdir, stage.FormulasOptions(spec=path))
     after = (workdir / "formulas.mln").read_text() if (workdir / "formulas.mln").exists() else None
     assert before == after
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        "0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n",
+        'Topic("S1", p) ^ Next(p, q) => Topic("S1", q) v Topic("S2", q).\n',
+        '0.0 Topic(c1, p) ^ Next(p, q) ^ Has("left_gripper_closing", q) => Topic(c2, q)\n',
+        '0.0 Next(p, q) => (Topic("C0", p) <=> Topic("C0", q))\n',
+        '0.0 !Next(p, q) v !Topic("S3", q) v Topic("S3", p)\n',
+    ],
+)
+def test_temporal_forms_are_accepted(workdir: Path, tmp_path: Path, spec: str) -> None:
+    path = tmp_path / "temporal.mln"
+    path.write_text(spec)  # no declarations: Has, Topic and (used here) Next are declared for it
+    written = stage.run(workdir, stage.FormulasOptions(spec=path))
+    mln = parse_mln(written.path.read_text(), "formulas.mln")
+    assert mln.predicates["Next"] == ("page", "page") and len(mln.formulas) == 1
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ('0.0 Topc("C0", p) ^ Next(p, q) => Topic("C1", q)\n', "spec.mln:1:5: unknown predicate Topc"),
+        ('0.0 Topic("S9", p) ^ Next(p, q) => Topic("S1", q)\n', "spec.mln:1:5: unknown constant 'S9'"),
+        ('Has(word, page)\nTopic(class, page)\n0.0 Topic("C0", p) ^ Next(p, q) => Topic("C1", q)\n',
+         "spec.mln:3:22: unknown predicate Next (declared: Has, Topic); declare Next(page, page)"),
+        ('0.0 Topic("C0", p) ^ Next(p, "C1") => Topic("C1", q)\n',
+         'spec.mln:1:22: syntax error: Next takes two different frame variables, Next(p, q) for the frame q right '
+         'after p; found Next(p,"C1")'),
+        ('0.0 Topic("C0", p) ^ Next(p, p) => Topic("C1", p)\n', "spec.mln:1:22: syntax error: Next takes two"),
+        ('0.0 Topic("C0", p) ^ Next(+p, q) => Topic("C1", q)\n', "spec.mln:1:22: syntax error: Next takes two"),
+        ('0.0 Topic("C0", p) ^ Next(p, q) => Topic("C1", r)\n',
+         "spec.mln:1:36: Topic(\"C1\",r) is on frame r, but Next(p,q) joins only p and q"),
+        ('0.0 Topic("C0", p) ^ Next(p, q) ^ Next(q, r) => Topic("C1", r)\n', "spec.mln:1:35: a formula joins two"),
+        ('0.0 Topic("C0", p) ^ Topic("C1", q) ^ Next(p, q)\n',
+         "spec.mln:1:1: Topic(\"C0\",p) ^ Topic(\"C1\",q) ^ Next(p,q) must hold whenever Next(p,q) is false"),
+        ('0.0 Topic("C0", p) v Next(p, q) => Topic("C1", q)\n', "put Next(p,q) in the body"),
+    ],
+)
+def test_bad_temporal_formulas_name_line_and_column(workdir: Path, tmp_path: Path, spec: str, message: str) -> None:
+    path = tmp_path / "spec.mln"
+    path.write_text(spec)
+    with pytest.raises(BadInput) as error:
+        stage.run(workdir, stage.FormulasOptions(spec=path))
+    assert message in str(error.value).replace(str(tmp_path) + "/", "")

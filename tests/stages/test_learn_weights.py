@@ -7,12 +7,14 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
+from scipy.special import expit
 
-from stages import artifacts
+from stages import artifacts, binarize
 from stages import learn_weights as stage
 from stages.errors import BadInput, StaleArtifact
-from stages.formulas import DEFAULT_SPEC, read_spec
-from stages.mln import pracmln_compat
+from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
+from stages.mln import bpll, cll, pracmln_compat
+from stages.mln.grounding import expand_templates
 from stages.mln.published_codes import desk_predicates, fetch_predicates, write_predicates
 from stages.mln.syntax import parse_mln
 
@@ -75,7 +77,8 @@ def test_fixed_and_hard_formulas(desk: pl.DataFrame) -> None:
 
 def test_violated_hard_formula_is_refused(desk: pl.DataFrame) -> None:
     mln = parse_mln(DECLARED + 'Has("arm_distance_static",p) => Topic("C4",p).\n')
-    with pytest.raises(BadInput, match="hard formula .* is false in a training frame"):
+    with pytest.raises(BadInput, match=r"formulas.mln:3: hard formula .* is false at 20 training frame\(s\): "
+                                       r"episode 0 frame 0, episode 0 frame 1, .* and 15 more"):
         stage.learn(desk, 7, mln)
 
 
@@ -101,8 +104,9 @@ def test_run_writes_weights_and_learned_mln(tmp_path: Path, shared_data: Path) -
     (tmp_path / "formulas.mln").write_text(DEFAULT_SPEC.read_text())
     path, learned = stage.run(tmp_path, stage.LearnWeightsOptions())
     weights, meta = artifacts.read_table(path, "weights")
-    assert weights.columns == ["formula", "class", "weight", "fixed", "hard", "template"]
+    assert weights.columns == ["formula", "class", "weight", "fixed", "hard", "template", "temporal"]
     assert meta["engine"] == "native" and set(meta["inputs"]) == {"predicates.parquet", "formulas.mln"}
+    assert (meta["objective"], meta["l2"]) == ("pll", 0.0) and not weights["temporal"].any()
     reread = parse_mln((tmp_path / "learned.mln").read_text(), "learned.mln")
     assert [f.weight for f in reread.formulas] == pytest.approx(weights["weight"].to_list(), abs=1e-6)
 
@@ -162,3 +166,101 @@ def test_pracmln_imports_without_tk(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[2])
     assert done.returncode == 0, done.stderr
     assert 'Has("a",p) => Topic("C0",p)' in done.stdout
+
+
+TEMPORAL = DECLARED + "Next(page, page)\n0.0 Has(+w, p) => Topic(+c, p)\n0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n"
+
+
+def test_temporal_formulas_default_to_cll(desk: pl.DataFrame) -> None:
+    learned = stage.learn(desk, 7, parse_mln(TEMPORAL))
+    assert (learned.objective, learned.l2) == ("cll", cll.DEFAULT_L2)
+    weights = learned.weights
+    assert weights.height == 119 + 49 and weights["temporal"].sum() == 49
+    assert np.isfinite(weights["weight"].to_numpy()).all()
+    stay = weights.filter(pl.col("formula") == 'Topic("C2",p) ^ Next(p,q) => Topic("C2",q)')["weight"][0]
+    leave = weights.filter(pl.col("formula") == 'Topic("C2",p) ^ Next(p,q) => Topic("C6",q)')["weight"][0]
+    assert stay > leave  # surgemes last many frames
+    pll = stage.learn(desk, 7, parse_mln(TEMPORAL), objective="pll", l2=1.0)
+    assert (pll.objective, pll.l2) == ("pll", 1.0) and not np.allclose(pll.weights["weight"], weights["weight"])
+    reread = parse_mln(learned.learned_mln, "learned.mln")
+    assert "Next" in reread.predicates and "cll" in learned.learned_mln.splitlines()[0].lower()
+
+
+def test_chains_never_cross_episodes_or_splits(desk: pl.DataFrame) -> None:
+    training = stage.training_data(desk, 7)
+    assert training.starts.sum() == 1  # DESK's training split is one episode
+    shuffled = desk.with_columns(pl.when(pl.col("frame") == 700).then(pl.lit("test")).otherwise(pl.col("split")).alias("split"))
+    training = stage.training_data(shuffled, 7)
+    assert training.starts.sum() == 2 and training.frames[training.starts].tolist() == [0, 701]
+
+
+def test_hard_temporal_rule_broken_by_labels_is_refused(desk: pl.DataFrame) -> None:
+    mln = parse_mln(TEMPORAL + 'Topic("C0", p) ^ Next(p, q) => Topic("C0", q).\n', "order.mln")
+    with pytest.raises(BadInput, match=r"^order.mln:6: hard formula .* is false at \d+ training frame\(s\): "
+                                       r"episode 0 frame \d+, .*fix their labels"):
+        stage.learn(desk, 7, mln, where="order.mln")
+    order = parse_mln(TEMPORAL + 'Topic("C0", p) ^ Next(p, q) => Topic("C0", q) v Topic("C1", q).\n', "order.mln")
+    weights = stage.learn(desk, 7, order).weights
+    assert weights.filter(pl.col("hard"))["temporal"].to_list() == [True]
+
+
+def test_next_without_consecutive_frames_is_refused(desk: pl.DataFrame) -> None:
+    single = desk.head(40).with_columns(pl.int_range(pl.len()).cast(pl.Int32).alias("episode"), pl.lit(0).cast(pl.Int32).alias("frame"))
+    with pytest.raises(BadInput, match="every episode of the training split has one frame: no transitions can be learned"):
+        stage.learn(single, 7, parse_mln(TEMPORAL))
+
+
+def test_bad_objective_options_are_refused(desk: pl.DataFrame) -> None:
+    with pytest.raises(BadInput, match="--engine pracmln learns by pseudo-likelihood only; add --objective pll"):
+        stage.learn(desk, 7, parse_mln(TEMPORAL), "pracmln")
+    with pytest.raises(BadInput, match="unknown --objective 'ml'"):
+        stage.learn(desk, 7, PAPER, objective="ml")
+    with pytest.raises(BadInput, match="--l2 must be a number >= 0"):
+        stage.learn(desk, 7, PAPER, l2=-1.0)
+
+
+def fetch_parity_table(fetch_frames_workdir: Path) -> tuple[pl.DataFrame, list[str]]:
+    """A small real Fetch collection as predicates: the last 16 frames of episode 0 and the first 20 of episode 1
+    train (two chains, all four classes), the rest test."""
+    frames, meta = artifacts.read_table(fetch_frames_workdir / artifacts.FRAMES, "frames")
+    table = binarize.binarize(frames, binarize.load_spec(binarize.default_spec_path("fetch")))
+    train = ((pl.col("episode") == 0) & (pl.col("frame") >= 34)) | ((pl.col("episode") == 1) & (pl.col("frame") < 20))
+    return table.with_columns(pl.when(train).then(pl.lit("train")).otherwise(pl.lit("test")).alias("split")), meta["classes"]
+
+
+@pytest.mark.pracmln
+@pytest.mark.mujoco
+def test_pracmln_matches_native_pll_with_next(fetch_frames_workdir: Path) -> None:
+    # 36 frames in two chains: pracmln grounds the 16 transition formulas on all 1,296 page pairs (10-20 s here).
+    # With l2 > 0 (pracmln's Gaussian prior) the optimum is finite: near-deterministic transitions would
+    # otherwise send pseudo-likelihood weights to infinity, where both optimisers stop somewhere.
+    table, classes = fetch_parity_table(fetch_frames_workdir)
+    mln = parse_mln(TEMPORAL, "temporal.mln")
+    formulas_for(mln, Path("temporal.mln"), artifacts.feature_columns(table), classes)
+    native = stage.learn(table, len(classes), mln, objective="pll", l2=1.0)
+    pracmln = stage.learn(table, len(classes), mln, "pracmln", objective="pll", l2=1.0).weights
+    assert native.weights["formula"].to_list() == pracmln["formula"].to_list()
+    assert native.weights["temporal"].sum() == 16 and np.abs(native.weights["weight"]).max() > 0.5
+    assert np.abs(native.weights["weight"].to_numpy() - pracmln["weight"].to_numpy()).max() < 1e-3
+    pracmln_compat.import_pracmln()
+    from pracmln.mln.base import parse_mln as pracmln_parse
+
+    read_back = pracmln_parse(native.learned_mln, grammar="StandardGrammar", logic="FirstOrderLogic")
+    assert [float(w) for w in read_back.weights] == pytest.approx(native.weights["weight"].to_list(), abs=1e-6)
+
+
+def test_lbfgs_reaches_the_bfgs_optimum(shared_data: Path) -> None:
+    """Many weights are learned with L-BFGS: the same pseudo-likelihood and atom probabilities as BFGS. The pairwise
+    template is redundant (Has(w) ^ Has(w) is Has(w); one-hot groups), so the weights themselves are not unique."""
+    table = desk_predicates(shared_data)[0]
+    table = table.select(*artifacts.KEY_COLUMNS, *artifacts.feature_columns(table)[:8])
+    mln = parse_mln(DECLARED + "0.0 Has(+w1,p) ^ Has(+w2,p) => Topic(+c,p)\n")
+    training = stage.training_data(table, 7)
+    expanded, _, _ = expand_templates(mln.formulas, training.space)
+    objective = bpll.build_objective(expanded, training.rows, training.space)
+    found = {name: bpll.learn(expanded, training.rows, training.space, optimiser=name) for name in ("bfgs", "l-bfgs")}
+    assert len(expanded) == 252
+    values = {name: bpll.log_pseudo_likelihood(objective, w) for name, w in found.items()}
+    assert values["l-bfgs"] == pytest.approx(values["bfgs"], abs=1e-3)
+    odds = {name: objective.when_true @ w - objective.when_false @ w for name, w in found.items()}
+    assert np.abs(expit(odds["l-bfgs"]) - expit(odds["bfgs"])).max() < 1e-4

@@ -1,0 +1,183 @@
+"""Exact chain inference (stages.mln.chain) against enumeration of every path, and its online form."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from stages.mln.chain import (
+    ChainFactors, Filter, chain_starts, expectations, filtered, log_partition, path_score, smoothed, viterbi,
+)
+
+
+def random_factors(rng: np.random.Generator, frames: int, classes: int, rows: int = 2, forbid: float = 0.0,
+                   cuts: float = 0.2) -> ChainFactors:
+    unary = rng.normal(size=(frames, classes)) * 2
+    pairwise = rng.normal(size=(rows, classes, classes)) * 2
+    pairwise[rng.random(pairwise.shape) < forbid] = -np.inf
+    link = rng.integers(0, rows, size=frames)
+    link[rng.random(frames) < cuts] = -1
+    link[0] = -1
+    return ChainFactors(unary, pairwise, link)
+
+
+def enumerate_chain(factors: ChainFactors, first: int, end: int) -> tuple[list[tuple[int, ...]], np.ndarray]:
+    """Every class path of frames first..end-1 (one chain) and its log-potential."""
+    paths = list(itertools.product(range(factors.n_classes), repeat=end - first))
+    scores = np.array([factors.unary[np.arange(first, end), list(path)].sum()
+                       + sum(factors.pairwise[factors.link[first + i], path[i - 1], path[i]] for i in range(1, len(path)))
+                       for path in paths])
+    return paths, scores
+
+
+def brute_force(factors: ChainFactors) -> dict:
+    """log Z, marginals, prefix (filtered) marginals, pair marginals per pairwise row, and the best path."""
+    frames, classes = factors.unary.shape
+    bounds = [*np.flatnonzero(factors.link < 0), frames]
+    log_z, best, best_score = 0.0, np.zeros(frames, dtype=np.int64), 0.0
+    marginal, prefix = np.zeros((frames, classes)), np.zeros((frames, classes))
+    pairs = np.zeros((len(factors.pairwise), classes, classes))
+    for first, end in zip(bounds[:-1], bounds[1:]):
+        paths, scores = enumerate_chain(factors, first, end)
+        chain_z = logsumexp(scores)
+        log_z += chain_z
+        weights = np.exp(scores - chain_z)
+        best[first:end] = paths[int(scores.argmax())]
+        best_score += scores.max()
+        for path, weight in zip(paths, weights):
+            marginal[np.arange(first, end), list(path)] += weight
+            for i in range(1, len(path)):
+                pairs[factors.link[first + i], path[i - 1], path[i]] += weight
+        for last in range(first, end):
+            head, head_scores = enumerate_chain(factors, first, last + 1)
+            head_weights = np.exp(head_scores - logsumexp(head_scores))
+            for path, weight in zip(head, head_weights):
+                prefix[last, path[-1]] += weight
+    return {"log_z": log_z, "marginal": marginal, "prefix": prefix, "pairs": pairs, "best": best, "best_score": best_score}
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_every_quantity_matches_enumeration(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    factors = random_factors(rng, int(rng.integers(1, 8)), int(rng.integers(2, 4)), forbid=0.15 if seed % 2 else 0.0)
+    exact = brute_force(factors)
+    if not np.isfinite(exact["log_z"]):
+        pytest.skip("this draw has a chain with no possible path (dead ends are tested below)")
+    assert log_partition(factors) == pytest.approx(exact["log_z"], abs=1e-9)
+    assert np.exp(smoothed(factors)) == pytest.approx(exact["marginal"], abs=1e-9)
+    assert np.exp(filtered(factors)) == pytest.approx(exact["prefix"], abs=1e-9)
+    assert viterbi(factors).tolist() == exact["best"].tolist()
+    moments = expectations(factors)
+    assert moments.log_z == pytest.approx(exact["log_z"], abs=1e-9)
+    assert moments.unary == pytest.approx(exact["marginal"], abs=1e-9)
+    assert moments.pairwise == pytest.approx(exact["pairs"], abs=1e-9)
+    assert path_score(factors, exact["best"]) == pytest.approx(exact["best_score"])
+
+
+def test_path_score_is_the_log_potential_of_the_path() -> None:
+    factors = random_factors(np.random.default_rng(1), 5, 3, cuts=0.0)
+    paths, scores = enumerate_chain(factors, 0, 5)
+    for path, score in zip(paths[::17], scores[::17]):
+        assert path_score(factors, np.array(path)) == pytest.approx(score)
+
+
+def test_filtering_is_online() -> None:
+    """Frame t's filtered distribution does not change when anything after t changes."""
+    rng = np.random.default_rng(2)
+    factors = random_factors(rng, 3000, 5, rows=3, forbid=0.1, cuts=0.002)
+    before = filtered(factors)
+    changed_unary, changed_link = factors.unary.copy(), factors.link.copy()
+    changed_unary[1700:] = rng.normal(size=(1300, 5)) * 3
+    changed_link[1700:] = rng.integers(-1, 3, size=1300)
+    after = filtered(ChainFactors(changed_unary, factors.pairwise, changed_link))
+    assert np.array_equal(before[:1700], after[:1700]) or np.abs(before[:1700] - after[:1700]).max() < 1e-12
+    assert np.abs(before[1700:] - after[1700:]).max() > 0.1
+
+
+def test_filter_steps_give_the_batch_numbers() -> None:
+    rng = np.random.default_rng(3)
+    factors = random_factors(rng, 5000, 6, rows=4, forbid=0.2, cuts=0.01)
+    online = Filter(6)
+    steps = np.array([online.step(u, None if link < 0 else factors.pairwise[link])
+                      for u, link in zip(factors.unary, factors.link)])
+    batch = filtered(factors)
+    finite = np.isfinite(batch)
+    assert np.array_equal(finite, np.isfinite(steps))
+    assert np.abs(batch[finite] - steps[finite]).max() < 1e-9
+    online.reset()
+    assert online.step(factors.unary[7], factors.pairwise[0]) == pytest.approx(
+        factors.unary[7] - logsumexp(factors.unary[7]))  # after reset the next frame starts a chain
+
+
+def test_a_cut_makes_independent_chains() -> None:
+    rng = np.random.default_rng(4)
+    first, second = random_factors(rng, 400, 4, cuts=0.0), random_factors(rng, 300, 4, cuts=0.0)
+    joined = ChainFactors(np.concatenate([first.unary, second.unary]),
+                          np.concatenate([first.pairwise, second.pairwise]),
+                          np.concatenate([first.link, np.where(second.link < 0, -1, second.link + 2)]))
+    assert log_partition(joined) == pytest.approx(log_partition(first) + log_partition(second), abs=1e-8)
+    assert np.abs(smoothed(joined) - np.concatenate([smoothed(first), smoothed(second)])).max() < 1e-9
+    assert viterbi(joined).tolist() == viterbi(first).tolist() + viterbi(second).tolist()
+
+
+def test_chain_starts_follow_episodes_and_splits() -> None:
+    episode = np.array([0, 0, 0, 1, 1, 2])
+    split = np.array(["train", "train", "test", "test", "test", "test"])
+    assert chain_starts(episode).tolist() == [True, False, False, True, False, True]
+    assert chain_starts(episode, split).tolist() == [True, False, True, True, False, True]
+
+
+def test_hard_constraints_remove_transitions() -> None:
+    rng = np.random.default_rng(5)
+    factors = random_factors(rng, 2000, 4, rows=1, cuts=0.0)
+    pairwise = factors.pairwise.copy()
+    pairwise[0, 0, 1] = pairwise[0, 2, 3] = -np.inf  # forbidden: 0 -> 1 and 2 -> 3
+    constrained = ChainFactors(factors.unary, pairwise, factors.link)
+    path = viterbi(constrained)
+    steps = set(zip(path[:-1].tolist(), path[1:].tolist()))
+    assert (0, 1) not in steps and (2, 3) not in steps
+    moments = expectations(constrained)
+    assert moments.pairwise[0, 0, 1] == 0.0 and moments.pairwise[0, 2, 3] == 0.0
+    assert moments.pairwise.sum() == pytest.approx(1999)
+
+
+def test_dead_ends_restart_the_chain_in_batch_and_online() -> None:
+    """A frame no class can reach restarts from its unary; an all -inf unary becomes uniform; never NaN."""
+    unary = np.array([[0.0, -np.inf, -np.inf],   # class 0 only
+                      [0.5, 0.2, -0.3],
+                      [-np.inf, -np.inf, 1.0],   # class 2 only, but 0 -> 2 and 1 -> 2 are forbidden
+                      [0.1, 0.2, 0.3],
+                      [-np.inf, -np.inf, -np.inf],  # nothing possible at all
+                      [0.3, -0.1, 0.0]])
+    pairwise = np.zeros((1, 3, 3))
+    pairwise[0, 0, 2] = pairwise[0, 1, 2] = -np.inf
+    pairwise[0, 2, 1] = -np.inf
+    factors = ChainFactors(unary, pairwise, np.array([-1, 0, 0, 0, 0, 0]))
+    batch = filtered(factors)
+    assert not np.isnan(batch).any() and not np.isnan(smoothed(factors)).any()
+    assert np.exp(batch[2]) == pytest.approx([0.0, 0.0, 1.0])  # restarted from its unary alone
+    assert np.exp(batch[4]) == pytest.approx([1 / 3] * 3)  # uniform
+    assert np.exp(batch[3]).tolist()[1] == 0.0  # 2 -> 1 stays forbidden after the restart
+    online = Filter(3)
+    steps = np.array([online.step(u, None if t == 0 else pairwise[0]) for t, u in enumerate(unary)])
+    assert np.allclose(np.exp(steps), np.exp(batch), atol=1e-12)
+    path = viterbi(factors)
+    assert path[0] == 0 and path[2] == 2 and path[3] != 1
+    pieces = [(0, 2), (2, 4), (4, 6)]  # the chain as cut by its dead ends
+    cut = sum(log_partition(ChainFactors(np.where(np.isfinite(unary[a:b]).any(axis=1, keepdims=True), unary[a:b], 0.0),
+                                         pairwise, np.r_[-1, np.zeros(b - a - 1, dtype=int)])) for a, b in pieces)
+    assert log_partition(factors) == pytest.approx(cut)
+
+
+def test_bad_factors_are_refused() -> None:
+    with pytest.raises(ValueError, match="frame 0"):
+        ChainFactors(np.zeros((2, 2)), np.zeros((1, 2, 2)), np.array([0, 0]))
+    with pytest.raises(ValueError, match="finite or -inf"):
+        ChainFactors(np.array([[np.nan, 0.0]]), np.zeros((1, 2, 2)), np.array([-1]))
+    with pytest.raises(ValueError, match="shapes"):
+        ChainFactors(np.zeros((2, 3)), np.zeros((1, 2, 2)), np.array([-1, 0]))
+    empty = ChainFactors(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64))
+    assert filtered(empty).shape == (0, 3) and viterbi(empty).shape == (0,) and log_partition(empty) == 0.0

@@ -1,0 +1,114 @@
+"""CLL learning: its gradient, and learned transitions that decode held-out training frames better."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from stages import artifacts, binarize
+from stages import learn_weights as stage
+from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
+from stages.mln import chain, cll
+from stages.mln.factors import MLNFactors
+from stages.mln.grounding import AtomSpace, class_constant, expand_templates
+from stages.mln.published_codes import desk_predicates
+from stages.mln.syntax import parse_mln
+
+TEMPORAL = Path(__file__).resolve().parents[2] / "examples" / "temporal.mln"
+
+MIXED = """Has(word, page)
+Topic(class, page)
+Next(page, page)
+0.0 Has(+w, p) => Topic(+c, p)
+0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)
+0.0 Topic(+c1, p) ^ Next(p, q) ^ Has("left_gripper_closing", q) => Topic(+c2, q)
+0.7 Has("arm_distance_static", p) => Topic("C3", p)
+Topic("C0", p) ^ Next(p, q) => !Topic("C6", q).
+"""
+
+
+def held_out(table: pl.DataFrame, by_episode: bool) -> pl.DataFrame:
+    """The training split with its last 20 % (of episodes, or of frames) relabelled 'test'."""
+    train = table.filter(pl.col("split") == "train")
+    if by_episode:
+        episodes = train["episode"].unique(maintain_order=True).to_list()
+        fit = train["episode"].is_in(episodes[: int(round(0.8 * len(episodes)))])
+    else:
+        fit = pl.Series(np.arange(train.height) < int(0.8 * train.height))
+    return train.with_columns(pl.when(fit).then(pl.lit("train")).otherwise(pl.lit("test")).alias("split"))
+
+
+def test_gradient_matches_finite_differences(shared_data: Path) -> None:
+    table = desk_predicates(shared_data, train_limit=200)[0]
+    mln = parse_mln(MIXED, "mixed.mln")
+    training = stage.training_data(table, 7)
+    expanded, _, _ = expand_templates(mln.formulas, training.space)
+    states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(7)))
+    objective = cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=0.1)
+    assert objective.temporal.any() and (~objective.temporal).any() and (~objective.learned).sum() == 2
+    rng = np.random.default_rng(0)
+    weights = rng.normal(size=int(objective.learned.sum()))
+    value, gradient = objective(weights)
+    assert np.isfinite(value)
+    for index in rng.choice(len(weights), size=12, replace=False):
+        step = np.zeros_like(weights)
+        step[index] = 1e-5
+        numeric = (objective(weights + step)[0] - objective(weights - step)[0]) / 2e-5
+        assert gradient[index] == pytest.approx(numeric, rel=1e-5, abs=1e-8)
+
+
+def test_objective_is_the_chain_conditional_likelihood(shared_data: Path) -> None:
+    table = desk_predicates(shared_data, train_limit=120)[0]
+    training = stage.training_data(table, 7)
+    expanded, _, _ = expand_templates(parse_mln(MIXED, "mixed.mln").formulas, training.space)
+    states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(7)))
+    objective = cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=0.5)
+    weights = np.random.default_rng(1).normal(size=int(objective.learned.sum()))
+    factors = objective.factors(objective.full(weights))
+    expected = chain.path_score(factors, training.labels) - chain.log_partition(factors) - 0.25 * weights @ weights
+    assert -objective(weights)[0] * len(training.labels) == pytest.approx(expected, rel=1e-10)
+
+
+def decode_accuracies(table: pl.DataFrame, n_classes: int, classes: list[str]) -> dict[str, float]:
+    """Learn examples/temporal.mln (cll) and the paper's template (pll) on 'train'; frame accuracies on 'test'."""
+    columns = artifacts.feature_columns(table)
+    test = table.filter(pl.col("split") == "test")
+    evidence, labels = test.select(columns).to_numpy().astype(bool), test["label"].to_numpy()
+    starts = chain.chain_starts(test["episode"].to_numpy())
+    mln = read_spec(TEMPORAL)
+    formulas_for(mln, TEMPORAL, columns, classes)
+    learned = stage.learn(table, n_classes, mln)
+    assert learned.objective == "cll" and learned.l2 == cll.DEFAULT_L2
+    factors = MLNFactors.from_weights(learned.weights, columns, n_classes).chain(evidence, starts)
+    paper = read_spec(DEFAULT_SPEC)
+    paper_weights = stage.learn(table, n_classes, paper).weights
+    per_frame = MLNFactors.from_weights(paper_weights, columns, n_classes).unary(evidence)
+    return {
+        "viterbi": float((chain.viterbi(factors) == labels).mean()),
+        "filter": float((chain.filtered(factors).argmax(axis=1) == labels).mean()),
+        "smoothed": float((chain.smoothed(factors).argmax(axis=1) == labels).mean()),
+        "unary argmax": float((factors.unary.argmax(axis=1) == labels).mean()),
+        "paper mln argmax": float((per_frame.argmax(axis=1) == labels).mean()),
+    }
+
+
+def test_learned_transitions_decode_desk_better_than_per_frame(shared_data: Path) -> None:
+    table = held_out(desk_predicates(shared_data)[0], by_episode=False)  # one training episode: its last 281 frames
+    accuracy = decode_accuracies(table, 7, [f"S{k + 1}" for k in range(7)])
+    per_frame = max(accuracy["unary argmax"], accuracy["paper mln argmax"])
+    assert accuracy["viterbi"] > per_frame + 0.05, accuracy
+    assert accuracy["filter"] > per_frame and accuracy["smoothed"] > per_frame, accuracy
+
+
+@pytest.mark.mujoco
+def test_learned_transitions_decode_fetch_better_than_per_frame(fetch_frames_workdir: Path) -> None:
+    frames, meta = artifacts.read_table(fetch_frames_workdir / artifacts.FRAMES, "frames")
+    table = binarize.binarize(frames, binarize.load_spec(binarize.default_spec_path("fetch")))
+    table = held_out(table.with_columns(pl.lit("train").alias("split")), by_episode=True)  # the last episode held out
+    accuracy = decode_accuracies(table, len(meta["classes"]), list(meta["classes"]))
+    per_frame = max(accuracy["unary argmax"], accuracy["paper mln argmax"])
+    assert accuracy["viterbi"] > per_frame + 0.05, accuracy
+    assert accuracy["filter"] > per_frame, accuracy
