@@ -61,7 +61,7 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
                    TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
         with Progress(*columns, console=console, transient=True) as bar:
             task = bar.add_task(what, total=epochs, scores="")
-            yield lambda done: bar.update(task, completed=done.epoch, scores=_scores(done))
+            yield lambda done: bar.update(task, completed=done.epoch, scores=_scores(done), refresh=True)
         return
     started = time.monotonic()
 
