@@ -492,6 +492,9 @@ class Recognizer:
             self.weights = pl.read_parquet(io.BytesIO(entries[WEIGHTS]))
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
+            from stages.mln.factors import parse_weights
+
+            self._per_frame = [f for f in parse_weights(self.weights, self.columns, len(self.classes)) if not f.temporal]
             if self.decode != "none":
                 from stages.mln.factors import MLNFactors
 
@@ -566,10 +569,10 @@ class Recognizer:
     def _mln_of(self, evidence: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The MLN's per-frame class probabilities, PriorLayer input and chain factor of one evidence row."""
         from stages.mln import classifier
+        from stages.mln.factors import frame_scores
 
         row = np.frombuffer(evidence, dtype=bool)[None]
-        table = pl.DataFrame({name: row[:, i] for i, name in enumerate(self.columns)})
-        scores = classifier.class_scores(table, self.weights, len(self.classes))
+        scores = frame_scores(self._per_frame, row, self.columns, len(self.classes), classifier.HARD_WEIGHT)
         source = self.manifest.get("source", "")
         p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))[0]
         prior = None if self.prior is None else prior_input(scores, self.prior, source)[0]

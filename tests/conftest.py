@@ -78,17 +78,19 @@ def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
 
 
 @pytest.fixture(scope="session")
-def desk_stream_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
-    """The DESK MLN workdir with lstm and priorlayer trained in stream mode (3 epochs, a validation part held
-    out) and conflated: a model a live stream can use; read-only."""
-    from stages import conflate, train
+def desk_stream_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
+    """DESK with examples/temporal.mln learned (cll), lstm and priorlayer trained in stream mode (3 epochs, a
+    validation part held out) and conflated with every decoding: a model a live stream can use; read-only."""
+    from stages import binarize, conflate, formulas, learn_weights, train
 
     workdir = tmp_path_factory.mktemp("desk-stream")
-    for path in desk_mln_workdir.iterdir():
-        shutil.copy(path, workdir / path.name)
+    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+    binarize.run(workdir, binarize.BinarizeOptions())
+    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
     for method in ("lstm", "priorlayer"):
         train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
-    conflate.run(workdir, conflate.ConflateOptions())
+    conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
     return workdir
 
 

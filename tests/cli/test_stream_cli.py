@@ -1,5 +1,6 @@
-"""`mlnseq stream` as a real subprocess with pipes: each frame answered at once, equal to `predict` frame by
-frame; bad lines said with their number and skipped (or fatal with --strict); Ctrl-C answers what it read."""
+"""`mlnseq stream` as a real subprocess with pipes (combined+filter): each frame answered at once, equal to
+`predict` frame by frame; bad lines said with their number and skipped (or fatal with --strict); Ctrl-C
+answers what it read."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ TIMEOUT_S = 120
 @pytest.fixture(scope="module")
 def model(tmp_path_factory, desk_stream_workdir) -> Path:
     return export.run(desk_stream_workdir, export.ExportOptions(
-        method="combined", output=tmp_path_factory.mktemp("model") / "combined.mlnseq")).path
+        method="combined", decode="filter", output=tmp_path_factory.mktemp("model") / "combined+filter.mlnseq")).path
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,7 @@
 """conflate: eq. 16 by hand, and predictions of every method on the real DESK frames."""
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -74,3 +75,55 @@ def test_a_checkpoint_from_another_feature_set_is_refused(predicted, tmp_path):
 def test_unknown_mln_mode_is_refused():
     with pytest.raises(BadInput, match="--mln-mode"):
         conflate.ConflateOptions(mln_mode="fast").validate()
+
+
+def test_every_decoding_is_predicted_with_its_weight_chosen_on_validation(desk_stream_workdir):
+    table, meta = artifacts.read_table(desk_stream_workdir / artifacts.PREDICTIONS, "predictions")
+    assert meta["methods"] == recognizer.method_names()
+    for name in meta["methods"]:
+        probabilities = table.select(artifacts.prob_columns(name, 7)).to_numpy().astype(np.float64)
+        if name != "conflation" and name != "combined":  # eq. 16 is not renormalised
+            np.testing.assert_allclose(probabilities.sum(1), 1.0, atol=1e-4)
+        method, decode = recognizer.parse_method(name)
+        assert meta["modes"][name] == meta["modes"][method]
+    chosen = meta["network_weights"]
+    assert set(chosen) == {f"{m}+{d}" for m in ("lstm", "priorlayer", "conflation", "combined") for d in ("filter", "viterbi")}
+    for choice in chosen.values():
+        assert choice["weight"] in recognizer.NETWORK_WEIGHTS and choice["validation_frame_accuracy"] == max(choice["tried"].values())
+    assert set(meta["validation_frame_accuracy"]) == set(meta["methods"])
+    # the decoded MLN beats the per-frame one on the held-out part of the training split
+    assert meta["validation_frame_accuracy"]["mln+viterbi"] > meta["validation_frame_accuracy"]["mln"]
+
+
+def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tmp_path, desk_mln_workdir):
+    from stages.mln import classifier
+
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter",)))
+    assert any("no temporal formula" in note and "uniform transitions" in note for note in result.notes)
+    table = pl.read_parquet(result.path)
+    scores = recognizer.mln_class_scores(tmp_path, pl.read_parquet(tmp_path / artifacts.FRAMES), 7)[0]
+    expected = np.exp(classifier.class_log_probs(scores, "exact", "desk"))
+    np.testing.assert_allclose(table.select(artifacts.prob_columns("mln+filter", 7)).to_numpy(), expected, atol=1e-5)
+
+
+def test_a_fixed_network_weight_is_used_as_given(tmp_path, desk_stream_workdir):
+    workdir = Path(shutil.copytree(desk_stream_workdir, tmp_path / "work"))
+    result = conflate.run(workdir, conflate.ConflateOptions(decode=("viterbi",), network_weight=1.0))
+    _, meta = artifacts.read_table(result.path, "predictions")
+    assert result.choices == {} and meta["network_weights"] == {} and meta["network_weight_option"] == 1.0
+    assert "combined+viterbi" in meta["methods"]
+
+
+def test_decoding_needs_the_mln_and_known_names(tmp_path, desk_stream_workdir):
+    for name in (artifacts.FRAMES, artifacts.MODELS_DIR):
+        (shutil.copytree if name == artifacts.MODELS_DIR else shutil.copy)(desk_stream_workdir / name, tmp_path / name)
+    with pytest.raises(BadInput, match="--decode filter needs the MLN's factors: run `mlnseq learn-weights`"):
+        conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter",)))
+    with pytest.raises(BadInput, match="--decode"):
+        conflate.ConflateOptions(decode=("smooth",)).validate()
+    assert conflate.parse_decode("all") == ("none", "filter", "viterbi")
+    assert conflate.parse_decode("none, viterbi") == ("none", "viterbi")
+    with pytest.raises(BadInput, match="--network-weight"):
+        conflate.parse_network_weight("heavy")

@@ -54,3 +54,19 @@ def test_a_recording_without_the_model_features_names_every_missing_column(combi
     with pytest.raises(BadInput, match="partial.csv: no column 'left_gripper', 'right_gripper'"):
         predict.run(predict.PredictOptions(model=combined, source=source, output=tmp_path / "out.parquet"))
     assert not (tmp_path / "out.parquet").exists()
+
+
+def test_viterbi_decodes_a_filter_model_offline_and_refuses_an_undecoded_one(desk_stream_workdir, desk_test_recording,
+                                                                           combined, tmp_path):
+    source = tmp_path / "head.csv"
+    pl.read_csv(desk_test_recording).head(3000).write_csv(source)
+    filtering = export.run(desk_stream_workdir, export.ExportOptions(method="mln", decode="filter",
+                                                                     output=tmp_path / "mln+filter.mlnseq")).path
+    online = predict.run(predict.PredictOptions(model=filtering, source=source, output=tmp_path / "f.parquet"))
+    offline = predict.run(predict.PredictOptions(model=filtering, source=source, output=tmp_path / "v.parquet",
+                                                 decode="viterbi"))
+    runs = {name: int((t["class"] != t["class"].shift(1)).sum()) for name, t in (("f", online.table), ("v", offline.table))}
+    assert runs["v"] <= runs["f"]  # the most probable path switches no more often than the online belief
+    assert offline.metrics["edit"] >= online.metrics["edit"] - 5
+    with pytest.raises(BadInput, match="exported without decoding"):
+        predict.run(predict.PredictOptions(model=combined, source=source, output=tmp_path / "x.parquet", decode="viterbi"))
