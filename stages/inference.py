@@ -68,9 +68,9 @@ class Network:
         if self.config["cell"] == "lstm":
             h, c = state
             gates = np.concatenate([x, h], axis=1) @ self._stacked + self._bias
-            i, f, o = _sigmoid(gates[:, :n]), _sigmoid(gates[:, n : 2 * n]), _sigmoid(gates[:, 3 * n :])
-            c = f * c + i * np.tanh(gates[:, 2 * n : 3 * n])
-            h = o * np.tanh(c)
+            squashed = _sigmoid(gates)  # i, f, o use it; g is tanh'd below
+            c = squashed[:, n : 2 * n] * c + squashed[:, :n] * np.tanh(gates[:, 2 * n : 3 * n])
+            h = squashed[:, 3 * n :] * np.tanh(c)
             return h, (h, c)
         h = state
         w = self.weights
