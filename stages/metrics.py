@@ -37,38 +37,40 @@ def label_runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
 
 def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
     """100·(1 − Levenshtein distance of the segment label sequences / the longer one's length)."""
-    p = [r[0] for r in label_runs(predicted)]
-    t = [r[0] for r in label_runs(truth)]
-    if not p and not t:
+    p = np.array([r[0] for r in label_runs(predicted)], dtype=np.int64)
+    t = np.array([r[0] for r in label_runs(truth)], dtype=np.int64)
+    if not len(p) and not len(t):
         return 100.0
-    d = np.zeros((len(p) + 1, len(t) + 1))
-    d[:, 0] = np.arange(len(p) + 1)
-    d[0, :] = np.arange(len(t) + 1)
+    columns = np.arange(len(t) + 1)
+    row = columns.copy()  # distances from the empty prefix of p
     for i in range(1, len(p) + 1):
-        for j in range(1, len(t) + 1):
-            d[i, j] = min(d[i - 1, j] + 1, d[i, j - 1] + 1, d[i - 1, j - 1] + (p[i - 1] != t[j - 1]))
-    return float(100 * (1 - d[-1, -1] / max(len(p), len(t))))
+        # deletion or substitution from the previous row, then insertions along this row: d[j] = min over k <= j
+        # of (best[k] + j - k), a running minimum
+        best = np.empty_like(row)
+        best[0] = i
+        best[1:] = np.minimum(row[1:] + 1, row[:-1] + (t != p[i - 1]))
+        row = np.minimum.accumulate(best - columns) + columns
+    return float(100 * (1 - row[-1] / max(len(p), len(t))))
 
 
 def overlap_counts(predicted: np.ndarray, truth: np.ndarray, overlap: float) -> tuple[int, int, int]:
     """tp, fp, fn of segmental F1@overlap: a predicted segment is a hit when its IoU with a not yet
     matched true segment of the same class reaches ``overlap`` (MS-TCN's f_score)."""
-    p, t = label_runs(predicted), label_runs(truth)
+    p, t = np.array(label_runs(predicted), dtype=np.int64).reshape(-1, 3), np.array(label_runs(truth), dtype=np.int64).reshape(-1, 3)
     matched = np.zeros(len(t), dtype=bool)
+    if not len(t):
+        return 0, len(p), 0
+    # every predicted segment against every true one: IoU, -1 where the classes differ; the best is the first maximum
+    intersection = np.minimum(p[:, None, 2], t[None, :, 2]) - np.maximum(p[:, None, 1], t[None, :, 1])
+    union = np.maximum(p[:, None, 2], t[None, :, 2]) - np.minimum(p[:, None, 1], t[None, :, 1])
+    iou = np.where(p[:, None, 0] == t[None, :, 0], np.maximum(intersection, 0) / union, -1.0)
+    best = iou.argmax(axis=1)
+    best_iou = iou[np.arange(len(p)), best]
     tp = fp = 0
-    for label, start, stop in p:
-        best, best_iou = -1, -1.0
-        for j, (t_label, t_start, t_stop) in enumerate(t):
-            if t_label != label:
-                continue
-            intersection = min(stop, t_stop) - max(start, t_start)
-            union = max(stop, t_stop) - min(start, t_start)
-            iou = max(intersection, 0) / union
-            if iou > best_iou:
-                best, best_iou = j, iou
-        if best >= 0 and best_iou >= overlap and not matched[best]:
+    for j, hit in zip(best.tolist(), (best_iou >= overlap).tolist()):
+        if hit and not matched[j]:
             tp += 1
-            matched[best] = True
+            matched[j] = True
         else:
             fp += 1
     return tp, fp, int((~matched).sum())

@@ -1,6 +1,7 @@
 """metrics: the segment-fraction index, edit score and F1@k by hand, and every metric of a method."""
 
 import numpy as np
+import polars as pl
 import pytest
 
 from stages import metrics as stage
@@ -46,3 +47,49 @@ def test_scores_of_a_method_on_hand_made_predictions():
     assert result["confusion"][2] == [1, 0, 0]
     assert "edit" in result and "f1@50" in result
 
+
+def reference_edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
+    """The Levenshtein table filled cell by cell, as the definition reads."""
+    p = [r[0] for r in stage.label_runs(predicted)]
+    t = [r[0] for r in stage.label_runs(truth)]
+    if not p and not t:
+        return 100.0
+    d = np.zeros((len(p) + 1, len(t) + 1))
+    d[:, 0], d[0, :] = np.arange(len(p) + 1), np.arange(len(t) + 1)
+    for i in range(1, len(p) + 1):
+        for j in range(1, len(t) + 1):
+            d[i, j] = min(d[i - 1, j] + 1, d[i, j - 1] + 1, d[i - 1, j - 1] + (p[i - 1] != t[j - 1]))
+    return float(100 * (1 - d[-1, -1] / max(len(p), len(t))))
+
+
+def reference_overlap_counts(predicted: np.ndarray, truth: np.ndarray, overlap: float) -> tuple[int, int, int]:
+    """MS-TCN's f_score loop: each predicted segment against each true one in turn."""
+    p, t = stage.label_runs(predicted), stage.label_runs(truth)
+    matched = np.zeros(len(t), dtype=bool)
+    tp = fp = 0
+    for label, start, stop in p:
+        best, best_iou = -1, -1.0
+        for j, (t_label, t_start, t_stop) in enumerate(t):
+            if t_label == label:
+                iou = max(min(stop, t_stop) - max(start, t_start), 0) / (max(stop, t_stop) - min(start, t_start))
+                if iou > best_iou:
+                    best, best_iou = j, iou
+        if best >= 0 and best_iou >= overlap and not matched[best]:
+            tp, matched[best] = tp + 1, True
+        else:
+            fp += 1
+    return tp, fp, int((~matched).sum())
+
+
+def test_edit_score_and_f1_counts_equal_the_cell_by_cell_definitions(desk_full_workdir):
+    rng = np.random.default_rng(0)
+    cases = [(rng.integers(0, k, n), rng.integers(0, k, n)) for k, n in ((2, 1), (3, 7), (4, 60), (7, 300))]
+    cases += [(np.repeat(rng.integers(0, 4, 30), rng.integers(1, 9, 30)),) * 2]  # identical runs
+    predictions = pl.read_parquet(desk_full_workdir / "predictions.parquet")  # real, flickering predictions
+    test = predictions.filter(pl.col("split") == "test")
+    cases.append((test["mln_pred"].to_numpy()[:3000], test["label"].to_numpy()[:3000]))
+    for predicted, truth in cases:
+        assert stage.edit_score(predicted, truth) == reference_edit_score(predicted, truth)
+        for overlap in stage.OVERLAPS:
+            assert stage.overlap_counts(predicted, truth, overlap) == reference_overlap_counts(predicted, truth, overlap)
+    assert stage.overlap_counts(np.array([], dtype=np.int64), np.array([1, 1]), 0.5) == (0, 0, 1)
