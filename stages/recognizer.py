@@ -23,12 +23,11 @@ import polars as pl
 
 from stages import artifacts, sequences
 from stages.errors import BadInput, MissingArtifact, StaleArtifact
-
 from stages.inference import Network, StreamingNetwork
+from stages.mln import chain
 
 if TYPE_CHECKING:
     from stages.binarize import PredicateSpec
-    from stages.mln.chain import ChainFactors
     from stages.mln.factors import MLNFactors
     from stages.models import SequenceClassifier
 
@@ -60,12 +59,11 @@ def method_names() -> list[str]:
 
 def parse_method(name: str, option: str = "--method") -> tuple[str, str]:
     """(method, decode) of a name such as ``combined+viterbi``; an unknown one is a BadInput naming ``option``."""
-    method, _, decode = name.partition("+")
-    decode = decode or "none"
-    if method not in METHODS or decode not in DECODES[1:] + (("none",) if "+" not in name else ()):
+    method, plus, decode = name.partition("+")
+    if method not in METHODS or (plus and decode not in DECODES[1:]):
         raise BadInput(f"unknown {option} {name!r}: choose one of {', '.join(METHODS)}, "
                        f"optionally with +filter or +viterbi (e.g. combined+filter)")
-    return method, decode
+    return method, decode or "none"
 
 
 @dataclass(frozen=True)
@@ -198,29 +196,23 @@ def fuse(method: str, p_network: np.ndarray | None, p_mln: np.ndarray | None) ->
 # --- decoding ---------------------------------------------------------------------------------------
 
 
-def chain_starts(*keys: np.ndarray) -> np.ndarray:
-    """True where a chain starts: the first row, and wherever any key (episode, part) changes."""
-    starts = np.zeros(len(keys[0]), dtype=bool)
-    for run in sequences.runs(*keys):
-        starts[run.start] = True
-    return starts
+def frame_factor(method: str, mln_unary: np.ndarray, log_p_network: np.ndarray | None, weight: float) -> np.ndarray:
+    """A decoded method's per-frame log-potentials: the MLN's per-frame factor (mln, conflation, combined)
+    plus ``weight`` times the network's log-probabilities (every method but mln)."""
+    factor = mln_unary if method == "mln" or method in FUSED else np.zeros_like(mln_unary)
+    return factor if method == "mln" else factor + weight * np.asarray(log_p_network, dtype=np.float64)
 
 
 def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
-             log_p_network: np.ndarray | None, weight: float) -> ChainFactors:
-    """The chain a decoded method runs: the MLN's transition factors, and per frame the MLN's factor (mln,
-    conflation, combined) plus ``weight`` times the network's log-probabilities (every method but mln)."""
-    factors = mln.chain(evidence, starts, per_frame=method == "mln" or method in FUSED)
-    if method == "mln":
-        return factors
-    return replace(factors, unary=factors.unary + weight * np.asarray(log_p_network, dtype=np.float64))
+             log_p_network: np.ndarray | None, weight: float) -> chain.ChainFactors:
+    """The chain a decoded method runs: its frame factors and the MLN's transition factors."""
+    factors = mln.chain(evidence, starts)
+    return replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight))
 
 
-def decode_chain(kind: str, factors: ChainFactors) -> tuple[np.ndarray, np.ndarray]:
+def decode_chain(kind: str, factors: chain.ChainFactors) -> tuple[np.ndarray, np.ndarray]:
     """(class probabilities [T, C], predicted classes [T]): filter is online (each frame from the frames up
     to it); viterbi is offline (the most probable path, with forward-backward marginals as probabilities)."""
-    from stages.mln import chain
-
     if kind == "filter":
         probabilities = np.exp(chain.filtered(factors))
         return probabilities, probabilities.argmax(1)
@@ -359,7 +351,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
         for method in available:
             network, name = network_of(method), decoded_name(method, kind)
             rows = parts.get(network, split_parts)
-            starts = chain_starts(data.episodes, rows)
+            starts = chain.chain_starts(data.episodes, rows)
             weight = 1.0
             if network is not None and network_weight is not None:
                 weight = network_weight
@@ -473,9 +465,15 @@ class Recognizer:
 
     def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
         from stages.binarize import StreamingBinarizer, parse_spec
+        from stages.mln.factors import MLNFactors, parse_weights
 
         self.manifest = manifest = json.loads(entries[MANIFEST])
         self.method, self.decode = manifest["method"], manifest["decode"]
+        needed = [NETWORK] * (network_of(self.method) is not None) + [SPEC, WEIGHTS] * needs_mln(self.method, self.decode)
+        missing = [name for name in needed if name not in entries]
+        if missing:
+            raise BadInput(f"{where} lacks {', '.join(missing)}, which a {decoded_name(self.method, self.decode)} "
+                           "model needs: export it again with `mlnseq export`")
         self.classes: list[str] = list(manifest["classes"])
         self.features: list[str] = list(manifest["features"])
         self.network_weight = float(manifest.get("network_weight") or 1.0)
@@ -492,13 +490,10 @@ class Recognizer:
             self.weights = pl.read_parquet(io.BytesIO(entries[WEIGHTS]))
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
-            from stages.mln.factors import parse_weights
-
-            self._per_frame = [f for f in parse_weights(self.weights, self.columns, len(self.classes)) if not f.temporal]
+            formulas = parse_weights(self.weights, self.columns, len(self.classes))
+            self._per_frame = [f for f in formulas if not f.temporal]
             if self.decode != "none":
-                from stages.mln.factors import MLNFactors
-
-                self.mln = MLNFactors.from_weights(self.weights, self.columns, len(self.classes))
+                self.mln = MLNFactors(formulas, self.columns, len(self.classes))
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
         self.reset()
 
@@ -514,11 +509,7 @@ class Recognizer:
         self._frame = 0
         self._evidence: np.ndarray | None = None
         self._network = StreamingNetwork(self.network) if self.network is not None else None
-        self._filter = None
-        if self.decode != "none":
-            from stages.mln.chain import Filter
-
-            self._filter = Filter(len(self.classes))
+        self._filter = chain.Filter(len(self.classes)) if self.decode != "none" else None
         if self.spec is not None:
             self.binarizer.reset()
 
@@ -555,9 +546,7 @@ class Recognizer:
         if self._filter is None:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
         else:
-            factor = np.zeros(len(self.classes)) if self.method in NETWORKS else unary.copy()
-            if self.method != "mln":
-                factor += self.network_weight * log_p_network
+            factor = frame_factor(self.method, unary, log_p_network, self.network_weight)
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
@@ -595,7 +584,7 @@ class Recognizer:
         features = np.asarray(features, dtype=np.float64)
         episodes = np.zeros(len(features), dtype=np.int64) if episodes is None else np.asarray(episodes)
         spans = sequences.runs(episodes)
-        starts = chain_starts(episodes)
+        starts = chain.chain_starts(episodes)
         scores = p_mln = prior = evidence = None
         if self.spec is not None:
             from stages.mln import classifier

@@ -111,7 +111,13 @@ def test_broken_and_foreign_model_files_are_refused_in_one_line(models, tmp_path
             if name == "manifest.json":
                 data = json.dumps({**json.loads(data), "format": 99, "mlnseq_version": "9.0"}).encode()
             target.writestr(name, data)
+    partial = tmp_path / "partial.mlnseq"
+    with zipfile.ZipFile(models["combined"]) as source, zipfile.ZipFile(partial, "w") as target:
+        for name in source.namelist():
+            if name != "weights.parquet":
+                target.writestr(name, source.read(name))
     for path, needle in ((truncated, "not an mlnseq model file"), (foreign, "not an mlnseq model file"),
+                         (partial, "lacks weights.parquet, which a combined model needs"),
                          (future, "format 99 from mlnseq 9.0; this mlnseq .* reads format 1"),
                          (tmp_path / "absent.mlnseq", "not found")):
         with pytest.raises(BadInput, match=needle) as error:
