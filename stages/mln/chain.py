@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 CLIP = 300.0
 
@@ -414,6 +415,139 @@ def expectations(factors: ChainFactors) -> Expectations:
         if row < n_rows:
             totals[row] = steps.transitions[row] * (weighted[members].T @ following[members])
     return Expectations(forward.log_z, gamma, totals)
+
+
+def count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int) -> np.ndarray:
+    """[D, D], D = n_rows * C + P * C * C: the covariance, under the chains' distribution, of their counts: frames of
+    each row (``row[t]`` in [0, n_rows)) with each class, then linked pairs of each pairwise row with each class
+    pair. It is the Hessian of log Z when frames of one row share their unary log-potentials (the CLL learner's
+    Newton metric). Exact: same-frame terms per kind of frame, cross-frame terms by a recursion over the chain
+    (``_cross_covariance``)."""
+    forward = _forward(factors)
+    factors = forward.factors  # with chain starts at dead ends, as the marginals have them
+    gamma, beta, _ = _smoothed(forward)
+    linked = factors.link >= 0
+    reach = forward.steps.matrices() * beta[:, None, :]
+    total = reach.sum(axis=2, keepdims=True)
+    after = np.divide(reach, total, out=np.zeros_like(reach), where=total > 0)  # p(y_t = j | y_{t-1} = i, chain)
+    after[~linked] = 0.0
+    pairs = np.zeros_like(after)  # p(y_{t-1} = i, y_t = j | chain)
+    pairs[1:] = gamma[:-1, :, None] * after[1:]
+    counts = _Counts(np.asarray(row, dtype=np.int64), factors.link, n_rows, factors.n_classes, len(factors.pairwise))
+    cross = _cross_covariance(gamma, pairs, after, counts)
+    return _same_frame_covariance(gamma, pairs, counts) + cross + cross.T
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """Where each frame's counts sit among the D counts of ``count_covariance``."""
+
+    row: np.ndarray  # [T]
+    link: np.ndarray  # [T], -1: no pair counts
+    n_rows: int
+    n_classes: int
+    n_pairwise: int
+
+    @property
+    def size(self) -> int:
+        return self.n_rows * self.n_classes + self.n_pairwise * self.n_classes ** 2
+
+    def unary(self, row: np.ndarray) -> np.ndarray:
+        """[..., C] the counts (row, class) of frames of ``row``."""
+        return np.asarray(row)[..., None] * self.n_classes + np.arange(self.n_classes)
+
+    def pair(self, link: np.ndarray) -> np.ndarray:
+        """[..., C * C] the counts (pairwise row, class before, class after) of frames linked by ``link`` (>= 0)."""
+        return self.n_rows * self.n_classes + np.asarray(link)[..., None] * self.n_classes ** 2 + np.arange(self.n_classes ** 2)
+
+
+def _same_frame_covariance(gamma: np.ndarray, pairs: np.ndarray, counts: _Counts) -> np.ndarray:
+    """sum_t Cov(counts of frame t): per kind of frame (row, pairwise row), the covariance of the frame's local counts
+    (its class, and its class pair if linked) summed over the frames of that kind."""
+    n_classes = counts.n_classes
+    covariance = np.zeros((counts.size, counts.size))
+    kinds, kind = np.unique(np.stack([counts.row, counts.link], axis=1), axis=0, return_inverse=True)
+    kind = kind.reshape(-1)
+    for index, (row, link) in enumerate(kinds.tolist()):
+        members = kind == index
+        local = gamma[members] if link < 0 else np.concatenate(
+            [gamma[members], pairs[members].reshape(-1, n_classes ** 2)], axis=1)
+        mean = local.sum(axis=0)
+        block = np.diag(mean) - local.T @ local
+        if link >= 0:  # a pair (i, k) also counts class k
+            pair_of = n_classes + np.arange(n_classes ** 2)
+            block[pair_of % n_classes, pair_of] += mean[pair_of]
+            block[pair_of, pair_of % n_classes] += mean[pair_of]
+        at = counts.unary(row) if link < 0 else np.concatenate([counts.unary(row), counts.pair(link)])
+        covariance[np.ix_(at, at)] += block
+    return covariance
+
+
+def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, counts: _Counts) -> np.ndarray:
+    """X = sum over frames s < t of one chain of Cov(counts of s, counts of t) (the rows: s's counts), by the
+    backward recursion for K_s[k] = E[counts of the frames after s | y_s = k] - their mean:
+        K_{t-1}[i] = sum_j after_t[i, j] (counts of (i, j) at t + K_t[j]) - mean counts of t,
+        X = sum_s sum_k (gamma_s(k) e(s's count of k) + sum_i pairs_s(i, k) e(s's count of (i, k))) (x) K_s[k].
+    It runs on blocks of frames side by side, one numpy call per position in a block: first from K = 0 at each
+    block's end, which gives what each block adds to K before it and how it passes K on, so that one loop over the
+    blocks finds the true K at every block's end; then again from those, accumulating X."""
+    n_frames, n_classes = gamma.shape
+    size = counts.size
+    length = max(1, math.isqrt(n_frames))
+    n_blocks = -(-n_frames // length)
+    pad = n_blocks * length - n_frames
+
+    def by_position(values: np.ndarray, fill: float = 0) -> np.ndarray:
+        """[T, ...] -> [L, B, ...]: frame b * L + i at [i, b]; padding frames after the end (nothing, linked to nothing)."""
+        values = np.concatenate([values, np.full((pad, *values.shape[1:]), fill, dtype=values.dtype)])
+        return np.ascontiguousarray(values.reshape(n_blocks, length, *values.shape[1:]).swapaxes(0, 1))
+
+    after, pairs, gamma_all = by_position(after), by_position(pairs), by_position(gamma)
+    link = by_position(counts.link, -1)
+    gamma_linked = gamma_all * (link >= 0)[..., None]
+    # flat positions in a [B, C, D] state where each frame's step adds: unary (i, (row, j)), pairs (i, (link, i, j))
+    starts = (np.arange(n_blocks)[:, None] * n_classes + np.arange(n_classes)) * size  # [B, C]
+    unary_at = starts[None, :, :, None] + counts.unary(by_position(counts.row))[:, :, None, :]
+    pair_columns = counts.pair(np.maximum(link, 0))  # [L, B, C * C]
+    pair_at = starts[None, :, :, None] + pair_columns.reshape(length, n_blocks, n_classes, n_classes)
+    one_link = counts.n_pairwise == 1
+
+    def step(state: np.ndarray, i: int) -> np.ndarray:
+        """K before the frames at position i from K at them: sum_j after (counts + K) - mean counts."""
+        moved = after[i] @ state
+        flat = moved.reshape(-1)
+        flat[unary_at[i].reshape(-1)] += (after[i] - gamma_linked[i][:, None, :]).reshape(-1)
+        flat[pair_at[i].reshape(-1)] += after[i].reshape(-1)
+        mean = np.broadcast_to(pairs[i].reshape(n_blocks, 1, -1), (n_blocks, n_classes, n_classes ** 2))
+        if one_link:  # every linked frame has the same pair counts (unlinked ones have no pair mass)
+            moved[:, :, counts.n_rows * n_classes:] -= mean
+        else:
+            flat[(starts[:, :, None] + pair_columns[i][:, None, :]).reshape(-1)] -= mean.reshape(-1)
+        return moved
+
+    state = np.zeros((n_blocks, n_classes, size))
+    through = np.broadcast_to(np.eye(n_classes), (n_blocks, n_classes, n_classes)).copy()
+    for i in reversed(range(length)):
+        state = step(state, i)
+        through = after[i] @ through
+    at_end = np.zeros((n_blocks, n_classes, size))  # the true K at each block's last frame
+    for block in reversed(range(1, n_blocks)):
+        at_end[block - 1] = state[block] + through[block] @ at_end[block]
+    unary_rows = counts.unary(by_position(counts.row)).reshape(length, -1)
+    width = n_blocks * n_classes
+    gather = sparse.csc_matrix((np.ones(length * width), (unary_rows.reshape(-1), np.arange(length * width))),
+                               shape=(counts.n_rows * n_classes, length * width))
+    unary_cross = np.zeros((counts.n_rows * n_classes, size))
+    pair_cross = np.zeros((counts.n_pairwise, n_classes, n_classes, size))
+    state = at_end
+    for i in reversed(range(length)):
+        unary_cross += gather[:, i * width:(i + 1) * width] @ (gamma_all[i][:, :, None] * state).reshape(width, size)
+        for pairwise in np.unique(link[i][link[i] >= 0]).tolist():
+            members = link[i] == pairwise
+            weights = pairs[i][members].transpose(2, 1, 0)  # [k, i, b]
+            pair_cross[pairwise] += np.matmul(weights, state[members].transpose(1, 0, 2)).transpose(1, 0, 2)
+        state = step(state, i)
+    return np.concatenate([unary_cross, pair_cross.reshape(-1, size)])
 
 
 def _max_product(left: np.ndarray, right: np.ndarray, out: np.ndarray) -> None:

@@ -9,7 +9,8 @@ import pytest
 from scipy.special import logsumexp
 
 from stages.mln.chain import (
-    ChainFactors, Filter, chain_starts, expectations, filtered, log_partition, path_score, smoothed, viterbi,
+    ChainFactors, Filter, chain_starts, count_covariance, expectations, filtered, log_partition, path_score, smoothed,
+    viterbi,
 )
 
 
@@ -75,6 +76,59 @@ def test_every_quantity_matches_enumeration(seed: int) -> None:
     assert moments.unary == pytest.approx(exact["marginal"], abs=1e-9)
     assert moments.pairwise == pytest.approx(exact["pairs"], abs=1e-9)
     assert path_score(factors, exact["best"]) == pytest.approx(exact["best_score"])
+
+
+def enumerated_count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int) -> np.ndarray:
+    """The covariance of the counts (row, class) and (pairwise row, class pair) over every path of every chain."""
+    classes = factors.n_classes
+    size = n_rows * classes + len(factors.pairwise) * classes ** 2
+    bounds = [*np.flatnonzero(factors.link < 0), len(factors.link)]
+    covariance = np.zeros((size, size))
+    for first, end in zip(bounds[:-1], bounds[1:]):
+        paths, scores = enumerate_chain(factors, first, end)
+        weights = np.exp(scores - logsumexp(scores))
+        counts = np.zeros((len(paths), size))
+        for p, path in enumerate(paths):
+            for i, t in enumerate(range(first, end)):
+                counts[p, row[t] * classes + path[i]] += 1
+                if i:
+                    counts[p, n_rows * classes + (factors.link[t] * classes + path[i - 1]) * classes + path[i]] += 1
+        mean = weights @ counts
+        covariance += (counts * weights[:, None]).T @ counts - np.outer(mean, mean)
+    return covariance
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_count_covariance_matches_enumeration(seed: int) -> None:
+    """The Hessian of log Z with unary log-potentials shared by the frames of a row: every chain length, cuts,
+    forbidden transitions, one or several pairwise rows."""
+    rng = np.random.default_rng(100 + seed)
+    factors = random_factors(rng, int(rng.integers(1, 8)), int(rng.integers(2, 4)), rows=1 + seed % 3,
+                             forbid=0.15 if seed % 2 else 0.0)
+    if not np.isfinite(brute_force(factors)["log_z"]):
+        pytest.skip("this draw has a chain with no possible path")
+    row = rng.integers(0, 3, size=len(factors.link))
+    exact = enumerated_count_covariance(factors, row, 3)
+    assert count_covariance(factors, row, 3) == pytest.approx(exact, abs=1e-10)
+
+
+def test_count_covariance_of_long_chains_adds_up_across_blocks() -> None:
+    """Long chains run as blocks side by side: the same numbers as a chain cut into its independent pieces."""
+    rng = np.random.default_rng(7)
+    pieces = [random_factors(rng, size, 3, rows=2, cuts=0.0) for size in (1500, 7, 800)]
+    joined = ChainFactors(np.concatenate([p.unary for p in pieces]), np.concatenate([p.pairwise for p in pieces]),
+                          np.concatenate([np.where(p.link < 0, -1, p.link + 2 * k) for k, p in enumerate(pieces)]))
+    rows = [rng.integers(0, 4, size=len(p.link)) for p in pieces]
+    whole = count_covariance(joined, np.concatenate(rows), 4)
+    size, unary = 4 * 3 + 6 * 9, 4 * 3
+    parts = np.zeros((size, size))
+    for k, (piece, row) in enumerate(zip(pieces, rows)):
+        part = count_covariance(piece, row, 4)  # its own pairwise rows 0, 1 sit at 2k, 2k + 1 in the joined chain
+        at = np.r_[np.arange(unary), unary + 18 * k + np.arange(18)]
+        parts[np.ix_(at, at)] += part
+    assert np.abs(whole - parts).max() < 1e-8 * np.abs(parts).max()
+    short = count_covariance(pieces[1], rows[1], 4)
+    assert short == pytest.approx(enumerated_count_covariance(pieces[1], rows[1], 4), abs=1e-10)
 
 
 def test_path_score_is_the_log_potential_of_the_path() -> None:
