@@ -64,13 +64,25 @@ def chain_data(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray, fra
     evidence = np.asarray(evidence, dtype=bool)
     starts = np.asarray(starts, dtype=bool).copy()
     starts[0] = True
-    rows, row = np.unique(evidence[:, frame_columns], axis=0, return_inverse=True)
+    rows, row = _distinct(evidence[:, frame_columns])
     joined = np.flatnonzero(~starts)
-    pairs, pair = np.unique(pair_columns.keys(evidence[joined - 1], evidence[joined]), axis=0, return_inverse=True)
+    pairs, pair = _distinct(pair_columns.keys(evidence[joined - 1], evidence[joined]))
     link = np.full(len(evidence), -1, dtype=np.int64)
-    link[joined] = pair.reshape(-1)
-    data = ChainData(np.asarray(labels, dtype=np.int64), row.reshape(-1), link, len(rows), len(pairs))
+    link[joined] = pair
+    data = ChainData(np.asarray(labels, dtype=np.int64), row, link, len(rows), len(pairs))
     return data, rows, pairs
+
+
+def _distinct(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(values, axis=0, return_inverse=True) for a bool matrix, on its rows packed into bytes (30 times
+    faster on all DESK frames)."""
+    if values.shape[1] == 0:
+        keys = np.zeros(len(values))
+    else:
+        packed = np.ascontiguousarray(np.packbits(values, axis=1))
+        keys = packed.view(np.dtype((np.void, packed.shape[1]))).reshape(-1)
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return values[first], inverse.reshape(-1)
 
 
 class Objective:
@@ -108,6 +120,7 @@ class Objective:
             minlength=data.n_pairs * n_classes ** 2)
         per_formula = np.argsort(np.concatenate([np.flatnonzero(~temporal), np.flatnonzero(temporal)]))
         self.counts = sparse.block_diag([self.unary_counts, self.pairwise_counts]).tocsc()[:, per_formula][:, self.learned]
+        self.repeats = chain.Repeats.of(data.row, data.link)
         self.evaluations = 0
 
     def factors(self, weights: np.ndarray) -> chain.ChainFactors:
@@ -130,7 +143,7 @@ class Objective:
         """(-(CLL - l2/2 |w|^2), its gradient) over the learned weights, both per training frame."""
         self.evaluations += 1
         weights = self.full(learned)
-        expectations = chain.expectations(self.factors(weights))
+        expectations = chain.expectations(self.factors(weights), self.repeats)
         finite = np.where(np.isinf(weights), 0.0, weights)
         expected = np.zeros(len(weights))
         expected[~self.temporal] = self.unary_counts.T @ np.asarray(self.frames_of_row @ expectations.unary).reshape(-1)
@@ -143,7 +156,8 @@ class Objective:
     def hessian(self, learned: np.ndarray) -> np.ndarray:
         """[L, L] the Hessian of -(CLL - l2/2 |w|^2) per frame over the learned weights at ``learned``: the covariance
         of the formula counts under the chains' distribution (``chain.count_covariance``), plus l2."""
-        covariance = chain.count_covariance(self.factors(self.full(learned)), self.data.row, self.data.n_rows)
+        covariance = chain.count_covariance(self.factors(self.full(learned)), self.data.row, self.data.n_rows,
+                                            self.repeats)
         counts = self.counts.toarray()
         return (counts.T @ covariance @ counts + self.l2 * np.eye(len(learned))) / len(self.data.labels)
 
