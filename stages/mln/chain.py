@@ -549,7 +549,7 @@ def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, c
     passes on (its K before its first frame, and its S there)."""
     n_frames, n_classes = gamma.shape
     size, n_unary = counts.size, counts.n_rows * counts.n_classes
-    length = max(1, math.isqrt(n_frames))
+    length = max(1, 4 * math.isqrt(n_frames))
     n_blocks = -(-n_frames // length)
     pad = n_blocks * length - n_frames
 
