@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 CLIP = 300.0
 
@@ -166,15 +167,7 @@ class _Steps:
 
 
 def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """rows @ matrix for many rows and a small matrix, as a stack of products of _CHUNK rows: OpenBLAS runs one
-    tall product on several threads, which on a busy machine is ten times slower than one thread."""
-    full = len(rows) - len(rows) % _CHUNK
-    if full == 0:
-        return rows @ matrix
-    out = np.empty((len(rows), matrix.shape[1]))
-    out[:full] = (np.ascontiguousarray(rows[:full]).reshape(-1, _CHUNK, rows.shape[1]) @ matrix).reshape(full, -1)
-    out[full:] = rows[full:] @ matrix
-    return out
+    return rows @ matrix
 
 
 def _kinds(index: np.ndarray) -> tuple[int, list[tuple[int, np.ndarray]]]:
@@ -184,17 +177,76 @@ def _kinds(index: np.ndarray) -> tuple[int, list[tuple[int, np.ndarray]]]:
     return main, [(row, np.flatnonzero(index == row)) for row in np.flatnonzero(counts).tolist() if row != main]
 
 
-def _steps(factors: ChainFactors) -> _Steps:
+def _steps(factors: ChainFactors, repeats: Repeats | None = None) -> _Steps:
     n_classes = factors.n_classes
     transitions, transition_scale = _scaled(factors.pairwise, (1, 2))
     transitions = np.concatenate([transitions, np.ones((1, n_classes, n_classes))])
     transition_scale = np.concatenate([transition_scale, [0.0]])
     index = np.where(factors.link < 0, len(factors.pairwise), factors.link)
-    emissions, emission_scale = _scaled(factors.unary, (1,))
+    frames = slice(None) if repeats is None else repeats.first  # with repeats: one frame of each kind
+    emissions, emission_scale = _scaled(factors.unary[frames], (1,))
     with np.errstate(divide="ignore"):  # a step's total: the transition's column sums times the emission
-        total = np.log(np.einsum("nk,nk->n", transitions.sum(axis=1)[index], emissions))
+        total = np.log(np.einsum("nk,nk->n", transitions.sum(axis=1)[index[frames]], emissions))
     emissions /= np.exp(np.where(np.isfinite(total), total, 0.0))[:, None]
-    return _Steps(index, transitions, emissions, transition_scale[index] + emission_scale + total)
+    scale = transition_scale[index[frames]] + emission_scale + total
+    if repeats is not None:
+        emissions, scale = emissions[repeats.kind], scale[repeats.kind]
+    return _Steps(index, transitions, emissions, scale)
+
+
+@dataclass(frozen=True)
+class Repeats:
+    """Where a chain's steps repeat, for many scans of the same chains (the CLL learner's): frames of one kind (one
+    unary row, by the caller's word, and one link) have equal step matrices, and so do many nodes of the scan's
+    lower levels (on all DESK frames: 23 kinds of step; 136 distinct products of two among 11,165 pairs, 620 of
+    four among 5,583, 1,366 of eight among 2,792). Each distinct product is computed once, and the scan's tree
+    starts from blocks of that many steps."""
+
+    kind: np.ndarray  # [T] the kind of each frame's step
+    first: np.ndarray  # [K] a frame of each kind
+    levels: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]  # per level: (left, right) of each distinct node
+    # (right -1: an odd last node carried up), and the distinct node of each node
+
+    @classmethod
+    def of(cls, row: np.ndarray, link: np.ndarray) -> "Repeats":
+        """Frames with equal ``row`` have equal unary log-potentials in every scan these repeats are passed to."""
+        link = np.asarray(link, dtype=np.int64)
+        _, first, kind = np.unique(np.asarray(row, dtype=np.int64) * (link.max(initial=-1) + 2) + link + 1,
+                                   return_index=True, return_inverse=True)
+        ids, size, levels = kind.reshape(-1), len(first), []
+        while len(ids) > 1:
+            pairs = len(ids) // 2
+            keys = ids[0:2 * pairs:2] * size + ids[1:2 * pairs:2]
+            if len(ids) % 2:
+                keys = np.append(keys, size * size + ids[-1])
+            distinct, node = np.unique(keys, return_inverse=True)
+            if 2 * len(distinct) > len(keys):  # mostly distinct from here up: the tree is as fast
+                break
+            carried = distinct >= size * size
+            levels.append((np.where(carried, distinct - size * size, distinct // size),
+                           np.where(carried, -1, distinct % size), node.reshape(-1)))
+            ids, size = node.reshape(-1), len(distinct)
+        return cls(kind.reshape(-1), first, tuple(levels))
+
+
+def _blocks(steps: _Steps, repeats: Repeats | None) -> tuple[int, tuple[np.ndarray, np.ndarray]]:
+    """The scan's leaves: the products of aligned blocks of ``size`` steps (the last may be shorter), scaled to total 1,
+    and their log scales. Blocks are pairs of steps, or with ``repeats`` blocks of 2^levels steps built from the
+    distinct products of each level."""
+    if len(steps.index) == 1:
+        return 1, (steps.matrices(), steps.scale)
+    if repeats is None or not repeats.levels:
+        return 2, _pairs(steps, len(steps.transitions[0]))
+    table, scale = steps.matrices(repeats.first), steps.scale[repeats.first]
+    for left, right, node in repeats.levels:
+        joined = right >= 0
+        products = table[left]
+        products[joined] = products[joined] @ table[right[joined]]
+        total = products.reshape(len(products), -1).sum(axis=1)
+        with np.errstate(divide="ignore"):
+            scale = scale[left] + np.where(joined, scale[right], 0.0) + np.log(total)
+        table = products / np.where(total > 0, total, 1.0)[:, None, None]
+    return 2 ** len(repeats.levels), (table[node], scale[node])
 
 
 def _pairs(steps: _Steps, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
@@ -305,57 +357,60 @@ def _move_backward(vectors: np.ndarray, matrices: np.ndarray, _scale: np.ndarray
 class _Forward:
     factors: ChainFactors  # with chain starts at the dead ends
     steps: _Steps
-    levels: list  # the tree above the steps: products of pairs of steps, then of pairs of those, ...
+    size: int  # steps per block, the tree's leaves
+    levels: list  # the tree: the blocks' products, then products of pairs of those, ...
     log_z: float
     entering: np.ndarray | None  # [T, C] the normalised forward vector before each step (alpha_{t-1})
     alpha: np.ndarray | None  # [T, C] after it
     moved: np.ndarray | None  # [T] the total of entering @ M_t before normalising
 
 
-def _forward_once(factors: ChainFactors, vectors: bool) -> _Forward:
+def _forward_once(factors: ChainFactors, vectors: bool, repeats: Repeats | None) -> _Forward:
     n_frames, n_classes = len(factors.link), factors.n_classes
-    steps = _steps(factors)
-    levels = _up(_pairs(steps, n_classes), _product) if n_frames > 1 else [(steps.matrices(), steps.scale)]
+    steps = _steps(factors, repeats)
+    size, blocks = _blocks(steps, repeats)
+    levels = _up(blocks, _product)
     root, root_scale = levels[-1][0][0], levels[-1][1][0]
     total = root[0].sum()  # the first step is a chain start: any vector summing to 1 enters it
     if not total > 0 or not np.isfinite(root_scale):
         raise _Dead
     log_z = float(root_scale + math.log(total))
     if not vectors:
-        return _Forward(factors, steps, levels, log_z, None, None, None)
-    start = np.eye(n_classes)[0]
-    entering = _down(levels, start, _move_forward, from_left=True) if n_frames > 1 else start[None]
-    if n_frames > 1:
-        entering = _split(entering, n_frames, lambda values, near: _normalised(steps.forward(values, near)), True)
-    moved = np.empty(n_frames)
-    alpha = _normalised(steps.forward(entering, slice(None)), moved)
-    return _Forward(factors, steps, levels, log_z, entering, alpha, moved)
+        return _Forward(factors, steps, size, levels, log_z, None, None, None)
+    vectors = _down(levels, np.eye(n_classes)[0], _move_forward, from_left=True)  # entering each block
+    entering, alpha, moved = np.empty((n_frames, n_classes)), np.empty((n_frames, n_classes)), np.empty(n_frames)
+    for position in range(size):  # through the blocks, all side by side, one step at a time
+        frames = slice(position, None, size)
+        count = len(moved[frames])  # a shorter last block has no step here
+        entering[frames] = vectors[:count]
+        alpha[frames] = vectors[:count] = _normalised(steps.forward(vectors[:count], frames), moved[frames])
+    return _Forward(factors, steps, size, levels, log_z, entering, alpha, moved)
 
 
-def _forward(factors: ChainFactors, vectors: bool = True) -> _Forward:
+def _forward(factors: ChainFactors, vectors: bool = True, repeats: Repeats | None = None) -> _Forward:
     """The up-sweep and (with ``vectors``) the forward vectors, dead ends turned into chain starts."""
     try:
-        return _forward_once(factors, vectors)
+        return _forward_once(factors, vectors, repeats)
     except _Dead:
         pass
     try:
-        return _forward_once(_restarted(factors), vectors)
+        return _forward_once(_restarted(factors), vectors, None)  # its chain starts are not those of the repeats
     except _Dead:
         raise FloatingPointError("the chain's forward pass underflows even after restarting at its dead ends") from None
 
 
 def _backward(forward: _Forward) -> np.ndarray:
     """[T, C] the backward vector after each step (beta_t, each scaled to max 1)."""
-    n_frames, n_classes = len(forward.factors.link), forward.factors.n_classes
-    if n_frames == 1:
-        return np.ones((1, n_classes))
-    leaving = _down(forward.levels, np.ones(n_classes), _move_backward, from_left=False)
-
-    def move(values: np.ndarray, near: np.ndarray) -> np.ndarray:
-        moved = forward.steps.backward(values, near)
-        return moved / moved.max(axis=1, keepdims=True)
-
-    return _split(leaving, n_frames, move, from_left=False)
+    n_frames, n_classes, size = len(forward.factors.link), forward.factors.n_classes, forward.size
+    vectors = _down(forward.levels, np.ones(n_classes), _move_backward, from_left=False)  # leaving each block
+    beta = np.empty((n_frames, n_classes))
+    for position in reversed(range(size)):
+        frames = slice(position, None, size)
+        count = len(beta[frames])  # a shorter last block keeps its vector until its last step
+        beta[frames] = vectors[:count]
+        moved = forward.steps.backward(vectors[:count], frames)
+        vectors[:count] = moved / moved.max(axis=1, keepdims=True)
+    return beta
 
 
 def _smoothed(forward: _Forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -396,12 +451,13 @@ class Expectations:
     pairwise: np.ndarray  # [P, C, C] summed over the frames t each row links: p(y_{t-1} = j, y_t = k | chain)
 
 
-def expectations(factors: ChainFactors) -> Expectations:
-    """log Z and the marginals that the gradient of the conditional log-likelihood needs."""
+def expectations(factors: ChainFactors, repeats: Repeats | None = None) -> Expectations:
+    """log Z and the marginals that the gradient of the conditional log-likelihood needs (``repeats``: where the
+    factors' steps repeat, to compute each distinct product once)."""
     n_frames, n_classes, n_rows = len(factors.link), factors.n_classes, len(factors.pairwise)
     if n_frames == 0:
         return Expectations(0.0, np.zeros((0, n_classes)), np.zeros((n_rows, n_classes, n_classes)))
-    forward = _forward(factors)
+    forward = _forward(factors, repeats=repeats)
     gamma, beta, overlap = _smoothed(forward)
     steps = forward.steps
     # p(y_{t-1} = j, y_t = k) = alpha_{t-1}(j) M_t(j, k) beta_t(k) / n_t, M_t = transitions[link] * emissions[t],
@@ -414,6 +470,149 @@ def expectations(factors: ChainFactors) -> Expectations:
         if row < n_rows:
             totals[row] = steps.transitions[row] * (weighted[members].T @ following[members])
     return Expectations(forward.log_z, gamma, totals)
+
+
+def count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int, repeats: Repeats | None = None) -> np.ndarray:
+    """[D, D], D = n_rows * C + P * C * C: the covariance, under the chains' distribution, of their counts: frames of
+    each row (``row[t]`` in [0, n_rows)) with each class, then linked pairs of each pairwise row with each class
+    pair. It is the Hessian of log Z when frames of one row share their unary log-potentials (the CLL learner's
+    Newton metric). Exact: same-frame terms per kind of frame, cross-frame terms by a recursion over the chain
+    (``_cross_covariance``). ``repeats``: as for ``expectations``."""
+    forward = _forward(factors, repeats=repeats)
+    factors = forward.factors  # with chain starts at dead ends, as the marginals have them
+    gamma, beta, _ = _smoothed(forward)
+    linked = factors.link >= 0
+    reach = forward.steps.matrices() * beta[:, None, :]
+    total = reach.sum(axis=2, keepdims=True)
+    after = np.divide(reach, total, out=np.zeros_like(reach), where=total > 0)  # p(y_t = j | y_{t-1} = i, chain)
+    after[~linked] = 0.0
+    pairs = np.zeros_like(after)  # p(y_{t-1} = i, y_t = j | chain)
+    pairs[1:] = gamma[:-1, :, None] * after[1:]
+    counts = _Counts(np.asarray(row, dtype=np.int64), factors.link, n_rows, factors.n_classes, len(factors.pairwise))
+    cross = _cross_covariance(gamma, pairs, after, counts)
+    return _same_frame_covariance(gamma, pairs, counts) + cross + cross.T
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """Where each frame's counts sit among the D counts of ``count_covariance``."""
+
+    row: np.ndarray  # [T]
+    link: np.ndarray  # [T], -1: no pair counts
+    n_rows: int
+    n_classes: int
+    n_pairwise: int
+
+    @property
+    def size(self) -> int:
+        return self.n_rows * self.n_classes + self.n_pairwise * self.n_classes ** 2
+
+    def unary(self, row: np.ndarray) -> np.ndarray:
+        """[..., C] the counts (row, class) of frames of ``row``."""
+        return np.asarray(row)[..., None] * self.n_classes + np.arange(self.n_classes)
+
+    def pair(self, link: np.ndarray) -> np.ndarray:
+        """[..., C * C] the counts (pairwise row, class before, class after) of frames linked by ``link`` (>= 0)."""
+        return self.n_rows * self.n_classes + np.asarray(link)[..., None] * self.n_classes ** 2 + np.arange(self.n_classes ** 2)
+
+
+def _same_frame_covariance(gamma: np.ndarray, pairs: np.ndarray, counts: _Counts) -> np.ndarray:
+    """sum_t Cov(counts of frame t): per kind of frame (row, pairwise row), the covariance of the frame's local counts
+    (its class, and its class pair if linked) summed over the frames of that kind."""
+    n_classes = counts.n_classes
+    covariance = np.zeros((counts.size, counts.size))
+    kinds, kind = np.unique(np.stack([counts.row, counts.link], axis=1), axis=0, return_inverse=True)
+    kind = kind.reshape(-1)
+    for index, (row, link) in enumerate(kinds.tolist()):
+        members = kind == index
+        local = gamma[members] if link < 0 else np.concatenate(
+            [gamma[members], pairs[members].reshape(-1, n_classes ** 2)], axis=1)
+        mean = local.sum(axis=0)
+        block = np.diag(mean) - local.T @ local
+        if link >= 0:  # a pair (i, k) also counts class k
+            pair_of = n_classes + np.arange(n_classes ** 2)
+            block[pair_of % n_classes, pair_of] += mean[pair_of]
+            block[pair_of, pair_of % n_classes] += mean[pair_of]
+        at = counts.unary(row) if link < 0 else np.concatenate([counts.unary(row), counts.pair(link)])
+        covariance[np.ix_(at, at)] += block
+    return covariance
+
+
+def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, counts: _Counts) -> np.ndarray:
+    """X = sum over frames s < t of one chain of Cov(counts of s, counts of t) (rows: s's counts), by the backward
+    recursion for K_s[k] = E[counts of the frames after s | y_s = k] - their mean:
+        K_{t-1}[i] = sum_j after_t[i, j] (counts of (i, j) at t + K_t[j]) - mean counts of t,
+        X = sum_s psi_s^T K_s,  psi_s[k] = gamma_s(k) e(s's count of k) + sum_i pairs_s(i, k) e(s's count of (i, k)).
+    Blocks of frames run side by side, one numpy call per position in a block, each from K = 0 at its end; with
+    S_s = p(y at the block's end | y_s), the true K_s = K_s(local) + S_s K(block's end), so X adds
+    sum_b (sum_{s in b} psi_s^T S_s) K(end of b), and one loop over the blocks finds those K from what each block
+    passes on (its K before its first frame, and its S there)."""
+    n_frames, n_classes = gamma.shape
+    size, n_unary = counts.size, counts.n_rows * counts.n_classes
+    length = max(1, 4 * math.isqrt(n_frames))
+    n_blocks = -(-n_frames // length)
+    pad = n_blocks * length - n_frames
+
+    def by_position(values: np.ndarray, fill: float = 0) -> np.ndarray:
+        """[T, ...] -> [L, B, ...]: frame b * L + i at [i, b]; padding frames after the end (nothing, linked to nothing)."""
+        values = np.concatenate([values, np.full((pad, *values.shape[1:]), fill, dtype=values.dtype)])
+        return np.ascontiguousarray(values.reshape(n_blocks, length, *values.shape[1:]).swapaxes(0, 1))
+
+    after, pairs, gamma = by_position(after), by_position(pairs), by_position(gamma)
+    link = by_position(counts.link, -1)
+    gamma_linked = gamma * (link >= 0)[..., None]
+    unary_columns = counts.unary(by_position(counts.row))  # [L, B, C]
+    pair_columns = counts.pair(np.maximum(link, 0)).reshape(length, n_blocks, n_classes, n_classes)
+    one_link = counts.n_pairwise == 1  # then every linked frame has the same pair counts: slices, not indices
+    blocks, classes = np.arange(n_blocks)[:, None], np.arange(n_classes)
+    # flat positions in a [B, C, D] state: (b, i, (row, j)) and (b, i, (link, i, j)), for [L, B, C(i), C(j)]
+    state_rows = ((blocks * n_classes + classes) * size)[None, :, :, None]
+    unary_at = state_rows + unary_columns[:, :, None, :]
+    pair_at = state_rows + pair_columns
+    step_at = np.concatenate([unary_at, pair_at], axis=3).reshape(length, -1)
+    step_add = np.concatenate([after - gamma_linked[:, :, None, :], after], axis=3).reshape(length, -1)
+
+    def step(state: np.ndarray, i: int) -> np.ndarray:
+        """K before the frames at position i from K at them: sum_j after (counts + K) - mean counts."""
+        moved = after[i] @ state
+        np.add.at(moved.reshape(-1), step_at[i], step_add[i])
+        mean = pairs[i].reshape(n_blocks, 1, -1)
+        if one_link:
+            moved[:, :, n_unary:] -= mean
+        else:
+            moved[blocks[:, :, None], classes[:, None], pair_columns[i].reshape(n_blocks, 1, -1)] -= mean
+        return moved
+
+    width = n_blocks * n_classes  # frames' unary counts at one position, weighted by gamma: a sparse [n_unary, B * C]
+    gathered = sparse.csc_matrix((gamma.reshape(-1), (unary_columns.reshape(-1), np.arange(length * width))),
+                                 shape=(n_unary, length * width))
+    local_unary = np.zeros((n_unary, size))
+    local_pair = np.zeros((counts.n_pairwise, n_classes, n_classes, size))
+    to_end = np.zeros((n_blocks, size, n_classes))  # sum_{s in b} psi_s^T S_s
+    to_end_at = (((blocks * size + unary_columns) * n_classes)[..., None] + classes).reshape(length, -1)  # (b, (row, k), m)
+    state = np.zeros((n_blocks, n_classes, size))
+    through = np.broadcast_to(np.eye(n_classes), (n_blocks, n_classes, n_classes)).copy()
+    for i in reversed(range(length)):
+        local_unary += gathered[:, i * width:(i + 1) * width] @ state.reshape(width, size)
+        np.add.at(to_end.reshape(-1), to_end_at[i], (gamma[i][:, :, None] * through).reshape(-1))
+        weighted = pairs[i][:, :, :, None] * through[:, None, :, :]  # [b, i, k, m]
+        for pairwise, members in [(0, slice(None))] if one_link else _kinds_present(link[i]):
+            local_pair[pairwise] += np.matmul(pairs[i][members].transpose(2, 1, 0),
+                                              state[members].transpose(1, 0, 2)).transpose(1, 0, 2)
+            rows = slice(n_unary, None) if one_link else pair_columns[i][members].reshape(-1, n_classes ** 2)
+            to_end[blocks[members] if not one_link else slice(None), rows] += weighted[members].reshape(-1, n_classes ** 2, n_classes)
+        state = step(state, i)
+        through = after[i] @ through
+    at_end = np.zeros((n_blocks, n_classes, size))  # the true K at each block's last frame
+    for block in reversed(range(1, n_blocks)):
+        at_end[block - 1] = state[block] + through[block] @ at_end[block]
+    local = np.concatenate([local_unary, local_pair.reshape(-1, size)])
+    return local + to_end.transpose(1, 0, 2).reshape(size, -1) @ at_end.reshape(-1, size)
+
+
+def _kinds_present(link: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(pairwise row, positions) of each pairwise row that ``link`` uses."""
+    return [(row, np.flatnonzero(link == row)) for row in np.unique(link[link >= 0]).tolist()]
 
 
 def _max_product(left: np.ndarray, right: np.ndarray, out: np.ndarray) -> None:

@@ -9,7 +9,8 @@ import pytest
 from scipy.special import logsumexp
 
 from stages.mln.chain import (
-    ChainFactors, Filter, chain_starts, expectations, filtered, log_partition, path_score, smoothed, viterbi,
+    ChainFactors, Filter, Repeats, chain_starts, count_covariance, expectations, filtered, log_partition, path_score,
+    smoothed, viterbi,
 )
 
 
@@ -75,6 +76,84 @@ def test_every_quantity_matches_enumeration(seed: int) -> None:
     assert moments.unary == pytest.approx(exact["marginal"], abs=1e-9)
     assert moments.pairwise == pytest.approx(exact["pairs"], abs=1e-9)
     assert path_score(factors, exact["best"]) == pytest.approx(exact["best_score"])
+
+
+def enumerated_count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int) -> np.ndarray:
+    """The covariance of the counts (row, class) and (pairwise row, class pair) over every path of every chain."""
+    classes = factors.n_classes
+    size = n_rows * classes + len(factors.pairwise) * classes ** 2
+    bounds = [*np.flatnonzero(factors.link < 0), len(factors.link)]
+    covariance = np.zeros((size, size))
+    for first, end in zip(bounds[:-1], bounds[1:]):
+        paths, scores = enumerate_chain(factors, first, end)
+        weights = np.exp(scores - logsumexp(scores))
+        counts = np.zeros((len(paths), size))
+        for p, path in enumerate(paths):
+            for i, t in enumerate(range(first, end)):
+                counts[p, row[t] * classes + path[i]] += 1
+                if i:
+                    counts[p, n_rows * classes + (factors.link[t] * classes + path[i - 1]) * classes + path[i]] += 1
+        mean = weights @ counts
+        covariance += (counts * weights[:, None]).T @ counts - np.outer(mean, mean)
+    return covariance
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_count_covariance_matches_enumeration(seed: int) -> None:
+    """The Hessian of log Z with unary log-potentials shared by the frames of a row: every chain length, cuts,
+    forbidden transitions, one or several pairwise rows."""
+    rng = np.random.default_rng(100 + seed)
+    factors = random_factors(rng, int(rng.integers(1, 8)), int(rng.integers(2, 4)), rows=1 + seed % 3,
+                             forbid=0.15 if seed % 2 else 0.0)
+    if not np.isfinite(brute_force(factors)["log_z"]):
+        pytest.skip("this draw has a chain with no possible path")
+    row = rng.integers(0, 3, size=len(factors.link))
+    exact = enumerated_count_covariance(factors, row, 3)
+    assert count_covariance(factors, row, 3) == pytest.approx(exact, abs=1e-10)
+
+
+def test_count_covariance_of_long_chains_adds_up_across_blocks() -> None:
+    """Long chains run as blocks side by side: the same numbers as a chain cut into its independent pieces."""
+    rng = np.random.default_rng(7)
+    pieces = [random_factors(rng, size, 3, rows=2, cuts=0.0) for size in (1500, 7, 800)]
+    joined = ChainFactors(np.concatenate([p.unary for p in pieces]), np.concatenate([p.pairwise for p in pieces]),
+                          np.concatenate([np.where(p.link < 0, -1, p.link + 2 * k) for k, p in enumerate(pieces)]))
+    rows = [rng.integers(0, 4, size=len(p.link)) for p in pieces]
+    whole = count_covariance(joined, np.concatenate(rows), 4)
+    size, unary = 4 * 3 + 6 * 9, 4 * 3
+    parts = np.zeros((size, size))
+    for k, (piece, row) in enumerate(zip(pieces, rows)):
+        part = count_covariance(piece, row, 4)  # its own pairwise rows 0, 1 sit at 2k, 2k + 1 in the joined chain
+        at = np.r_[np.arange(unary), unary + 18 * k + np.arange(18)]
+        parts[np.ix_(at, at)] += part
+    assert np.abs(whole - parts).max() < 1e-8 * np.abs(parts).max()
+    short = count_covariance(pieces[1], rows[1], 4)
+    assert short == pytest.approx(enumerated_count_covariance(pieces[1], rows[1], 4), abs=1e-10)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_repeated_steps_give_the_same_numbers(seed: int) -> None:
+    """Frames sharing a unary row (a few rows, long runs and odd lengths, cuts, forbidden transitions): the scan that
+    computes each distinct product once agrees with the plain one, and with enumeration on short chains."""
+    rng = np.random.default_rng(200 + seed)
+    frames = [5, 6, 7, 1000, 3001, 4096][seed]
+    n_rows, classes = 4, 3
+    rows = rng.normal(size=(n_rows, classes)) * 2
+    rows[rng.random(rows.shape) < 0.1] = -np.inf
+    rows[:, 0] = np.maximum(rows[:, 0], 0.0)  # every row allows some class
+    row = np.repeat(rng.integers(0, n_rows, size=frames), rng.integers(1, 6, size=frames))[:frames]
+    base = random_factors(rng, frames, classes, rows=2, forbid=0.1 if seed % 2 else 0.0, cuts=0.01)
+    factors = ChainFactors(rows[row], base.pairwise, base.link)
+    repeats = Repeats.of(row, factors.link)
+    assert frames < 1000 or repeats.levels  # long runs of few rows: products repeat
+    plain, repeated = expectations(factors), expectations(factors, repeats)
+    assert repeated.log_z == pytest.approx(plain.log_z, rel=1e-12)
+    assert np.abs(repeated.unary - plain.unary).max() < 1e-10
+    assert np.abs(repeated.pairwise - plain.pairwise).max() < 1e-8 * max(1.0, np.abs(plain.pairwise).max())
+    covariance = count_covariance(factors, row, n_rows, repeats)
+    assert np.abs(covariance - count_covariance(factors, row, n_rows)).max() < 1e-8 * np.abs(covariance).max()
+    if frames < 8 and np.isfinite(brute_force(factors)["log_z"]):
+        assert repeated.unary == pytest.approx(brute_force(factors)["marginal"], abs=1e-9)
 
 
 def test_path_score_is_the_log_potential_of_the_path() -> None:
@@ -170,6 +249,19 @@ def test_dead_ends_restart_the_chain_in_batch_and_online() -> None:
     cut = sum(log_partition(ChainFactors(np.where(np.isfinite(unary[a:b]).any(axis=1, keepdims=True), unary[a:b], 0.0),
                                          pairwise, np.r_[-1, np.zeros(b - a - 1, dtype=int)])) for a, b in pieces)
     assert log_partition(factors) == pytest.approx(cut)
+
+
+def test_dead_ends_with_repeated_steps_restart_as_without() -> None:
+    rows = np.array([[0.0, -np.inf, -np.inf], [-np.inf, -np.inf, 0.5]])  # class 0 only; class 2 only
+    pairwise = np.zeros((1, 3, 3))
+    pairwise[0, 0, 2] = -np.inf  # so every switch from the first row to the second is a dead end
+    row = np.tile([0, 0, 1, 1], 8)
+    factors = ChainFactors(rows[row], pairwise, np.r_[-1, np.zeros(len(row) - 1, dtype=np.int64)])
+    repeats = Repeats.of(row, factors.link)
+    assert repeats.levels
+    plain, repeated = expectations(factors), expectations(factors, repeats)
+    assert repeated.log_z == pytest.approx(plain.log_z) and np.allclose(repeated.unary, plain.unary)
+    assert np.allclose(count_covariance(factors, row, 2, repeats), count_covariance(factors, row, 2))
 
 
 def test_bad_factors_are_refused() -> None:
