@@ -67,7 +67,7 @@ HAVE_DESK := $(if $(filter 2,$(words $(wildcard $(DESK_FILES)))),yes)
 #                   mode and seed (linked) and, in stream mode, a PriorLayer trained on its weights: the
 #                   decoded rows
 #   D-order         examples/D.order.mln (temporal.mln plus the order as hard rules); D's LSTM only
-#   D-fixed-weight  D-temporal's weights and networks (linked), decoded with the network factor's weight 1
+#   D-fixed-weight  D-temporal's weights and LSTM (linked), decoded with the network factor's weight 1
 # D's own stream workdirs are decoded too (the paper's formulas: uniform transitions). The last three are
 # the ablation, in ABLATION_MODES.
 seed_dirs = $(foreach mode,$(2),$(foreach seed,$(3),$(RUNS)/$(1)/$(mode)/seed-$(seed)))
@@ -135,8 +135,7 @@ $(foreach d,$(SEQUENTIAL),\
   $(eval $(call linked_files,$(d)-order,$(d),frames.parquet predicates.parquet)) \
   $(eval $(call linked_files,$(d)-fixed-weight,$(d)-temporal,frames.parquet predicates.parquet weights.parquet)) \
   $(eval $(call linked_network,$(d)-temporal,$(d),lstm)) $(eval $(call linked_network,$(d)-order,$(d),lstm)) \
-  $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)) \
-  $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,priorlayer)))
+  $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)))
 
 .SECONDEXPANSION:
 .SECONDARY:  # keep every artifact the chain makes
@@ -164,9 +163,9 @@ train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) 
   --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
   $(if $(filter stream,$(mode_of)),--select val_accuracy)
 # The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
-# only (D-fixed-weight links it); D-temporal in segment mode and D-order run D's LSTM alone.
-networks_of = lstm $(if $(filter %-temporal %-fixed-weight,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\
-  $(if $(filter %-order,$(call stem_word,1)),,priorlayer))
+# only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
+networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\
+  $(if $(filter %-order %-fixed-weight,$(call stem_word,1)),,priorlayer))
 # Decoded: the sequential folders, and the paper datasets' stream workdirs (their ablation row).
 decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-fixed-weight) \
   $(if $(filter stream,$(mode_of)),$(SEQUENTIAL)),$(call stem_word,1))

@@ -122,10 +122,13 @@ def deploy_sentence(run: Run, dataset: str) -> str | None:
     if "filter" not in choices or "viterbi" not in choices:
         return None
     online, offline = choices["filter"], choices["viterbi"]
+    ties = "; ".join(f"the {kind} choice is tied on validation with {', '.join(_named(t) for t in c['ties'])}"
+                     for kind, c in (("online", online), ("offline", offline)) if c["ties"])
     return (f"{dataset}: deploy **{_named(online)}** (`{online['folder']}`) where frames must be recognised as they "
             f"arrive, and **{_named(offline)}** (`{offline['folder']}`) where a whole recording is labelled after "
             f"the fact (validation frame accuracy {fmt(online['validation'])} and {fmt(offline['validation'])}; on "
-            f"test, segment accuracy {fmt(*online['segment_accuracy'])} and {fmt(*offline['segment_accuracy'])}).")
+            f"test, segment accuracy {fmt(*online['segment_accuracy'])} and {fmt(*offline['segment_accuracy'])})"
+            + (f"; {ties}." if ties else "."))
 
 
 def target_checks(run: Run) -> list[str]:

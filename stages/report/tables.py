@@ -182,8 +182,9 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
 
 def deploy_choices(run: Run, dataset: str) -> dict[str, dict[str, Any]]:
     """Per decoding (filter, viterbi), the decoded method of a DEPLOY_VARIANTS folder with the best mean frame
-    accuracy on the validation part (stream mode; ties: the first in that order and METHODS order), with its
-    validation and test figures; and ``best_on_test`` per metric (optimistic: chosen on test)."""
+    accuracy on the validation part (stream mode; ties: the first in that order and METHODS order, the others
+    listed under ``ties``), with its validation and test figures; and ``best_on_test`` per metric (optimistic:
+    chosen on test)."""
     stats, validation = sequence_stats(run), validation_stats(run)
     candidates = []
     for suffix in DEPLOY_VARIANTS:
@@ -201,7 +202,9 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, dict[str, Any]]:
     for decode in DECODES[1:]:
         kind = [c for c in candidates if c["decode"] == decode]
         if kind:
-            choices[decode] = max(kind, key=lambda c: c["validation"])  # max keeps the first of equals
+            best = max(kind, key=lambda c: c["validation"])  # max keeps the first of equals
+            ties = [c for c in kind if c is not best and np.isclose(c["validation"], best["validation"], atol=1e-9)]
+            choices[decode] = {**best, "ties": ties}
     if candidates:
         choices["best_on_test"] = {m: max(candidates, key=lambda c: c[m][0] if c[m][0] is not None else -np.inf)
                                    for m in SEQUENCE_METRICS}
@@ -220,7 +223,7 @@ def deploy_table(run: Run) -> list[list[str]]:
             if decode in choices:
                 c = choices[decode]
                 rows.append([dataset, kind, method_name(c["method"]), f"{c['variant']} (`{c['folder']}`)",
-                             fmt(c["validation"]), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
+                             fmt(c["validation"]), str(len(c["ties"])), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
     return rows
 
 
