@@ -32,7 +32,7 @@ bench: setup ## Run the benchmarks (figures and ratios measured side by side)
 # --- the paper's reproduction ------------------------------------------------------------------------
 # Size variables (a tiny run: make report SEEDS=0 EPOCHS=2 DESK_EPOCHS=2 FETCH_EPISODES=4 FRACTIONS=0.5).
 # Epochs: Fetch's training accuracy levels off within 50 (the authors' count); DESK's still rises at 50,
-# so it trains for train's default 100. Both fit the 20-minute budget on 2 cores.
+# so it trains for train's default 100.
 # Make does not see a changed variable: after changing one, `make clean` or choose another RUNS.
 RUNS ?= runs
 REPORTS ?= reports
@@ -43,12 +43,15 @@ FETCH_EPISODES ?= 400
 FRACTIONS ?= 0.01 0.02 0.05 0.1 0.25 0.5
 FRACTION_SEEDS ?= $(SEEDS)
 MODES ?= segment stream
+TEMPORAL_MODES ?= $(MODES)
+ABLATION_MODES ?= stream
 JOBS ?= 2
 DESK_DIR ?= ../shared/data/desk-taurus
 FETCH_SPEC ?= stages/specs/fetch.binarize.toml
 FETCH_RICH_SPEC ?= examples/fetch-rich.binarize.toml
 DESK_SPEC ?= stages/specs/desk.binarize.toml
 FORMULAS_SPEC ?= stages/specs/paper.mln
+TEMPORAL_SPEC ?= examples/temporal.mln
 # steps of one FetchPickAndPlace-v4 episode (EPISODE_STEPS in stages/fetch_demos.py)
 FETCH_EPISODE_FRAMES := 50
 
@@ -59,11 +62,22 @@ HAVE_DESK := $(if $(filter 2,$(words $(wildcard $(DESK_FILES)))),yes)
 
 # Layout: one folder per dataset holding its frames, predicates, formulas and MLN weights, and below
 # it one workdir per mode and seed (MODE/seed-N) whose models, predictions and metrics use those.
+# Sequential logic (issue 12), per paper dataset D (fetch, desk), on D's frames and predicates (linked):
+#   D-temporal      examples/temporal.mln (learned transitions, cll); its workdirs run D's LSTM of the same
+#                   mode and seed (linked) and, in stream mode, a PriorLayer trained on its weights: the
+#                   decoded rows
+#   D-order         examples/D.order.mln (temporal.mln plus the order as hard rules); D's LSTM only
+#   D-fixed-weight  D-temporal's weights and LSTM (linked), decoded with the network factor's weight 1
+# D's own stream workdirs are decoded too (the paper's formulas: uniform transitions). The last three are
+# the ablation, in ABLATION_MODES.
 seed_dirs = $(foreach mode,$(2),$(foreach seed,$(3),$(RUNS)/$(1)/$(mode)/seed-$(seed)))
 FRACTION_DATASETS := $(FRACTIONS:%=fetch-fraction-%)
+SEQUENTIAL := fetch $(if $(HAVE_DESK),desk)
 SEED_DIRS := $(call seed_dirs,fetch,$(MODES),$(SEEDS)) $(call seed_dirs,fetch-rich,segment,$(SEEDS)) \
   $(foreach d,$(FRACTION_DATASETS),$(call seed_dirs,$(d),segment,$(FRACTION_SEEDS))) \
-  $(if $(HAVE_DESK),$(call seed_dirs,desk,$(MODES),$(SEEDS)))
+  $(if $(HAVE_DESK),$(call seed_dirs,desk,$(MODES),$(SEEDS))) \
+  $(foreach d,$(SEQUENTIAL),$(call seed_dirs,$(d)-temporal,$(TEMPORAL_MODES),$(SEEDS)) \
+    $(call seed_dirs,$(d)-order,$(ABLATION_MODES),$(SEEDS)) $(call seed_dirs,$(d)-fixed-weight,$(ABLATION_MODES),$(SEEDS)))
 
 # The stages run in processes forked from scripts/stage_server.py, which has imported torch and the data
 # libraries once (`make report` alone runs each stage as a process of its own; the results are the same).
@@ -81,6 +95,7 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 
 MLN_SOURCES := $(wildcard stages/mln/*.py)
 TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
+RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/inference.py stages/sequences.py $(MLN_SOURCES)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
@@ -105,41 +120,73 @@ $(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py
 	$(FETCH_COLLECT) --train-frames \
 	  $$(awk 'BEGIN { n = int($* * $(FETCH_EPISODES) + 0.5); print (n < 1 ? 1 : n) * $(FETCH_EPISODE_FRAMES) }')
 
+# A folder that uses another's files (FOLDER, SOURCE, NAMES): each a link, never recomputed.
+define linked_files
+$(foreach name,$(3),$(RUNS)/$(1)/$(name)): $(RUNS)/$(1)/%: $(RUNS)/$(2)/%
+	@mkdir -p $$(@D) && ln -sfn ../$(2)/$$* $$@
+endef
+# Seed workdirs of FOLDER that run NETWORK of SOURCE's workdir of the same mode and seed (a link).
+define linked_network
+$(RUNS)/$(1)/%/models/$(3).pt: $(RUNS)/$(2)/%/models/$(3).pt | $(RUNS)/$(1)/%/.inputs-linked
+	@mkdir -p $$(@D) && ln -sfn ../../../../$(2)/$$*/models/$(3).pt $$@
+endef
+$(foreach d,$(SEQUENTIAL),\
+  $(eval $(call linked_files,$(d)-temporal,$(d),frames.parquet predicates.parquet)) \
+  $(eval $(call linked_files,$(d)-order,$(d),frames.parquet predicates.parquet)) \
+  $(eval $(call linked_files,$(d)-fixed-weight,$(d)-temporal,frames.parquet predicates.parquet weights.parquet)) \
+  $(eval $(call linked_network,$(d)-temporal,$(d),lstm)) $(eval $(call linked_network,$(d)-order,$(d),lstm)) \
+  $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)))
+
 .SECONDEXPANSION:
 .SECONDARY:  # keep every artifact the chain makes
 spec_of = $(if $(filter fetch-rich,$(1)),$(FETCH_RICH_SPEC),$(if $(filter desk,$(1)),$(DESK_SPEC),$(FETCH_SPEC)))
+formulas_of = $(if $(filter %-temporal,$(1)),$(TEMPORAL_SPEC),$(if $(filter %-order,$(1)),examples/$(1:%-order=%).order.mln,$(FORMULAS_SPEC)))
 
 $(RUNS)/%/predicates.parquet: $(RUNS)/%/frames.parquet $$(call spec_of,$$*) stages/binarize.py
 	$(STAGE) binarize --spec $(call spec_of,$*) --workdir $(@D)
 
-$(RUNS)/%/formulas.mln: $(RUNS)/%/predicates.parquet $(FORMULAS_SPEC) stages/formulas.py
-	$(STAGE) formulas --spec $(FORMULAS_SPEC) --workdir $(@D)
+$(RUNS)/%/formulas.mln: $(RUNS)/%/predicates.parquet $$(call formulas_of,$$*) stages/formulas.py
+	$(STAGE) formulas --spec $(call formulas_of,$*) --workdir $(@D)
 
+# pll for the paper's per-frame formulas, cll (exact conditional likelihood) where a formula uses Next.
 $(RUNS)/%/weights.parquet: $(RUNS)/%/formulas.mln stages/learn_weights.py $(MLN_SOURCES)
 	$(STAGE) learn-weights $< --workdir $(@D)
 
-# A seed workdir DATASET/MODE/seed-N links its dataset's frames, predicates and weights.
+# A seed workdir DATASET/MODE/seed-N links its dataset's frames, predicates and weights. In stream mode
+# the networks hold out a validation part (--select val_accuracy): it chooses their epoch, the decoded
+# methods' network factor weight and the method to deploy. Segment mode keeps the paper's protocol (last
+# epoch, no validation part).
 stem_word = $(word $(1),$(subst /, ,$*))
 dataset_dir = $(RUNS)/$(call stem_word,1)
-train_flags = --mode $(call stem_word,2) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
-  --epochs $(if $(filter desk,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS))
+mode_of = $(call stem_word,2)
+train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
+  --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
+  $(if $(filter stream,$(mode_of)),--select val_accuracy)
+# The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
+# only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
+networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\
+  $(if $(filter %-order %-fixed-weight,$(call stem_word,1)),,priorlayer))
+# Decoded: the sequential folders, and the paper datasets' stream workdirs (their ablation row).
+decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-fixed-weight) \
+  $(if $(filter stream,$(mode_of)),$(SEQUENTIAL)),$(call stem_word,1))
+conflate_flags = $(if $(decoded),--decode all) $(if $(filter %-fixed-weight,$(call stem_word,1)),--network-weight 1)
 
 $(RUNS)/%/.inputs-linked:
 	@mkdir -p $(@D) && for name in frames predicates weights; do ln -sfn ../../$$name.parquet $(@D)/$$name.parquet; done
 	@touch $@
 
 $(RUNS)/%/models/lstm.pt: $$(dataset_dir)/frames.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
-	$(STAGE) train --method lstm $(train_flags) --workdir $(RUNS)/$*
+	$(STAGE) $(strip train --method lstm $(train_flags) --workdir $(RUNS)/$*)
 
 $(RUNS)/%/models/priorlayer.pt: $$(dataset_dir)/frames.parquet $$(dataset_dir)/predicates.parquet \
   $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
-	$(STAGE) train --method priorlayer $(train_flags) --workdir $(RUNS)/$*
+	$(STAGE) $(strip train --method priorlayer $(train_flags) --workdir $(RUNS)/$*)
 
-$(RUNS)/%/predictions.parquet: $(RUNS)/%/models/lstm.pt $(RUNS)/%/models/priorlayer.pt stages/conflate.py \
-  $(MLN_SOURCES)
-	$(STAGE) conflate --workdir $(@D)
+$(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(n).pt) \
+  $$(foreach name,frames predicates weights,$$(dataset_dir)/$$(name).parquet) $(RECOGNIZER_SOURCES)
+	$(STAGE) $(strip conflate $(conflate_flags) --workdir $(@D))
 
-$(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet stages/eval.py
+$(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet stages/eval.py stages/metrics.py
 	$(STAGE) eval --method all --workdir $(@D)
 
 clean: ## Remove generated workdirs and reports (keeps .venv)

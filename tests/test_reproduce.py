@@ -1,8 +1,9 @@
 """`make report` (what `make reproduce` runs after set-up), reduced by its size variables, end to end.
 
-Tiny Fetch collection, the real DESK files, 1 seed, 2 epochs, 2 data-efficiency fractions, into a
-temporary RUNS and REPORTS; then the Make dependency behaviour: nothing to do on a second run, and a
-touched predicate spec reruns only what depends on it.
+Tiny Fetch collection, the real DESK files, 1 seed, 2 epochs, 2 data-efficiency fractions, the sequential
+logic's folders (decoded rows and ablation), into a temporary RUNS and REPORTS; then the Make dependency
+behaviour: nothing to do on a second run, and a touched predicate spec or temporal formulas file reruns
+only what depends on it.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from stages import artifacts, recognizer
 from stages.report import loading
 
 pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
@@ -21,8 +23,11 @@ pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
 REPORT_SECTIONS = (
     "## Table III", "### Do the paper's claims hold here?", "## Table IV", "## Fig. 7", "## Fig. 8",
     "## Confusion matrices", "## Data efficiency", "## Learned weights", "## Fetch: richer predicate spec",
-    "## Stream mode", "## Timings and machine", "## Hyper-parameters used", "## Differences from the paper",
+    "## Stream mode", "## Sequential logic: decoded methods", "## Ablation", "## Timeline of one test episode",
+    "## Which decoded method to deploy", "### Targets of issue 12", "## Timings and machine",
+    "## Hyper-parameters used", "## Differences from the paper",
 )
+SEQUENTIAL_FOLDERS = {f"{d}-{v}" for d in ("fetch", "desk") for v in ("temporal", "order", "fixed-weight")}
 
 
 @pytest.fixture(scope="module")
@@ -31,15 +36,19 @@ def reduced(tmp_path_factory, repo_root, shared_data) -> dict[str, Path | list[s
     if shutil.which("make") is None:
         pytest.skip("make is not installed")
     root = tmp_path_factory.mktemp("reproduce")
-    rich_spec = root / "fetch-rich.binarize.toml"  # a copy, so touching it leaves examples/ alone
-    shutil.copy(repo_root / "examples" / "fetch-rich.binarize.toml", rich_spec)
+    specs = {}
+    for name in ("fetch-rich.binarize.toml", "temporal.mln"):  # copies, so touching one leaves examples/ alone
+        specs[name] = root / name
+        shutil.copy(repo_root / "examples" / name, specs[name])
     command = [
         "make", "--no-print-directory", "-C", str(repo_root), f"RUNS={root / 'runs'}", f"REPORTS={root / 'reports'}",
         "SEEDS=0", "EPOCHS=2", "DESK_EPOCHS=2", "FETCH_EPISODES=4", "FRACTIONS=0.25 0.5",
-        f"DESK_DIR={shared_data / 'desk-taurus'}", f"FETCH_RICH_SPEC={rich_spec}",
+        f"DESK_DIR={shared_data / 'desk-taurus'}", f"FETCH_RICH_SPEC={specs['fetch-rich.binarize.toml']}",
+        f"TEMPORAL_SPEC={specs['temporal.mln']}",
     ]
     first = make(command, "-j2", "-Otarget", "report")
-    return {"root": root, "command": command, "rich_spec": rich_spec, "first": first}
+    return {"root": root, "command": command, "rich_spec": specs["fetch-rich.binarize.toml"],
+            "temporal_spec": specs["temporal.mln"], "first": first}
 
 
 def make(command: list, *args: str) -> subprocess.CompletedProcess:
@@ -55,13 +64,40 @@ def test_the_report_has_every_section_and_figure(reduced):
     for section in REPORT_SECTIONS:
         assert section in text, section
     figures = ["fig7_test_accuracy.png", "fig8_train_vs_test.png", "data_efficiency.png",
-               "confusion_fetch.png", "confusion_desk.png"]
+               "confusion_fetch.png", "confusion_desk.png", "timeline_fetch.png", "timeline_desk.png"]
     for name in figures:
         assert f"]({name})" in text
         assert (reports / name).read_bytes()[:4] == b"\x89PNG", name
     assert "**Not run:**" not in text
     assert set(loading.load_run(reduced["root"] / "runs").datasets) == {
-        "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5"}
+        "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5", *SEQUENTIAL_FOLDERS}
+    for dataset in ("fetch", "desk"):
+        assert f"- {dataset}: deploy **" in text and f"- {dataset}, chosen on validation (" in text
+
+
+def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(reduced):
+    runs = reduced["root"] / "runs"
+    for dataset in ("fetch", "desk"):
+        for variant in ("temporal", "order"):
+            for name in ("frames.parquet", "predicates.parquet"):
+                assert (runs / f"{dataset}-{variant}" / name).resolve() == (runs / dataset / name).resolve()
+        for mode in ("segment", "stream"):
+            lstm = runs / f"{dataset}-temporal" / mode / "seed-0" / "models" / "lstm.pt"
+            assert lstm.is_symlink() and lstm.resolve() == (runs / dataset / mode / "seed-0/models/lstm.pt").resolve()
+        stream = runs / f"{dataset}-temporal" / "stream" / "seed-0" / "models"
+        assert not (stream / "priorlayer.pt").is_symlink()  # trained on the temporal weights
+        assert not (runs / f"{dataset}-temporal" / "segment" / "seed-0" / "models" / "priorlayer.pt").exists()
+        assert not (runs / f"{dataset}-order" / "stream" / "seed-0" / "models" / "priorlayer.pt").exists()
+        fixed = runs / f"{dataset}-fixed-weight" / "stream" / "seed-0"
+        assert (fixed / "models" / "lstm.pt").resolve() == (stream / "lstm.pt").resolve()
+        meta = artifacts.read_metadata(fixed / artifacts.PREDICTIONS)
+        assert meta["network_weight_option"] == 1.0 and meta["network_weights"] == {}
+        assert meta["methods"] == [recognizer.decoded_name(m, d) for d in recognizer.DECODES
+                                   for m in ("lstm", "mln", "conflation")]
+        paper = artifacts.read_metadata(runs / dataset / "stream" / "seed-0" / artifacts.PREDICTIONS)
+        assert "conflation+filter" in paper["methods"] and paper["validation_frame_accuracy"]
+        assert artifacts.read_metadata(runs / dataset / "segment" / "seed-0" / artifacts.PREDICTIONS)["methods"] == [
+            "lstm", "mln", "priorlayer", "conflation", "combined"]
 
 
 def test_every_stage_prints_one_timed_summary(reduced):
@@ -79,14 +115,33 @@ def test_a_second_run_does_no_work(reduced):
     assert timings.read_text() == before
 
 
+def planned_after_touching(reduced, spec: Path) -> str:
+    """What `make -n report` would run once ``spec`` is newer than everything (its time restored after)."""
+    before = spec.stat()
+    os.utime(spec)
+    try:
+        return make(reduced["command"], "-n", "report").stdout
+    finally:
+        os.utime(spec, ns=(before.st_atime_ns, before.st_mtime_ns))
+
+
 def test_a_touched_spec_reruns_only_what_depends_on_it(reduced):
-    os.utime(reduced["rich_spec"])
-    planned = make(reduced["command"], "-n", "report").stdout
+    planned = planned_after_touching(reduced, reduced["rich_spec"])
     runs = reduced["root"] / "runs"
     stages = [line.split("/mlnseq ", 1)[1] for line in planned.splitlines() if "timed_stage.sh" in line]
     assert len(stages) == 7, planned  # binarize, formulas, learn-weights, train priorlayer, conflate, eval, report
     assert all(f"{runs}/fetch-rich" in s or s.startswith("report") for s in stages), planned
     assert not any("--method lstm" in s or s.startswith("collect") for s in stages), planned
+
+
+def test_a_touched_temporal_spec_reruns_only_the_sequential_folders(reduced):
+    planned = planned_after_touching(reduced, reduced["temporal_spec"])
+    stages = [line.split("/mlnseq ", 1)[1] for line in planned.splitlines() if "timed_stage.sh" in line]
+    touched = ("-temporal", "-fixed-weight")
+    assert all(any(t in s for t in touched) or s.startswith("report") for s in stages), planned
+    assert not any("--method lstm" in s or "-order" in s for s in stages), planned
+    # per dataset: formulas, learn-weights, priorlayer (stream), conflate and eval of 3 workdirs; then report
+    assert len(stages) == 2 * (2 + 1 + 3 + 3) + 1, planned
 
 
 def test_without_desk_the_fetch_half_still_runs(reduced, tmp_path):

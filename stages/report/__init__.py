@@ -3,8 +3,9 @@
 The run folder is laid out by the Makefile: ``RUNS/DATASET/`` holds a dataset's frames, predicates and
 MLN weights, ``RUNS/DATASET/MODE/seed-N/`` one training seed's models (with their per-epoch logs),
 predictions and metrics, and ``RUNS/timings.tsv`` one row per stage run (scripts/timed_stage.sh).
-Datasets: ``fetch`` and ``desk`` (the paper's splits), ``fetch-rich`` (the richer predicate spec) and
-``fetch-fraction-F`` (the first F of the Fetch episodes train: the data-efficiency curve).
+Datasets: ``fetch`` and ``desk`` (the paper's splits), ``fetch-rich`` (the richer predicate spec),
+``fetch-fraction-F`` (the first F of the Fetch episodes train: the data-efficiency curve) and, per paper
+dataset D, the sequential logic's ``D-temporal``, ``D-order`` and ``D-fixed-weight`` (``loading.VARIANTS``).
 
 One module per part: ``loading`` reads the folder into a :class:`Run`; the pure ``tables``, ``claims``,
 ``figures`` and ``rendering`` turn it into rows, statements, figures and Markdown; :func:`run` below writes
@@ -16,14 +17,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import polars as pl
+
 from stages import artifacts
 from stages.errors import BadInput
 from stages.report.figures import (
-    FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_train_vs_test, pyplot,
+    FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_timeline, figure_train_vs_test, pyplot,
 )
-from stages.report.loading import PAPER_DATASETS, load_run, present
+from stages.report.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from stages.report.rendering import render
-from stages.report.tables import efficiency_points
+from stages.report.tables import deploy_choices, efficiency_points, method_name
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,11 @@ def run(options: ReportOptions) -> ReportResult:
              FIGURES["efficiency"]: figure_efficiency(efficiency_points(loaded))}
     for dataset in present(loaded, PAPER_DATASETS):
         drawn[FIGURES["confusion"].format(dataset=dataset)] = figure_confusion(loaded, dataset)
+    timelines = {}
+    for dataset in PAPER_DATASETS:
+        drawn_timeline = timeline_of(loaded, dataset)
+        if drawn_timeline is not None:
+            timelines[dataset], drawn[FIGURES["timeline"].format(dataset=dataset)] = drawn_timeline
     written = []
     plt = pyplot()
     for name, figure in drawn.items():
@@ -63,7 +71,26 @@ def run(options: ReportOptions) -> ReportResult:
             figure.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
         plt.close(figure)
         written.append(out / name)
-    path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES))
+    path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines))
     n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
     return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)
 
+
+
+def timeline_of(run: Run, dataset: str):
+    """(what it shows, the figure) of one test episode of ``dataset`` in stream mode, the first seed: true labels,
+    the LSTM, and the online and offline methods chosen on validation; None where they were not run."""
+    choices = deploy_choices(run, dataset)
+    seeds = run.metrics.filter((pl.col("dataset") == dataset) & (pl.col("mode") == "stream"))["seed"]
+    if "filter" not in choices or "viterbi" not in choices or seeds.len() == 0:
+        return None
+    seed = int(seeds.min())
+    picks = {"LSTM": (dataset, "lstm")}
+    for decode in ("filter", "viterbi"):
+        choice = choices[decode]
+        picks[f"{method_name(choice['method'])}\n{choice['variant']}"] = (choice["folder"], choice["method"])
+    rows, episode = timeline(Path(run.runs), picks, "stream", seed)
+    rows = rows.rename({"label": "true labels"}).select("frame", "true labels", *picks)
+    what = (f"stream mode, seed {seed}, test episode {episode} (the first wholly in the test split), frames "
+            f"{rows['frame'][0]}–{rows['frame'][-1]}")
+    return what, figure_timeline(rows, run.datasets[dataset]["classes"], f"{dataset}: {what}")

@@ -13,6 +13,7 @@ FIGURES = {  # figure key -> its file name beside REPORT.md
     "fig8": "fig8_train_vs_test.png",
     "confusion": "confusion_{dataset}.png",
     "efficiency": "data_efficiency.png",
+    "timeline": "timeline_{dataset}.png",
 }
 
 
@@ -129,3 +130,31 @@ def figure_efficiency(points: pl.DataFrame):
     fig.tight_layout()
     return fig
 
+
+
+def figure_timeline(rows: pl.DataFrame, classes: list[str], title: str):
+    """One coloured bar per sequence (true labels, then each method's predictions) over the frames of ``rows``
+    (a ``frame`` column, then one column of class indices per bar, top to bottom)."""
+    plt = pyplot()
+    from matplotlib.patches import Patch
+
+    names = [c for c in rows.columns if c != "frame"]
+    frames = rows["frame"].to_numpy()
+    colours = plt.get_cmap("tab10").colors
+    fig, ax = plt.subplots(figsize=(12, 0.65 * len(names) + 1.8))
+    for i, name in enumerate(names):
+        values = rows[name].to_numpy()
+        starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])
+        stops = np.r_[starts[1:], len(values)]
+        for start, stop in zip(starts, stops):
+            ax.broken_barh([(frames[start], frames[stop - 1] - frames[start] + 1)], (i - 0.4, 0.8),
+                           facecolors=colours[int(values[start]) % len(colours)])
+    ax.set_yticks(range(len(names)), names)
+    ax.invert_yaxis()
+    ax.set_xlim(frames[0], frames[-1] + 1)
+    ax.set_title(title, fontsize=11)
+    ax.set_xlabel("frame of the episode", labelpad=2)
+    ax.legend(handles=[Patch(color=colours[k % len(colours)], label=c) for k, c in enumerate(classes)],
+              loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=min(len(classes), 4), fontsize=9, frameon=False)
+    fig.tight_layout()
+    return fig

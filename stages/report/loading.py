@@ -19,6 +19,14 @@ from stages.recognizer import NETWORKS
 
 PAPER_DATASETS = ("fetch", "desk")
 RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"
+# Sequential logic (issue 12): a paper dataset D's folders by suffix, what each decodes with (the Makefile's layout).
+VARIANTS = {
+    "": "no transitions",  # D: the paper's per-frame formulas, decoded with uniform transitions
+    "-temporal": "learned transitions",  # examples/temporal.mln: the decoded rows
+    "-order": "plus hard order",  # examples/D.order.mln
+    "-fixed-weight": "network factor weight fixed at 1",  # D-temporal decoded with --network-weight 1
+}
+TEMPORAL = "-temporal"
 TIMINGS = "timings.tsv"  # written by scripts/timed_stage.sh: started, seconds, stage, arguments
 SEED_DIR = re.compile(r"seed-(\d+)")
 
@@ -34,12 +42,23 @@ class Run:
     settings: dict[str, dict[str, Any]]  # stage -> option -> sorted distinct values used
     timings: pl.DataFrame  # started, seconds, stage, arguments (latest run of each command)
     machine: dict[str, str] = field(default_factory=dict)
+    # from predictions.parquet's metadata: frame accuracy on the networks' validation part, per method, and
+    # the decoded methods' chosen network factor weight (dataset, mode, seed, method, value)
+    validation: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=SEED_VALUE_SCHEMA))
+    network_weights: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=SEED_VALUE_SCHEMA))
+    notes: dict[tuple[str, str], list[str]] = field(default_factory=dict)  # (dataset, mode) -> conflate's notes
+    runs: Path | None = None  # the run folder (the timeline figure reads one workdir's predictions)
+
+
+SEED_VALUE_SCHEMA = {"dataset": pl.String, "mode": pl.String, "seed": pl.Int64, "method": pl.String,
+                     "value": pl.Float64}
 
 
 def load_run(runs: Path) -> Run:
     """Read every dataset folder and seed workdir of a run (see the module docstring)."""
     metrics, logs, settings = [], [], {}
     datasets, weights = {}, {}
+    validation, network_weights, notes = [], [], {}
     for frames_path in sorted(runs.glob(f"*/{artifacts.FRAMES}")):
         folder = frames_path.parent
         _, meta = artifacts.read_table(frames_path, "frames")
@@ -48,11 +67,14 @@ def load_run(runs: Path) -> Run:
         predicates_meta = artifacts.read_metadata(predicates) if predicates.exists() else {}
         datasets[folder.name] = {**meta, "n_frames": frames.height,
                                  "n_train": int((frames["split"] == "train").sum()),
-                                 "spec": predicates_meta.get("options", {}).get("spec", "–")}
+                                 "spec": predicates_meta.get("options", {}).get("spec", "–"),
+                                 "formulas": formulas_source(folder / artifacts.FORMULAS)}
         _note(settings, "binarize", predicates_meta.get("options", {}))
         if (folder / artifacts.WEIGHTS).exists():
             weights[folder.name], weights_meta = artifacts.read_table(folder / artifacts.WEIGHTS, "weights")
-            _note(settings, "learn-weights", {"engine": weights_meta.get("engine")})
+            datasets[folder.name]["objective"] = weights_meta.get("objective", "pll")
+            _note(settings, "learn-weights", {"engine": weights_meta.get("engine"),
+                                              "objective": weights_meta.get("objective"), "l2": weights_meta.get("l2")})
         for metrics_path in sorted(folder.glob(f"*/seed-*/{artifacts.METRICS}")):
             workdir = metrics_path.parent
             keys = {"dataset": folder.name, "mode": workdir.parent.name,
@@ -61,7 +83,17 @@ def load_run(runs: Path) -> Run:
             metrics.append(table.with_columns(**{k: pl.lit(v) for k, v in keys.items()}))
             _note(settings, "eval", metrics_meta.get("options", {}))
             predictions_meta = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")
-            _note(settings, "conflate", {"mln_mode": predictions_meta.get("mln_mode")})
+            _note(settings, "conflate", {"mln_mode": predictions_meta.get("mln_mode"),
+                                         "decode": ",".join(predictions_meta.get("decode", ["none"])),
+                                         "network_weight": predictions_meta.get("network_weight_option") or "auto"})
+            validation += [{**keys, "method": m, "value": v}
+                           for m, v in predictions_meta.get("validation_frame_accuracy", {}).items()]
+            network_weights += [{**keys, "method": m, "value": float(c["weight"])}
+                                for m, c in predictions_meta.get("network_weights", {}).items()]
+            for note in predictions_meta.get("notes", []):
+                notes.setdefault((folder.name, keys["mode"]), [])
+                if note not in notes[(folder.name, keys["mode"])]:
+                    notes[(folder.name, keys["mode"])].append(note)
             for method in NETWORKS:
                 log_path = artifacts.train_log_path(workdir, method)
                 if log_path.exists():
@@ -80,7 +112,17 @@ def load_run(runs: Path) -> Run:
         datasets=datasets, weights=weights,
         settings={stage: {k: sorted(v, key=str) for k, v in options.items()} for stage, options in settings.items()},
         timings=read_timings(runs / TIMINGS), machine=machine(),
+        validation=pl.DataFrame(validation, schema=SEED_VALUE_SCHEMA),
+        network_weights=pl.DataFrame(network_weights, schema=SEED_VALUE_SCHEMA), notes=notes, runs=runs,
     )
+
+
+def formulas_source(path: Path) -> str:
+    """The spec a dataset's formulas.mln was written from (its first line names it), or '–'."""
+    if not path.exists():
+        return "–"
+    found = re.match(r"// mlnseq formulas from (\S+):", path.read_text().split("\n", 1)[0])
+    return found.group(1) if found else "–"
 
 
 def _note(settings: dict[str, dict[str, set]], stage: str, options: dict[str, Any], skip: tuple[str, ...] = ()) -> None:
@@ -120,3 +162,24 @@ def present(run: Run, names: tuple[str, ...]) -> list[str]:
     """Those of ``names`` that the run has results for, in that order."""
     have = set(run.metrics["dataset"].unique().to_list())
     return [n for n in names if n in have]
+
+
+TIMELINE_FRAMES = 600  # at most this many frames from the start of the episode the timeline shows
+
+
+def timeline(runs: Path, picks: dict[str, tuple[str, str]], mode: str, seed: int) -> tuple[pl.DataFrame, int]:
+    """Labels and predictions of the first episode that lies wholly in the test split, its first
+    TIMELINE_FRAMES frames: a ``label`` column and one column per pick (row name -> (dataset folder, method)),
+    from ``runs/FOLDER/MODE/seed-SEED/predictions.parquet``; and that episode's number."""
+    columns, episode = {}, None
+    for name, (folder, method) in picks.items():
+        path = runs / folder / mode / f"seed-{seed}" / artifacts.PREDICTIONS
+        table = pl.read_parquet(path, columns=["episode", "frame", "split", "label", artifacts.pred_column(method)])
+        if episode is None:
+            mixed = table.filter(pl.col("split") != "test")["episode"].unique()
+            episode = table.filter(~pl.col("episode").is_in(mixed.implode()))["episode"][0]
+        rows = table.filter(pl.col("episode") == episode).sort("frame").head(TIMELINE_FRAMES)
+        columns.setdefault("frame", rows["frame"])
+        columns.setdefault("label", rows["label"])
+        columns[name] = rows[artifacts.pred_column(method)]
+    return pl.DataFrame(columns), int(episode)

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages.recognizer import METHODS
-from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, Run, present
+from stages.recognizer import DECODES, METHODS, decoded_name
+from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TEMPORAL, VARIANTS, Run, present
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
 PAPER_TABLE_III = {
@@ -18,6 +18,10 @@ PAPER_TABLE_III = {
 }
 METHOD_NAMES = {"lstm": "LSTM", "mln": "MLN", "priorlayer": "LSTM + PriorLayer",
                 "conflation": "LSTM + Conflation", "combined": "PriorLayer + Conflation (combined)"}
+DECODE_NAMES = {"none": "", "filter": " + filter (online)", "viterbi": " + Viterbi (offline)"}
+SEQUENCE_METRICS = ("segment_accuracy", "frame_accuracy", "edit", "f1@50")
+ABLATION_METHODS = ("lstm", "mln", "conflation")  # no retraining: every variant has them
+DEPLOY_VARIANTS = ("", TEMPORAL, "-order")  # what a user may deploy (fixed-weight is an ablation of TEMPORAL)
 STAGE_ORDER = ("collect", "binarize", "formulas", "learn-weights", "train", "conflate", "eval", "report")
 
 
@@ -108,6 +112,121 @@ def confusion_matrix(run: Run, dataset: str, method: str) -> np.ndarray:
     return matrix
 
 
+def method_name(name: str) -> str:
+    """'LSTM + Conflation + Viterbi (offline)' for 'conflation+viterbi'."""
+    method, _, decode = name.partition("+")
+    return METHOD_NAMES[method] + DECODE_NAMES[decode or "none"]
+
+
+def sequence_stats(run: Run, mode: str = "stream") -> dict[str, pl.DataFrame]:
+    """Per metric of SEQUENCE_METRICS: mean and std over seeds per dataset folder and method, in one mode."""
+    return {m: method_stats(run, m, mode=mode) for m in SEQUENCE_METRICS}
+
+
+def validation_stats(run: Run, mode: str = "stream") -> pl.DataFrame:
+    """Frame accuracy (%) on the networks' validation part, mean and std over seeds, per dataset folder and method."""
+    return (run.validation.filter(pl.col("mode") == mode).group_by(["dataset", "method"], maintain_order=True)
+            .agg((pl.col("value") * 100).mean().alias("mean"), (pl.col("value") * 100).std().alias("std"),
+                 pl.col("seed").n_unique().alias("seeds")))
+
+
+def weight_cell(run: Run, folder: str, mode: str, method: str) -> str:
+    """The network factor's weight of a decoded method: its values over seeds ('0.25, 0.5'), or '–'."""
+    if folder.endswith("-fixed-weight") and not method.startswith("mln"):
+        return "1 (fixed)"
+    chosen = run.network_weights.filter((pl.col("dataset") == folder) & (pl.col("mode") == mode)
+                                        & (pl.col("method") == method))["value"]
+    return ", ".join(f"{w:g}" for w in sorted(chosen.unique())) if chosen.len() else "–"
+
+
+def sequence_row(run: Run, stats: dict[str, pl.DataFrame], folder: str, mode: str, method: str) -> list[str]:
+    return [fmt(*lookup(stats[m], dataset=folder, method=method)) for m in SEQUENCE_METRICS]
+
+
+def decoded_table(run: Run) -> list[list[str]]:
+    """The decoded rows: per paper dataset and mode, every method of DATASET-temporal undecoded and decoded."""
+    rows = []
+    for mode in ("segment", "stream"):
+        stats, validation = sequence_stats(run, mode), validation_stats(run, mode)
+        for dataset in PAPER_DATASETS:
+            folder = dataset + TEMPORAL
+            for decode in DECODES:
+                for method in METHODS:
+                    name = decoded_name(method, decode)
+                    if lookup(stats["segment_accuracy"], dataset=folder, method=name)[0] is None:
+                        continue
+                    rows.append([dataset, mode, method_name(name), *sequence_row(run, stats, folder, mode, name),
+                                 weight_cell(run, folder, mode, name),
+                                 fmt(*lookup(validation, dataset=folder, method=name))])
+    return rows
+
+
+def ablation_table(run: Run, dataset: str) -> list[list[str]]:
+    """Stream mode, per decoded method of ABLATION_METHODS: each variant of VARIANTS that has it."""
+    stats, validation = sequence_stats(run), validation_stats(run)
+    rows = []
+    for method in ABLATION_METHODS:
+        for decode in DECODES[1:]:
+            name = decoded_name(method, decode)
+            for suffix, variant in VARIANTS.items():
+                folder = dataset + suffix
+                if lookup(stats["segment_accuracy"], dataset=folder, method=name)[0] is None:
+                    continue
+                if method == "mln" and suffix == "-fixed-weight":
+                    continue  # the MLN alone has no network factor
+                rows.append([method_name(name), variant, *sequence_row(run, stats, folder, "stream", name),
+                             weight_cell(run, folder, "stream", name),
+                             fmt(*lookup(validation, dataset=folder, method=name))])
+    return rows
+
+
+def deploy_choices(run: Run, dataset: str) -> dict[str, dict[str, Any]]:
+    """Per decoding (filter, viterbi), the decoded method of a DEPLOY_VARIANTS folder with the best mean frame
+    accuracy on the validation part (stream mode; ties: the first in that order and METHODS order, the others
+    listed under ``ties``), with its validation and test figures; and ``best_on_test`` per metric (optimistic:
+    chosen on test)."""
+    stats, validation = sequence_stats(run), validation_stats(run)
+    candidates = []
+    for suffix in DEPLOY_VARIANTS:
+        for decode in DECODES[1:]:
+            for method in METHODS:
+                name = decoded_name(method, decode)
+                value = lookup(validation, dataset=dataset + suffix, method=name)[0]
+                if value is not None and lookup(stats["segment_accuracy"], dataset=dataset + suffix,
+                                                method=name)[0] is not None:
+                    candidates.append({"folder": dataset + suffix, "variant": VARIANTS[suffix], "method": name,
+                                       "decode": decode, "validation": value,
+                                       **{m: lookup(stats[m], dataset=dataset + suffix, method=name)
+                                          for m in SEQUENCE_METRICS}})
+    choices: dict[str, Any] = {}
+    for decode in DECODES[1:]:
+        kind = [c for c in candidates if c["decode"] == decode]
+        if kind:
+            best = max(kind, key=lambda c: c["validation"])  # max keeps the first of equals
+            ties = [c for c in kind if c is not best and np.isclose(c["validation"], best["validation"], atol=1e-9)]
+            choices[decode] = {**best, "ties": ties}
+    if candidates:
+        choices["best_on_test"] = {m: max(candidates, key=lambda c: c[m][0] if c[m][0] is not None else -np.inf)
+                                   for m in SEQUENCE_METRICS}
+        choices["best_on_test_by_decode"] = {
+            d: max((c for c in candidates if c["decode"] == d), key=lambda c: c["frame_accuracy"][0])
+            for d in DECODES[1:] if any(c["decode"] == d for c in candidates)}
+    return choices
+
+
+def deploy_table(run: Run) -> list[list[str]]:
+    """Per paper dataset, stream mode: the online and the offline method chosen on validation, with test figures."""
+    rows = []
+    for dataset in PAPER_DATASETS:
+        choices = deploy_choices(run, dataset)
+        for decode, kind in (("filter", "online"), ("viterbi", "offline")):
+            if decode in choices:
+                c = choices[decode]
+                rows.append([dataset, kind, method_name(c["method"]), f"{c['variant']} (`{c['folder']}`)",
+                             fmt(c["validation"]), str(len(c["ties"])), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
+    return rows
+
+
 def stream_table(run: Run) -> list[list[str]]:
     """Stream mode (no segment boundaries at test): segment accuracy, edit and F1@k, mean ± std."""
     columns = ("segment_accuracy", "frame_accuracy", "edit", "f1@10", "f1@25", "f1@50")
@@ -167,15 +286,17 @@ def weights_table(run: Run, dataset: str, per_class: int = 3) -> list[list[str]]
 
 
 def datasets_table(run: Run) -> list[list[str]]:
-    """What each dataset folder holds: source, frames, training frames, features, predicate spec, epochs."""
+    """What each dataset folder holds: source, frames, training frames, features, predicate spec, formulas
+    (the spec and the weights' objective), epochs."""
     rows = []
     for name, d in sorted(run.datasets.items()):
         options = d.get("options", {})
         source = d.get("source", "?") + (f", {options['episodes']} episodes, seed {options['seed']}"
                                          if d.get("source") == "fetch" else "")
         epochs = run.logs.filter(pl.col("dataset") == name)["epoch"].max()
+        formulas = d.get("formulas", "–") + (f" ({d['objective']})" if "objective" in d else "")
         rows.append([name, source, f"{d['n_frames']:,}", f"{d['n_train']:,}", str(len(d["features"])), d["spec"],
-                     "–" if epochs is None else str(epochs)])
+                     formulas, "–" if epochs is None else str(epochs)])
     return rows
 
 

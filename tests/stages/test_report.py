@@ -15,8 +15,9 @@ from stages.report import claims, loading, tables
 
 
 @pytest.fixture(scope="module")
-def desk_run(tmp_path_factory, desk_mln_workdir) -> Path:
-    """RUNS/desk/{segment,stream}/seed-0 laid out as `make reproduce` does, from the shared DESK artifacts."""
+def desk_run(tmp_path_factory, desk_mln_workdir, desk_stream_workdir) -> Path:
+    """RUNS/desk/{segment,stream}/seed-0 laid out as `make reproduce` does, from the shared DESK artifacts, and
+    RUNS/desk-temporal/stream/seed-0 from the decoded stream workdir (examples/temporal.mln, a validation part)."""
     runs = tmp_path_factory.mktemp("runs")
     dataset = runs / "desk"
     dataset.mkdir()
@@ -31,6 +32,17 @@ def desk_run(tmp_path_factory, desk_mln_workdir) -> Path:
             train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0))
         conflate.run(workdir, conflate.ConflateOptions())
         evaluation.run(workdir, evaluation.EvalOptions())
+    temporal = runs / "desk-temporal"
+    workdir = temporal / "stream" / "seed-0"
+    (workdir / artifacts.MODELS_DIR).mkdir(parents=True)
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.FORMULAS, artifacts.WEIGHTS):
+        shutil.copy(desk_stream_workdir / name, temporal / name)
+        if name != artifacts.FORMULAS:
+            (workdir / name).symlink_to(Path("../..") / name)
+    for method in train.METHODS:
+        shutil.copy(artifacts.checkpoint_path(desk_stream_workdir, method), artifacts.checkpoint_path(workdir, method))
+    shutil.copy(desk_stream_workdir / artifacts.PREDICTIONS, workdir / artifacts.PREDICTIONS)
+    evaluation.run(workdir, evaluation.EvalOptions())
     (runs / loading.TIMINGS).write_text(
         "2026-01-01T00:00:00\t3.5\tcollect\t--env desk\n2026-01-01T00:00:04\t2.0\ttrain\t--method lstm\n"
         "2026-01-01T00:00:09\t1.0\ttrain\t--method lstm\n"
@@ -43,9 +55,17 @@ def loaded(desk_run) -> loading.Run:
     return loading.load_run(desk_run)
 
 
-def test_load_run_reads_every_seed_workdir(loaded):
+def test_load_run_reads_every_seed_workdir(loaded, desk_stream_workdir):
     assert set(loaded.metrics["mode"].unique()) == {"segment", "stream"}
-    assert set(loaded.metrics["dataset"].unique()) == {"desk"}
+    assert set(loaded.metrics["dataset"].unique()) == {"desk", "desk-temporal"}
+    meta = artifacts.read_metadata(desk_stream_workdir / artifacts.PREDICTIONS)
+    validation = loaded.validation.filter(pl.col("dataset") == "desk-temporal")
+    assert dict(validation.select("method", "value").iter_rows()) == meta["validation_frame_accuracy"]
+    weights = loaded.network_weights.filter(pl.col("dataset") == "desk-temporal")
+    assert dict(weights.select("method", "value").iter_rows()) == {
+        m: c["weight"] for m, c in meta["network_weights"].items()}
+    assert loaded.datasets["desk-temporal"]["formulas"] == "temporal.mln"
+    assert loaded.datasets["desk-temporal"]["objective"] == "cll"
     assert set(loaded.logs["epoch"].unique()) == {1, 2}
     assert loaded.datasets["desk"]["n_train"] == 1405
     assert loaded.settings["train"]["epochs"] == [2]
@@ -95,14 +115,66 @@ def test_wall_seconds_spans_first_start_to_last_end(loaded):
     assert tables.timings_table(loaded.timings)[1][:2] == ["train", "1"]  # the latest run of a command only
 
 
+def test_decoded_rows_come_from_the_temporal_folder(loaded):
+    rows = tables.decoded_table(loaded)
+    assert {(r[0], r[1]) for r in rows} == {("desk", "stream")}
+    assert [r[2] for r in rows][:len(recognizer.METHODS)] == [tables.METHOD_NAMES[m] for m in recognizer.METHODS]
+    viterbi = next(r for r in rows if r[2] == "LSTM + Conflation + Viterbi (offline)")
+    frame = loaded.metrics.filter((pl.col("dataset") == "desk-temporal") & (pl.col("method") == "conflation+viterbi")
+                                  & (pl.col("metric") == "frame_accuracy"))["value"][0]
+    assert viterbi[4] == f"{100 * frame:.1f}"
+    chosen = loaded.network_weights.filter(pl.col("method") == "conflation+viterbi")["value"][0]
+    assert viterbi[7] == f"{chosen:g}"
+
+
+def sequence_run(test: dict[str, float], validation: dict[str, float]) -> loading.Run:
+    """A Run of two seeds whose DESK stream folders score each (folder, method) as given (test frame accuracy and
+    segment accuracy alike, edit 95), and the same on validation."""
+    metrics, checked = [], []
+    for (folder, method), value in test.items():
+        for seed in (0, 1):
+            for metric, scaled in (("segment_accuracy", value), ("frame_accuracy", value), ("edit", 95.0 * 100)):
+                metrics.append((folder, "stream", seed, method, metric, "", scaled / 100))
+            checked.append((folder, "stream", seed, method, validation[(folder, method)] / 100))
+    schema = ["dataset", "mode", "seed", "method", "metric", "item", "value"]
+    return loading.Run(pl.DataFrame(metrics, schema=schema, orient="row"), pl.DataFrame(), {}, {}, {},
+                       loading.read_timings(Path("absent.tsv")),
+                       validation=pl.DataFrame(checked, schema=loading.SEED_VALUE_SCHEMA, orient="row"))
+
+
+def test_the_method_to_deploy_is_chosen_on_validation_never_on_test():
+    run = sequence_run(
+        test={("desk-temporal", "conflation+viterbi"): 80.0, ("desk-temporal", "mln+viterbi"): 60.0,
+              ("desk-order", "conflation+filter"): 76.0, ("desk", "lstm+filter"): 50.0},
+        validation={("desk-temporal", "conflation+viterbi"): 70.0, ("desk-temporal", "mln+viterbi"): 90.0,
+                    ("desk-order", "conflation+filter"): 75.0, ("desk", "lstm+filter"): 76.0})
+    choices = tables.deploy_choices(run, "desk")
+    assert (choices["viterbi"]["folder"], choices["viterbi"]["method"]) == ("desk-temporal", "mln+viterbi")
+    assert (choices["filter"]["folder"], choices["filter"]["method"]) == ("desk", "lstm+filter")
+    assert choices["best_on_test"]["segment_accuracy"]["method"] == "conflation+viterbi"
+    lines = claims.target_checks(run)
+    honest = next(line for line in lines if "chosen on validation (" in line)
+    assert "MLN + Viterbi (offline), learned transitions" in honest
+    assert "segment accuracy 60.0 ± 0.0 (target ≥ 74: **missed**)" in honest and "edit 95.0 ± 0.0 (target ≥ 90: met)" in honest
+    optimistic = next(line for line in lines if "**optimistic**" in line)
+    assert "segment accuracy 80.0 ± 0.0 (LSTM + Conflation + Viterbi (offline), learned transitions; ≥ 74: met)" in optimistic
+    gap = next(line for line in lines if "(chosen on validation):" in line)
+    assert "offline − online +10.0: **missed**" in gap
+    assert "deploy **LSTM + filter (online), no transitions** (`desk`)" in claims.deploy_sentence(run, "desk")
+    assert claims.deploy_sentence(run, "fetch") is None and not any(line.startswith("fetch") for line in lines)
+
+
 def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
     result = report.run(report.ReportOptions(runs=desk_run, out=tmp_path))
     text = result.path.read_text()
     assert "**Not run:** fetch" in text
-    for name in ("fig7_test_accuracy.png", "fig8_train_vs_test.png", "confusion_desk.png", "data_efficiency.png"):
+    for name in ("fig7_test_accuracy.png", "fig8_train_vs_test.png", "confusion_desk.png", "data_efficiency.png",
+                 "timeline_desk.png"):
         assert f"({name})" in text
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
-    assert result.n_seed_runs == 2
+    assert "desk: stream mode, seed 0, test episode 1 (the first wholly in the test split), frames 0–599" in text
+    assert "- desk: deploy **" in text and "- desk, chosen on validation (" in text
+    assert result.n_seed_runs == 3
 
 
 def test_a_folder_without_results_is_bad_input(tmp_path):
