@@ -27,7 +27,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 CLIP = 300.0
 
@@ -582,6 +581,8 @@ def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, c
         else:
             moved[blocks[:, :, None], classes[:, None], pair_columns[i].reshape(n_blocks, 1, -1)] -= mean
         return moved
+
+    from scipy import sparse  # learning only: recognising a chain needs numpy alone
 
     width = n_blocks * n_classes  # frames' unary counts at one position, weighted by gamma: a sparse [n_unary, B * C]
     gathered = sparse.csc_matrix((gamma.reshape(-1), (unary_columns.reshape(-1), np.arange(length * width))),
