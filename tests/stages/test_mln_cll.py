@@ -41,13 +41,16 @@ def held_out(table: pl.DataFrame, by_episode: bool) -> pl.DataFrame:
     return train.with_columns(pl.when(fit).then(pl.lit("train")).otherwise(pl.lit("test")).alias("split"))
 
 
-def test_gradient_matches_finite_differences(shared_data: Path) -> None:
-    table = desk_predicates(shared_data, train_limit=200)[0]
-    mln = parse_mln(MIXED, "mixed.mln")
-    training = stage.training_data(table, 7)
-    expanded, _, _ = expand_templates(mln.formulas, training.space)
+def mixed_objective(shared_data: Path, frames: int, l2: float) -> tuple[cll.Objective, object]:
+    """The CLL objective of MIXED on the first ``frames`` DESK training frames, and their training data."""
+    training = stage.training_data(desk_predicates(shared_data, train_limit=frames)[0], 7)
+    expanded, _, _ = expand_templates(parse_mln(MIXED, "mixed.mln").formulas, training.space)
     states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(7)))
-    objective = cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=0.1)
+    return cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=l2), training
+
+
+def test_gradient_matches_finite_differences(shared_data: Path) -> None:
+    objective, _ = mixed_objective(shared_data, 200, l2=0.1)
     assert objective.temporal.any() and (~objective.temporal).any() and (~objective.learned).sum() == 2
     rng = np.random.default_rng(0)
     weights = rng.normal(size=int(objective.learned.sum()))
@@ -61,11 +64,7 @@ def test_gradient_matches_finite_differences(shared_data: Path) -> None:
 
 
 def test_hessian_matches_finite_differences_of_the_gradient(shared_data: Path) -> None:
-    table = desk_predicates(shared_data, train_limit=150)[0]
-    training = stage.training_data(table, 7)
-    expanded, _, _ = expand_templates(parse_mln(MIXED, "mixed.mln").formulas, training.space)
-    states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(7)))
-    objective = cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=0.1)
+    objective, _ = mixed_objective(shared_data, 150, l2=0.1)
     weights = np.random.default_rng(2).normal(size=int(objective.learned.sum()))
     hessian = objective.hessian(weights)
     assert np.allclose(hessian, hessian.T) and np.linalg.eigvalsh(hessian).min() > 0
@@ -92,11 +91,7 @@ def test_learned_weights_are_the_optimum(shared_data: Path) -> None:
 
 
 def test_objective_is_the_chain_conditional_likelihood(shared_data: Path) -> None:
-    table = desk_predicates(shared_data, train_limit=120)[0]
-    training = stage.training_data(table, 7)
-    expanded, _, _ = expand_templates(parse_mln(MIXED, "mixed.mln").formulas, training.space)
-    states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(7)))
-    objective = cll.Objective(expanded, training.evidence, training.labels, training.starts, states, l2=0.5)
+    objective, training = mixed_objective(shared_data, 120, l2=0.5)
     weights = np.random.default_rng(1).normal(size=int(objective.learned.sum()))
     factors = objective.factors(objective.full(weights))
     expected = chain.path_score(factors, training.labels) - chain.log_partition(factors) - 0.25 * weights @ weights
