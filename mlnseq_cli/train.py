@@ -25,7 +25,7 @@ def train(
     mode: Annotated[str, typer.Option(help="segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.")] = Defaults.mode,
     cell: Annotated[str, typer.Option(help="Recurrent cell: lstm or gru.")] = Defaults.cell,
     prior: Annotated[str, typer.Option(help="priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).")] = Defaults.prior,
-    select: Annotated[str, typer.Option(help="none: keep the last epoch; val_accuracy: hold out the last 20% of training sequences and keep the best epoch on them.")] = Defaults.select,
+    select: Annotated[str, typer.Option(help="none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, keep the best epoch on it.")] = Defaults.select,
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
     train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, 0 < F <= 1.")] = Defaults.train_fraction,
     batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,

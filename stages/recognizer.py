@@ -344,7 +344,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     evidence = predicates.select(columns).to_numpy().astype(bool)
     unvalidated = sorted(n for n, c in checkpoints.items() if not c.config.get("val_spans"))
     if unvalidated and network_weight is None:
-        notes.append(f"{', '.join(unvalidated)} trained without a validation part (`train --select val_accuracy`): "
+        notes.append(f"{', '.join(unvalidated)} trained without a validation part (`train --select last` or `val_accuracy`): "
                      "its decoded methods keep the network factor's weight 1")
     split_parts = np.where(data.splits == "test", "test", "train")
     for kind in decoding:

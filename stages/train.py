@@ -3,10 +3,11 @@
 The core (:func:`fit`) works on arrays; :func:`run` reads ``frames.parquet`` (and, for PriorLayer,
 ``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log.
 
-Validation part: with ``select="val_accuracy"`` the last ``val_fraction`` of the training units
-(segments in segment mode, windows in stream mode, in file order) is held out of training and the
-epoch with the best frame accuracy on it is kept. Without selection every training unit is used
-and the last epoch is kept. The test split is only ever logged (for the curves), never used.
+Validation part: with ``select="last"`` or ``"val_accuracy"`` the last ``val_fraction`` of the training
+units (segments in segment mode, windows in stream mode, in file order) is held out of training and scored
+each epoch; the checkpoint records it, and conflate chooses its weights on it. ``last`` keeps the last
+epoch, ``val_accuracy`` the epoch with the best frame accuracy on that part. With ``none`` every training
+unit is used and the last epoch is kept. The test split is only ever logged (for the curves), never used.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ if TYPE_CHECKING:  # torch loads only when a network is built or run
     from stages.models import ModelConfig, SequenceClassifier
 
 METHODS = NETWORKS
-SELECTS = ("none", "val_accuracy")
+SELECTS = ("none", "last", "val_accuracy")
 DEVICES = ("auto", "cpu", "cuda")
 INFERENCE_BATCH = 256
 
@@ -116,9 +117,9 @@ def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, li
     if not units:
         raise BadInput("frames.parquet has no training frames: rerun `mlnseq collect` with a training split")
     val_units: list[slice] = []
-    if options.select == "val_accuracy":
+    if options.select != "none":
         if len(units) < 2:
-            raise BadInput("--select val_accuracy needs at least 2 training sequences; use --select none")
+            raise BadInput(f"--select {options.select} needs at least 2 training sequences; use --select none")
         n_val = max(1, round(options.val_fraction * len(units)))
         units, val_units = units[:-n_val], units[-n_val:]
     fit_units = units[: max(1, math.ceil(options.train_fraction * len(units)))]

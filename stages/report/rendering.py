@@ -130,8 +130,9 @@ def differences(run: Run) -> list[str]:
         "DESK test frames carry only the arm distance and the two gripper openings, so on DESK the recurrent "
         "models see those three channels, not the 14 kinematics of the training file.",
         "Headline numbers are the last epoch's in segment mode (the paper's protocol), mean ± std over training "
-        "seeds; in stream mode the networks keep the epoch with the best frame accuracy on a validation part held "
-        "out of the training split (`train --select val_accuracy`). No epoch is chosen on the test split. The "
+        "seeds, also in stream mode, where the networks hold out a validation part of the training split on which "
+        "the decoded methods' weights and the method to deploy are chosen (`train --select last`). No epoch is "
+        "chosen on the test split. The "
         "published Table III numbers match single best epochs of the authors' test curves (there was no "
         "validation split); the optimistic column above shows what that selection does here.",
         "The figures' per-epoch curves are frame accuracy; Table III is segment accuracy at half a segment.",

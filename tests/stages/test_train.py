@@ -127,3 +127,12 @@ def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatc
         train.run(desk_workdir, train.TrainOptions(epochs=1, seed=1))
     assert path.read_bytes() == before
     assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
+
+
+def test_select_last_holds_out_a_validation_part_and_keeps_the_last_epoch(desk_workdir):
+    result = train.run(desk_workdir, train.TrainOptions(epochs=3, select="last", mode="stream"))
+    trained = result.trained
+    assert trained.kept_epoch == 3 and trained.n_val_units > 0
+    assert trained.log.filter(pl.col("split") == "val").height == 3
+    spans = recognizer.load_checkpoint(desk_workdir, "lstm").config["val_spans"]
+    assert [tuple(s) for s in spans] == trained.val_spans and spans
