@@ -3,7 +3,7 @@
 The file is a zip: ``manifest.json`` (format version, mlnseq version, method, decoding and its network
 factor weight, classes, features in order, the source, the predicate columns, the network's
 configuration, the input digests, notes), the predicate spec ``binarize.toml``, the MLN's
-``weights.parquet`` and the network's checkpoint ``network.pt`` (with its standardisation). A method
+``weights.parquet`` and the network's arrays ``network.npz`` (with its standardisation). A method
 that needs no MLN (lstm, undecoded) carries no spec and no weights.
 """
 

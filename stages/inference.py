@@ -59,7 +59,7 @@ class Network:
         return ((np.asarray(features, dtype=np.float32) - self.mean) / self.std).astype(np.float64)
 
     def initial_state(self, batch: int) -> State:
-        zeros = np.zeros((batch, int(self.config["hidden_size"])))
+        zeros = np.zeros((batch, self._size))
         return (zeros, zeros.copy()) if self.config["cell"] == "lstm" else zeros
 
     def cell(self, x: np.ndarray, state: State) -> tuple[np.ndarray, State]:
@@ -101,7 +101,7 @@ class Network:
             batch = ordered[i : i + 256]
             x = sequences.pad(batch, x_all)
             p = None if prior is None else sequences.pad(batch, np.asarray(prior, dtype=np.float64))
-            state, hidden = self.initial_state(len(batch)), np.zeros((*x.shape[:2], int(self.config["hidden_size"])))
+            state, hidden = self.initial_state(len(batch)), np.zeros((*x.shape[:2], self._size))
             for t in range(x.shape[1]):
                 hidden[:, t], state = self.cell(x[:, t], state)
             log_probs = self.head(hidden, p)

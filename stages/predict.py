@@ -53,8 +53,9 @@ class Predicted:
     episodes: int
 
 
-def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> pl.DataFrame:
-    """Per frame of ``frames`` (keys and the model's features): its keys, class name and probabilities."""
+def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
+    """Per frame of ``frames`` (keys and the model's features): its keys, class name and probabilities; and
+    the predicted class indices."""
     probabilities, predicted = model.predict(frames.select(model.features).to_numpy(), frames["episode"].to_numpy(),
                                              decode)
     keys = frames.select("episode", "frame", *(["label"] if (frames["label"] >= 0).all() else []))
@@ -62,7 +63,7 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
         pl.Series("class", np.array(model.classes)[predicted], dtype=pl.String),
         *(pl.Series(probability_column(name), probabilities[:, k], dtype=pl.Float32)
           for k, name in enumerate(model.classes)),
-    )
+    ), predicted
 
 
 def run(options: PredictOptions) -> Predicted:
@@ -72,10 +73,9 @@ def run(options: PredictOptions) -> Predicted:
     columns = TableColumns(label=options.columns.label, episode=options.columns.episode, time=options.columns.time,
                            features=tuple(model.features), classes=tuple(model.classes))
     frames, meta = import_table(Path(options.source), columns, for_prediction=True)
-    table = predict(model, frames, options.decode)
+    table, predicted = predict(model, frames, options.decode)
     scores = None
     if meta["labelled"]:
-        predicted = np.array([model.classes.index(c) for c in table["class"]])
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
     decode = options.decode or model.decode

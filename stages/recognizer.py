@@ -562,11 +562,17 @@ class Recognizer:
 
         row = np.frombuffer(evidence, dtype=bool)[None]
         scores = frame_scores(self._per_frame, row, self.columns, len(self.classes), classifier.HARD_WEIGHT)
-        source = self.manifest.get("source", "")
-        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))[0]
-        prior = None if self.prior is None else prior_input(scores, self.prior, source)[0]
+        p_mln, prior = self._mln_outputs(scores)
         unary = self.mln.unary(row)[0] if self.mln is not None else None
-        return p_mln, prior, unary
+        return p_mln[0], None if prior is None else prior[0], unary
+
+    def _mln_outputs(self, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The MLN's class probabilities [n, C] from its class scores, and PriorLayer's input if the network has one."""
+        from stages.mln import classifier
+
+        source = self.manifest.get("source", "")
+        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))
+        return p_mln, None if self.prior is None else prior_input(scores, self.prior, source)
 
     # -- whole recordings --------------------------------------------------------------------------
 
@@ -585,7 +591,7 @@ class Recognizer:
         episodes = np.zeros(len(features), dtype=np.int64) if episodes is None else np.asarray(episodes)
         spans = sequences.runs(episodes)
         starts = chain.chain_starts(episodes)
-        scores = p_mln = prior = evidence = None
+        p_mln = prior = evidence = None
         if self.spec is not None:
             from stages.mln import classifier
 
@@ -594,11 +600,7 @@ class Recognizer:
             frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
             predicates = binarize(frames, self.spec)
             evidence = predicates.select(self.columns).to_numpy().astype(bool)
-            scores = classifier.class_scores(predicates, self.weights, len(self.classes))
-            source = self.manifest.get("source", "")
-            p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))
-            if self.prior is not None:
-                prior = prior_input(scores, self.prior, source)
+            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, len(self.classes)))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)

@@ -257,7 +257,7 @@ def fit(
             progress(EpochDone(epoch, options.epochs, measured["train"][1], measured["train"][0],
                                None if val is None else val[0]))
         if options.select == "val_accuracy":
-            accuracy = _accuracy_and_loss(log_probs, data.labels, part_rows["val"])[0]
+            accuracy = measured["val"][0]
             if accuracy > best_accuracy:
                 best_accuracy, kept_epoch = accuracy, epoch
                 best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
