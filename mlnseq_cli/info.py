@@ -21,8 +21,7 @@ def info(
     """Read MODEL (.mlnseq); print its method and decoding, classes, features, network, MLN formulas, notes, the mlnseq version that wrote it and the digests of the workdir files it came from."""
     with reported_errors():
         entries = recognizer.read_model(model)
-        recognizer.Recognizer(entries, str(model))  # loads, or says in one line why it cannot
-    manifest = json.loads(entries[recognizer.MANIFEST])
+        manifest = recognizer.Recognizer(entries, str(model)).manifest  # loads, or says in one line why it cannot
     if as_json:
         print(json.dumps(manifest, indent=1, sort_keys=True))
         return

@@ -139,8 +139,11 @@ def weight_cell(run: Run, folder: str, mode: str, method: str) -> str:
     return ", ".join(f"{w:g}" for w in sorted(chosen.unique())) if chosen.len() else "–"
 
 
-def sequence_row(run: Run, stats: dict[str, pl.DataFrame], folder: str, mode: str, method: str) -> list[str]:
-    return [fmt(*lookup(stats[m], dataset=folder, method=method)) for m in SEQUENCE_METRICS]
+def decoded_cells(run: Run, stats: dict[str, pl.DataFrame], validation: pl.DataFrame, folder: str, mode: str,
+                  method: str) -> list[str]:
+    """A decoded-method row's figures: SEQUENCE_METRICS on test, the network factor's weight, validation accuracy."""
+    return [*(fmt(*lookup(stats[m], dataset=folder, method=method)) for m in SEQUENCE_METRICS),
+            weight_cell(run, folder, mode, method), fmt(*lookup(validation, dataset=folder, method=method))]
 
 
 def decoded_table(run: Run) -> list[list[str]]:
@@ -155,9 +158,8 @@ def decoded_table(run: Run) -> list[list[str]]:
                     name = decoded_name(method, decode)
                     if lookup(stats["segment_accuracy"], dataset=folder, method=name)[0] is None:
                         continue
-                    rows.append([dataset, mode, method_name(name), *sequence_row(run, stats, folder, mode, name),
-                                 weight_cell(run, folder, mode, name),
-                                 fmt(*lookup(validation, dataset=folder, method=name))])
+                    rows.append([dataset, mode, method_name(name),
+                                 *decoded_cells(run, stats, validation, folder, mode, name)])
     return rows
 
 
@@ -174,9 +176,8 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
                     continue
                 if method == "mln" and suffix == "-fixed-weight":
                     continue  # the MLN alone has no network factor
-                rows.append([method_name(name), variant, *sequence_row(run, stats, folder, "stream", name),
-                             weight_cell(run, folder, "stream", name),
-                             fmt(*lookup(validation, dataset=folder, method=name))])
+                rows.append([method_name(name), variant,
+                             *decoded_cells(run, stats, validation, folder, "stream", name)])
     return rows
 
 
