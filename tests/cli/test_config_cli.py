@@ -20,7 +20,7 @@ def here(tmp_path, monkeypatch) -> Path:
     folder = tmp_path / "project"
     folder.mkdir()
     monkeypatch.chdir(folder)
-    monkeypatch.delenv("MLNSEQ_VERBOSE", raising=False)
+    monkeypatch.setenv("MLNSEQ_VERBOSE", "")
     return folder
 
 

@@ -98,7 +98,7 @@ def test_a_summary_on_a_colour_terminal_keeps_its_colour_and_its_one_line(long_f
 
 
 def test_verbose_shows_the_traceback_and_keeps_a_bad_inputs_exit_code(monkeypatch, tmp_path):
-    monkeypatch.delenv("MLNSEQ_VERBOSE", raising=False)  # --verbose sets it for this process; restored after
+    monkeypatch.setenv("MLNSEQ_VERBOSE", "")  # --verbose sets it for this process: restored (unset) after the test
     runner = CliRunner()
     plain = runner.invoke(app, ["eval", "-w", str(tmp_path)])
     verbose = runner.invoke(app, ["--verbose", "eval", "-w", str(tmp_path)])
