@@ -17,7 +17,6 @@ from typing import Annotated, Any, NamedTuple, Optional
 
 import typer
 from typer.core import TyperCommand, TyperGroup
-from typer._click.exceptions import UsageError
 
 
 class Command(NamedTuple):
@@ -102,13 +101,13 @@ class MlnseqGroup(FlagGroup):
             self.listing = False
 
     def resolve_command(self, ctx: Any, args: list[str]) -> Any:
-        try:
-            return self._click_resolve_command(ctx, args)
-        except UsageError as error:  # typer suggests from its own table of commands, empty here: the lazy list
-            matches = difflib.get_close_matches(args[0], list(COMMANDS)) if args else []
+        name = args[0] if args else ""
+        if name and name not in COMMANDS and not name.startswith("-") and not ctx.resilient_parsing:
+            # typer suggests from its own table of commands, empty here: suggest from the lazy list
+            matches = difflib.get_close_matches(name, list(COMMANDS))
             if matches:
-                error.message = f"{error.message.rstrip('.')}. Did you mean {', '.join(map(repr, matches))}?"
-            raise
+                ctx.fail(f"No such command {name!r}. Did you mean {', '.join(map(repr, matches))}?")
+        return super().resolve_command(ctx, args)
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         front, rest, i = [], [], 0
