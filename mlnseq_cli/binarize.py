@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from stages import binarize as stage
 
 
@@ -23,8 +23,8 @@ def binarize(
         path, binarized = stage.run(workdir, options)
     columns = binarized.meta["predicates"]
     console.print(
-        f"[green]binarize[/]: wrote {path} ({len(columns)} predicates, "
-        f"{sum(len(c) for c in columns.values())} columns, {binarized.predicates.height:,} frames; "
+        f"[green]binarize[/]: wrote {path} ({counted(len(columns), 'predicate')}, "
+        f"{counted(sum(len(c) for c in columns.values()), 'column')}, {counted(binarized.predicates.height, 'frame')}; "
         f"spec {binarized.meta['spec']['path']})"
     )
     if table:

@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from stages import collect as stage
 
 
@@ -50,9 +50,10 @@ def collect(
     frames = collected.frames
     split_sizes = dict(frames.group_by("split").len().iter_rows())
     console.print(
-        f"[green]collect[/]: wrote {path} ({frames.height:,} frames, {frames['episode'].n_unique():,} episodes, "
+        f"[green]collect[/]: wrote {path} ({counted(frames.height, 'frame')}, "
+        f"{counted(frames['episode'].n_unique(), 'episode')}, "
         f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
-        f"{len(collected.meta['features'])} features)"
+        f"{counted(len(collected.meta['features']), 'feature')})"
     )
     if "success_rate" in collected.meta:
         console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")

@@ -9,36 +9,65 @@ source = "../shared/data/desk-taurus"
 epochs = 40
 ```
 
-It is read from ``--config FILE``, else from ``WORKDIR/mlnseq.toml`` when that exists. Its values become
-the commands' defaults, so flags on the command line override them. Relative paths in it are taken
-relative to the file's own folder. `mlnseq config show` prints every option in force.
+One file is read, the first that exists of: ``--config FILE``, ``./mlnseq.toml`` (the current folder),
+``WORKDIR/mlnseq.toml``. The current folder's wins over the workdir's (a note names the one left unread).
+Its values become the commands' defaults, so flags on the command line override them. Relative paths in
+it are taken relative to the file's own folder. `mlnseq config show` names the file and prints every
+option in force.
 """
 
 from __future__ import annotations
 
 import re
+import sys
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, reported_errors
+from mlnseq_cli.main import FlagCommand, FlagGroup
 from stages.artifacts import DEFAULT_WORKDIR
 from stages.errors import BadInput
 
 CONFIG_NAME = "mlnseq.toml"
 
 
-def find(config: Path | None, workdir: Path | None) -> Path | None:
-    """The config file in force: the one named, else the workdir's own, else none."""
+def locate(config: Path | None, workdir: Path | None) -> tuple[Path | None, str]:
+    """The project file in force and where it was found: the one named, else the current folder's, else the
+    workdir's, else none (with what was looked for)."""
     if config is not None:
         if not config.is_file():
             raise BadInput(f"--config {config} not found")
-        return config
+        return config, "--config"
+    here = Path(CONFIG_NAME)
+    if here.is_file():
+        return here, "the current folder"
     candidate = (workdir or DEFAULT_WORKDIR) / CONFIG_NAME
-    return candidate if candidate.is_file() else None
+    if candidate.is_file():
+        return candidate, "the workdir"
+    return None, f"looked for ./{CONFIG_NAME} and {candidate}"
+
+
+def unread(path: Path | None, origin: str, workdir: Path | None) -> Path | None:
+    """The workdir's project file when the current folder's was read instead of it."""
+    other = (workdir or DEFAULT_WORKDIR) / CONFIG_NAME
+    if path is not None and origin == "the current folder" and other.is_file() and not other.samefile(path):
+        return other
+    return None
+
+
+def find(config: Path | None, workdir: Path | None) -> Path | None:
+    """The project file in force (see :func:`locate`), noting on stderr a workdir file it leaves unread."""
+    path, origin = locate(config, workdir)
+    other = unread(path, origin, workdir)
+    if other is not None:
+        print(f"note: {other} is not read: {path} in the current folder wins (pass --config to choose)",
+              file=sys.stderr)
+    return path
 
 
 def _line_of(text: str, section: str, key: str | None = None) -> int:
@@ -113,22 +142,27 @@ def options_in_force(commands: dict[str, Any], default_map: dict[str, dict[str, 
 
 
 app = typer.Typer(name="config", help="Inspect the project file (mlnseq.toml).", no_args_is_help=True,
-                  rich_markup_mode="rich")
+                  rich_markup_mode="rich", cls=FlagGroup)
 
 
-@app.command("show")
+@app.command("show", cls=FlagCommand)
 def show(
     ctx: typer.Context,
-    workdir: Annotated[Path, typer.Option("--workdir", "-w", help="Workdir whose mlnseq.toml to read.")] = DEFAULT_WORKDIR,
+    workdir: Annotated[Path, typer.Option("--workdir", "-w", help="Workdir whose mlnseq.toml to read when the current folder has none.")] = DEFAULT_WORKDIR,
 ) -> None:
     """Print every command's options in force and where each came from (default or the project file)."""
     root_ctx = ctx.find_root()
     group = root_ctx.command
     with reported_errors():
         commands = group.stage_commands(root_ctx)
-        path = find(root_ctx.params.get("config"), workdir)
+        path, origin = locate(root_ctx.params.get("config"), workdir)
         default_map = load(path, commands) if path else {}
-    table = Table("command", "option", "value", "from", title=f"options in force ({path or 'no project file'})")
+    console.print(escape(f"project file: {path} (from {origin})" if path else f"project file: none ({origin})"),
+                  highlight=False)
+    other = unread(path, origin, workdir)
+    if other is not None:
+        console.print(f"[yellow]note[/]: {escape(str(other))} is not read: the current folder's wins", highlight=False)
+    table = Table("command", "option", "value", "from", title="options in force")
     for row in options_in_force(commands, default_map, str(path)):
         table.add_row(*row)
     console.print(table)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import traceback
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
@@ -15,13 +16,20 @@ from rich.console import Console
 from stages.artifacts import DEFAULT_WORKDIR
 from stages.errors import MlnseqError
 
-console = Console()
+# soft_wrap: a printed line is never broken at the terminal's width (a summary names a file people copy and
+# grep; the terminal folds a long line itself); tables still fit the width.
+console = Console(soft_wrap=True)
 
 WorkdirOption = Annotated[
     Path,
     typer.Option("--workdir", "-w", help="Folder holding this dataset's artifacts.", file_okay=False),
 ]
 DEFAULT = DEFAULT_WORKDIR
+
+
+def counted(n: int, one: str, many: str | None = None) -> str:
+    """``n`` and the noun, singular for one: ``counted(1, "episode")`` is "1 episode"."""
+    return f"{n:,} {one if n == 1 else many or one + 's'}"
 
 
 def verbose() -> bool:
@@ -36,12 +44,13 @@ def fail(message: str, exit_code: int) -> typer.Exit:
 
 @contextlib.contextmanager
 def reported_errors() -> Iterator[None]:
-    """Turn a stage's errors into one stderr line and an exit code (a traceback only with --verbose)."""
+    """Turn a stage's errors into one stderr line and an exit code (a traceback before it with --verbose, the
+    exit code unchanged)."""
     try:
         yield
     except MlnseqError as error:
         if verbose():
-            raise
+            traceback.print_exc(file=sys.stderr)
         raise fail(str(error), error.exit_code) from None
     except KeyboardInterrupt:
         raise fail("interrupted; artifacts written before the interruption are intact", 130) from None

@@ -19,7 +19,7 @@ def evaluate(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of tables.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy at the fraction, per-class and early-recognition accuracy, frame accuracy, macro F1, confusion and, without segment boundaries, edit score and F1@10/25/50."""
+    """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy at the fraction, per-class and early-recognition accuracy, frame accuracy, macro F1 over segments (per-class F1 of the segments recognised at the fraction, averaged over the classes), confusion and, without segment boundaries, edit score and F1@10/25/50."""
     options = stage.EvalOptions(method=method, fraction=fraction)
     with reported_errors():
         result = stage.run(workdir, options)
@@ -29,7 +29,7 @@ def evaluate(
                           for m, r in result.results.items()}))
         return
     summary = Table(title=f"test split: segment recognised at {fraction:g} of its frames", box=None)
-    for column in ("method", "mode", "segments", "frames", "macro F1", "edit", "F1@10", "F1@25", "F1@50"):
+    for column in ("method", "mode", "segments", "frames", "macro F1 (segments)", "edit", "F1@10", "F1@25", "F1@50"):
         summary.add_column(column, justify="left" if column in ("method", "mode") else "right")
     for method_name, r in result.results.items():
         extra = [f"{r[k]:.1f}" if k in r else "-" for k in ("edit", "f1@10", "f1@25", "f1@50")]

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from stages import formulas as stage
 from stages.mln.grounding import is_template
 
@@ -22,6 +22,7 @@ def formulas(
         written = stage.run(workdir, options)
     templates = sum(1 for f in written.mln.formulas if is_template(f.formula))
     console.print(
-        f"[green]formulas[/]: wrote {written.path} ({len(written.mln.formulas)} formulas of which {templates} with +variables; "
-        f"training shows {len(written.words)} predicate values and {len(written.classes)} classes)"
+        f"[green]formulas[/]: wrote {written.path} ({counted(len(written.mln.formulas), 'formula')} of which "
+        f"{templates} with +variables; training shows {counted(len(written.words), 'predicate value')} and "
+        f"{counted(len(written.classes), 'class', 'classes')})"
     )

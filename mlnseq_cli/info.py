@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from mlnseq_cli.console import console, reported_errors
+from mlnseq_cli.console import console, counted, reported_errors
 from stages import recognizer
 
 
@@ -43,7 +43,7 @@ def info(
                                 f"{network['mode']} mode, seed {network['seed']}, epoch {network['kept_epoch']}"
                                 + (f", PriorLayer input {network['prior']}" if network.get("prior") else "")))
     if recognizer.WEIGHTS in entries:
-        rows.append(("MLN", f"{len(manifest['predicates'])} predicate columns, mln-mode {manifest['mln_mode']}"))
+        rows.append(("MLN", f"{counted(len(manifest['predicates']), 'predicate column')}, mln-mode {manifest['mln_mode']}"))
     rows += [("written by", f"mlnseq {manifest['mlnseq_version']}, {manifest['created']}, format {manifest['format']}"),
              ("inputs", ", ".join(f"{k} {v}" for k, v in manifest["inputs"].items()))]
     for name, value in rows:

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 from rich.markup import escape
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from stages import artifacts
 
 
@@ -49,4 +49,4 @@ def learn_weights(
             table.add_row("hard" if row["hard"] else f"{row['weight']:.3f}", row["formula"])
         console.print(table)
     console.print(f"[green]learn-weights[/] ({engine}, {learned.objective}, l2 {learned.l2:g}): wrote {path} "
-                  f"({learned.weights.height} formulas) and {artifacts.LEARNED_MLN}")
+                  f"({counted(learned.weights.height, 'formula')}) and {artifacts.LEARNED_MLN}")

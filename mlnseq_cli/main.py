@@ -7,9 +7,11 @@ below and imports none of them.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import importlib
 import os
+import sys
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
@@ -45,7 +47,30 @@ GLOBAL_FLAGS = ("--verbose",)
 GLOBAL_OPTIONS = ("--config",)
 
 
-class MlnseqGroup(TyperGroup):
+def _bare_flags(params: list[Any]) -> list[Any]:
+    """typer 0.29's rich help prints a flag's type, `<bool>`, as if the flag took a value; show none, as typer
+    did before and click does."""
+    for param in params:
+        if getattr(param, "is_flag", False) and param.metavar is None:
+            param.metavar = ""
+    return params
+
+
+class FlagCommand(TyperCommand):
+    """A command whose --help lists flags without a type."""
+
+    def get_params(self, ctx: Any) -> list[Any]:
+        return _bare_flags(super().get_params(ctx))
+
+
+class FlagGroup(TyperGroup):
+    """A group of commands whose --help lists flags without a type."""
+
+    def get_params(self, ctx: Any) -> list[Any]:
+        return _bare_flags(super().get_params(ctx))
+
+
+class MlnseqGroup(FlagGroup):
     """Imports a command when it is asked for, accepts the global options anywhere on the line and loads the
     project file before a command runs."""
 
@@ -67,6 +92,22 @@ class MlnseqGroup(TyperGroup):
             super().format_help(ctx, formatter)
         finally:
             self.listing = False
+
+    def shell_complete(self, ctx: Any, incomplete: str) -> list[Any]:
+        self.listing = True  # command names and summaries, none imported
+        try:
+            return super().shell_complete(ctx, incomplete)
+        finally:
+            self.listing = False
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        name = args[0] if args else ""
+        if name and name not in COMMANDS and not name.startswith("-") and not ctx.resilient_parsing:
+            # typer suggests from its own table of commands, empty here: suggest from the lazy list
+            matches = difflib.get_close_matches(name, list(COMMANDS))
+            if matches:
+                ctx.fail(f"No such command {name!r}. Did you mean {', '.join(map(repr, matches))}?")
+        return super().resolve_command(ctx, args)
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         front, rest, i = [], [], 0
@@ -107,7 +148,7 @@ def _load(name: str) -> Any:
     if isinstance(target, typer.Typer):
         return typer.main.get_group(target)
     single = typer.Typer(add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
-    single.command(name)(target)
+    single.command(name, cls=FlagCommand)(target)
     return typer.main.get_command(single)
 
 
@@ -125,18 +166,34 @@ app = typer.Typer(
     name="mlnseq",
     help="Sequential activity recognition with logic constraints (LSTM + Markov Logic Network).",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
     rich_markup_mode="rich",
 )
 
 
+def _print_version(asked: bool) -> None:
+    if not asked:
+        return
+    from importlib import metadata
+
+    try:
+        print(f"mlnseq {metadata.version('mlnseq')}")
+    except metadata.PackageNotFoundError:
+        print("error: mlnseq is not installed (run `make setup`), so it has no version", file=sys.stderr)
+        raise typer.Exit(1) from None
+    raise typer.Exit()
+
+
 @app.callback()
 def root(
-    verbose: Annotated[bool, typer.Option("--verbose", help="Show a traceback on errors.")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", help="Show a traceback before an error's line (the exit code stays).")] = False,
     config: Annotated[
-        Optional[Path], typer.Option("--config", help="Project file of options \\[default: WORKDIR/mlnseq.toml].")
+        Optional[Path], typer.Option("--config", help="Project file of options \\[default: ./mlnseq.toml, else WORKDIR/mlnseq.toml].")
     ] = None,
+    version: Annotated[
+        bool, typer.Option("--version", help="Print mlnseq's version and exit.", is_eager=True, callback=_print_version)
+    ] = False,
 ) -> None:
     """Run the pipeline's stages: collect, binarize, formulas, learn-weights, train, conflate, eval, report; then
     export a trained method and recognise new recordings (predict) or live frames (stream)."""

@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from mlnseq_cli.console import console, reported_errors
+from mlnseq_cli.console import console, counted, reported_errors
 from stages import predict as stage
 from stages.table_import import TableColumns
 
@@ -27,10 +27,11 @@ def predict(
                                    columns=TableColumns(label=label_column, episode=episode_column, time=time_column))
     with reported_errors():
         result = stage.run(options)
-    console.print(f"[green]predict[/]: wrote {result.path} ({result.table.height:,} frames, {result.episodes} episodes)")
+    console.print(f"[green]predict[/]: wrote {result.path} ({counted(result.table.height, 'frame')}, "
+                  f"{counted(result.episodes, 'episode')})")
     if result.metrics is not None:
         m = result.metrics
-        table = Table("segments", "frames", "macro F1", "edit", "F1@10", "F1@25", "F1@50", box=None,
+        table = Table("segments", "frames", "macro F1 (segments)", "edit", "F1@10", "F1@25", "F1@50", box=None,
                       title="labelled recordings: segment recognised at half of its frames")
         table.add_row(f"{m['segment_accuracy']:.1%}", f"{m['frame_accuracy']:.1%}", f"{m['macro_f1']:.3f}",
                       *(f"{m[k]:.1f}" for k in ("edit", "f1@10", "f1@25", "f1@50")))

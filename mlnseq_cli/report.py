@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from mlnseq_cli.console import console, reported_errors
+from mlnseq_cli.console import console, counted, reported_errors
 from stages import report as stage
 
 
@@ -21,6 +21,6 @@ def report(
         with console.status(f"reading {runs} and drawing figures"):
             result = stage.run(options)
     console.print(
-        f"[green]report[/]: wrote {result.path} ({len(result.figures)} figures; datasets {', '.join(result.datasets)}, "
-        f"{result.n_seed_runs} seed runs)"
+        f"[green]report[/]: wrote {result.path} ({counted(len(result.figures), 'figure')}; datasets "
+        f"{', '.join(result.datasets)}, {counted(result.n_seed_runs, 'seed run')})"
     )

@@ -12,7 +12,7 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from stages import train as stage
 
 Defaults = stage.TrainOptions
@@ -47,7 +47,7 @@ def train(
     last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
     shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
     console.print(
-        f"[green]train[/]: wrote {result.checkpoint} ({method}, {trained.n_train_units} training sequences, "
+        f"[green]train[/]: wrote {result.checkpoint} ({method}, {counted(trained.n_train_units, 'training sequence')}, "
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
     )
 

@@ -14,6 +14,8 @@ trap 'rm -rf "$build"' EXIT
 python3 -m venv "$build/venv"
 "$build/venv/bin/python" -m pip install -q "pip==20.3.4" setuptools wheel
 "$build/venv/bin/python" -m pip wheel -q --no-deps --no-build-isolation "pracmln==1.2.4" -w "$build/wheels"
-"$VENV/bin/python" -m pip install -q --no-deps "$build"/wheels/pracmln-*.whl
+# Its real needs first, then pracmln itself: a later install with dependencies would check the whole
+# environment and print pip's resolver error about the requirements pracmln declares but never uses.
 "$VENV/bin/python" -m pip install -q dnutils pyparsing appdirs psutil tabulate mpmath numpy scipy
+"$VENV/bin/python" -m pip install -q --no-deps "$build"/wheels/pracmln-*.whl
 echo "install_pracmln: pracmln installed into $VENV"

@@ -1,7 +1,8 @@
 """eval: score the predictions of ``predictions.parquet`` on the test split (metrics: stages/metrics.py).
 
-The paper's segment metric, per-class and early-recognition accuracy, frame accuracy, macro F1, the
-confusion matrix and, for methods that see no segment boundaries, the edit score and F1@{10, 25, 50}.
+The paper's segment metric, per-class and early-recognition accuracy, frame accuracy, macro F1 over
+segments, the confusion matrix and, for methods that see no segment boundaries, the edit score and
+F1@{10, 25, 50}.
 """
 
 from __future__ import annotations

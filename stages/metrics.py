@@ -5,8 +5,9 @@ recognised from the prediction at its frame ``max(int(len·fraction) − 1, 0)``
 paper; the authors' index int(len·fraction) − 1 is −1 for a one-frame segment, taken here as its
 frame 0); accuracy over segments, per true class (Table IV), and over fractions 0.1 … 0.9 (the
 early-recognition curve). Also frame-wise accuracy, the segment confusion matrix, macro F1 over
-segments and, for methods that see no segment boundaries (stream mode, the MLN alone, decoding),
-the segmental edit score and F1@{10, 25, 50} of Lea et al. / MS-TCN, tp/fp/fn summed over episodes.
+segments (each class's F1 from that confusion matrix, averaged over the classes that occur) and, for
+methods that see no segment boundaries (stream mode, the MLN alone, decoding), the segmental edit
+score and F1@{10, 25, 50} of Lea et al. / MS-TCN, tp/fp/fn summed over episodes.
 """
 
 from __future__ import annotations

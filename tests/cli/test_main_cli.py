@@ -95,3 +95,37 @@ def test_training_and_conflation_load_torch_but_not_the_simulator(tmp_path, desk
 def test_an_unknown_command_is_refused():
     done = subprocess.run([sys.executable, "-m", "mlnseq_cli.main", "colect"], capture_output=True, text=True)
     assert done.returncode == 2 and "No such command 'colect'" in done.stderr
+
+
+def test_a_mistyped_command_gets_the_closest_name():
+    done = subprocess.run([sys.executable, "-m", "mlnseq_cli.main", "trian"], capture_output=True, text=True)
+    assert done.returncode == 2 and "No such command 'trian'. Did you mean 'train'?" in done.stderr
+
+
+def test_version_is_the_installed_packages_and_loads_no_command():
+    from importlib import metadata
+
+    result = mlnseq("--version")
+    assert result["code"] == 0 and result["output"] == f"mlnseq {metadata.version('mlnseq')}\n"
+    assert loaded(result, HEAVY + DATA) == []
+
+
+@pytest.mark.parametrize("args", [[], ["train"], ["config", "show"]])
+def test_flags_show_no_type_in_help_and_completion_is_offered(args):
+    output = mlnseq(*args, "--help")["output"]
+    assert "<bool>" not in output and "--help " in output
+    assert ("--install-completion" in output) == (args == [])
+    if args == ["train"]:
+        assert "<int>" in output  # options that take a value still show its type
+
+
+def test_shell_completion_lists_command_names_without_importing_them():
+    env = {**os.environ, "_MLNSEQ_COMPLETE": "complete_bash", "COMP_WORDS": "mlnseq lea", "COMP_CWORD": "1",
+           "PYTHONPROFILEIMPORTTIME": "1"}
+    done = subprocess.run([sys.executable, "-m", "mlnseq_cli.main"], capture_output=True, text=True, env=env)
+    assert done.returncode == 0 and done.stdout.split() == ["learn-weights"]
+    imported = [line.rsplit("|", 1)[1].strip() for line in done.stderr.splitlines() if "|" in line]
+    assert "mlnseq_cli.learn_weights" not in imported and "polars" not in imported
+    options = subprocess.run([sys.executable, "-m", "mlnseq_cli.main"], capture_output=True, text=True,
+                             env={**env, "COMP_WORDS": "mlnseq train --ep", "COMP_CWORD": "2"})
+    assert options.stdout.split() == ["--epochs"]
