@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stages import artifacts, recognizer
+from stages import artifacts, model_file, recognizer
 from stages.errors import BadInput
 from stages.recognizer import DECODES, MLN_MODES
 
@@ -38,7 +38,7 @@ class ExportOptions:
     def output_path(self, workdir: Path) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{recognizer.MODEL_SUFFIX}"
+        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -100,6 +100,6 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "inputs": {p.name: artifacts.file_digest(p) for p in inputs},
         "notes": notes,
     }
-    entries = recognizer.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
+    entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
-    return Exported(recognizer.write_model(options.output_path(workdir), entries), manifest)
+    return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
