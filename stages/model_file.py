@@ -239,12 +239,12 @@ def _check_directory(handle: Any, where: Any) -> None:
     if at < 0 or at > end or at + EOCD.size + EOCD.unpack_from(tail, at)[-1] != len(tail):
         raise _foreign(where, "no zip directory at its end")
     _, disk, _, entries, total, directory, _, _ = EOCD.unpack_from(tail, at)
-    if (disk or entries != total or tail[max(0, at - 20) : at].startswith(b"PK\x06\x07")
-            or directory > len(MEMBERS) * (46 + 64 * KIB)):  # an entry: 46 bytes, its name and extra field
-        raise _foreign(where, "a zip64, multi-disk or oversized zip directory")
     if total > len(MEMBERS):
         raise BadInput(f"{where}: its zip directory declares {total:,} members; a model file holds at most "
                        f"{len(MEMBERS)} ({', '.join(MEMBERS)}): {AGAIN}")
+    if (disk or entries != total or tail[max(0, at - 20) : at].startswith(b"PK\x06\x07")
+            or directory > len(MEMBERS) * (46 + 64 * KIB)):  # an entry: 46 bytes, its name and extra field
+        raise _foreign(where, "a zip64, multi-disk or oversized zip directory")
     handle.seek(0)
 
 
