@@ -2,9 +2,10 @@
 
 The file is a zip: ``manifest.json`` (format version, mlnseq version, method, decoding and its network
 factor weight, classes, features in order, the source, the predicate columns, the network's
-configuration, the input digests, notes), the predicate spec ``binarize.toml``, the MLN's
-``weights.parquet`` and the network's arrays ``network.npz`` (with its standardisation). A method
-that needs no MLN (lstm, undecoded) carries no spec and no weights.
+configuration, the input digests, notes, the number of formulas, every other member's size and SHA-256),
+the predicate spec ``binarize.toml``, the MLN's ``weights.parquet`` and the network's arrays
+``network.npz`` (with its standardisation). A method that needs no MLN (lstm, undecoded) carries no spec
+and no weights. stages/model_file.py writes and reads it (docs/model-file.md).
 """
 
 from __future__ import annotations

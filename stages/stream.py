@@ -63,32 +63,30 @@ def lines_of(source: BinaryIO, limit: int, stop_early: bool = False) -> Iterator
     as they arrive. A line over ``limit`` bytes is never held: it is an InputLine naming its number and
     length once its end is read, or (``stop_early``) as soon as it passes the limit."""
     read = getattr(source, "read1", source.read)  # read1: what is there, without waiting to fill the chunk
-    number, held, size = 1, [], 0  # the line being read: its number, its pieces (while within the limit), its length
+    number, held, size = 1, [], 0  # the line being read: its number, its pieces (within the limit), its length
     while chunk := read(CHUNK_BYTES):
-        start = 0
-        while start <= len(chunk):
-            end = chunk.find(b"\n", start)
-            stop = len(chunk) if end < 0 else end
-            if size + stop - start > limit:
-                if stop_early and size <= limit:
-                    yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
-                held = []
-            elif stop > start:
-                held.append(chunk[start:stop])
-            size += stop - start
-            if end < 0:
-                break
-            yield _line(number, held, size, limit)
-            number, held, size, start = number + 1, [], 0, end + 1
+        *ends, rest = chunk.split(b"\n")
+        for piece in ends:
+            if stop_early and size + len(piece) > limit >= size:
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+            yield _line(number, b"".join([*held, piece]) if held else piece, size + len(piece), limit)
+            number, held, size = number + 1, [], 0
+        if size + len(rest) > limit:
+            if stop_early and size <= limit:
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+            held = []
+        elif rest:
+            held.append(rest)
+        size += len(rest)
     if size:
-        yield _line(number, held, size, limit)
+        yield _line(number, b"".join(held), size, limit)
 
 
-def _line(number: int, held: list[bytes], size: int, limit: int) -> str | InputLine:
+def _line(number: int, data: bytes, size: int, limit: int) -> str | InputLine:
     if size > limit:
         return InputLine(f"line {number}: {size:,} bytes, over --max-line-bytes {limit:,}; skipped")
     try:
-        return b"".join(held).decode().removesuffix("\r")
+        return data.decode().removesuffix("\r")
     except UnicodeDecodeError as error:
         return InputLine(f"line {number}: not UTF-8 text ({error})")
 
