@@ -52,7 +52,6 @@ def _foreign(where: Any, reason: Any) -> BadInput:
     return BadInput(f"{where} is not an mlnseq model file (truncated or foreign: {reason}); write one with `mlnseq export`")
 
 
-
 def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.DataFrame | None,
                   network: Network | None) -> dict[str, bytes]:
     """The files of a model file, by name: the manifest, the predicate spec, the MLN weights, the network's
@@ -85,7 +84,6 @@ def write_model(path: Path, entries: dict[str, bytes]) -> Path:
             for name, data in entries.items():
                 archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
     return path
-
 
 
 def parse_manifest(data: bytes, where: Any) -> dict[str, Any]:
@@ -204,7 +202,6 @@ def _check_members(names: set[str], manifest: dict[str, Any], where: Any) -> Non
         raise BadInput(f"{where}: an MLN needs both {SPEC} and {WEIGHTS}, and the manifest's formula count: {AGAIN}")
 
 
-
 def read_model(path: Path) -> dict[str, bytes]:
     """A model file's members, each read within its bound; a file that is not one is one clear line."""
     path = Path(path)
@@ -277,7 +274,6 @@ def _read(archive: zipfile.ZipFile, info: zipfile.ZipInfo, limit: int, where: An
     return data
 
 
-
 @dataclass(frozen=True)
 class ModelFile:
     """A model file's members, decoded and checked against its manifest."""
@@ -318,7 +314,10 @@ def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpe
         text = data.decode()
     except UnicodeDecodeError as error:
         raise BadInput(f"{where}: {SPEC} is not UTF-8 text ({error}): {AGAIN}") from None
-    spec = parse_spec(text, Path(where) / SPEC)
+    try:
+        spec = parse_spec(text, Path(where) / SPEC)
+    except RecursionError:  # tomllib recurses once per nested array or table
+        raise BadInput(f"{where}: {SPEC} nests too deeply to be a predicate spec: {AGAIN}") from None
     columns = [c for group in spec.columns().values() for c in group]
     if sorted(columns) != sorted(manifest["predicates"]):
         raise BadInput(f"{where}: {SPEC} makes predicate columns {columns[:3]}... ({len(columns)}), the manifest "
@@ -353,10 +352,11 @@ def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFr
     if foreign.height:
         raise BadInput(f"{where}: {WEIGHTS} has a formula of class {foreign['class'][0]}, but the manifest declares "
                        f"{len(classes)} classes (C0..C{len(classes) - 1}): {AGAIN}")
-    bad = weights.filter(~pl.col("hard") & (pl.col("weight").is_null() | ~pl.col("weight").is_finite()))
+    bad = weights.filter(pl.col("formula").is_null() | pl.col("hard").is_null()
+                         | (~pl.col("hard") & (pl.col("weight").is_null() | ~pl.col("weight").is_finite())))
     if bad.height:
-        raise BadInput(f"{where}: {WEIGHTS} formula {bad['formula'][0]} has weight {bad['weight'][0]}, not a finite "
-                       f"number: {AGAIN}")
+        raise BadInput(f"{where}: {WEIGHTS} formula {bad['formula'][0]} has weight {bad['weight'][0]} and hard "
+                       f"{bad['hard'][0]}; a formula is hard or has a finite weight: {AGAIN}")
     return weights
 
 

@@ -267,7 +267,15 @@ def test_nan_or_infinity_in_the_network_or_the_weights_is_refused(exported, tmp_
     weights = weights.with_columns(pl.when(pl.int_range(pl.len()) == 7).then(float("inf")).otherwise(pl.col("weight"))
                                    .alias("weight"))
     refused(write(tmp_path / "inf.mlnseq", resealed(exported["combined"], weights_parquet=parquet(weights))),
-            "has weight inf, not a finite number")
+            "has weight inf and hard False; a formula is hard or has a finite weight")
+    weights = weights.with_columns(pl.lit(None, dtype=pl.Boolean).alias("hard"))
+    refused(write(tmp_path / "null.mlnseq", resealed(exported["combined"], weights_parquet=parquet(weights))),
+            "and hard None; a formula is hard or has a finite weight")
+
+
+def test_a_spec_that_nests_too_deeply_is_refused(exported, tmp_path):
+    spec = b"[[predicate]]\nname = " + b"[" * 100_000
+    refused(write(tmp_path / "deep.mlnseq", resealed(exported["mln"], binarize_toml=spec)), "binarize.toml nests too deeply")
 
 
 def test_shapes_that_disagree_with_the_manifest_are_refused(exported, tmp_path):
