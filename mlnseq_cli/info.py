@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
-from stages import recognizer
+from stages import model_file, recognizer
 
 
 def info(
@@ -20,7 +20,7 @@ def info(
 ) -> None:
     """Read MODEL (.mlnseq); print its method and decoding, classes, features, network, MLN formulas, notes, the mlnseq version that wrote it and the digests of the workdir files it came from."""
     with reported_errors():
-        entries = recognizer.read_model(model)
+        entries = model_file.read_model(model)
         manifest = recognizer.Recognizer(entries, str(model)).manifest  # loads, or says in one line why it cannot
     if as_json:
         print(json.dumps(manifest, indent=1, sort_keys=True))
@@ -42,8 +42,10 @@ def info(
         rows.append(("network", f"{network['name']}: {model_config['cell']} of {model_config['hidden_size']}, "
                                 f"{network['mode']} mode, seed {network['seed']}, epoch {network['kept_epoch']}"
                                 + (f", PriorLayer input {network['prior']}" if network.get("prior") else "")))
-    if recognizer.WEIGHTS in entries:
+    if model_file.WEIGHTS in entries:
         rows.append(("MLN", f"{counted(len(manifest['predicates']), 'predicate column')}, mln-mode {manifest['mln_mode']}"))
+    limits = model_file.member_limits(manifest, model)
+    rows.append(("members", ", ".join(f"{name} {len(data):,} bytes (limit {limits[name]:,})" for name, data in entries.items())))
     rows += [("written by", f"mlnseq {manifest['mlnseq_version']}, {manifest['created']}, format {manifest['format']}"),
              ("inputs", ", ".join(f"{k} {v}" for k, v in manifest["inputs"].items()))]
     for name, value in rows:

@@ -16,9 +16,11 @@ from stages import stream as stage
 def stream(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     strict: Annotated[bool, typer.Option(help="Stop at the first bad input line (exit 2) instead of skipping it.")] = False,
+    max_line_bytes: Annotated[int, typer.Option(
+        help="The longest input line read; a longer one is counted, not held, and reported and skipped.")] = stage.MAX_LINE_BYTES,
 ) -> None:
-    """Read frames from stdin, one per line: JSON objects of feature name -> value (an "episode" key, when its value changes, starts a new episode), or CSV rows after a header line. Write one JSON line per frame at once: {"episode", "frame", "class", "probabilities"}. A bad line is reported on stderr with its number and skipped (--strict: exit 2). Ctrl-C: exit 130, every frame read so far answered."""
-    options = stage.StreamOptions(model=model, strict=strict)
+    """Read frames from stdin, one per line: JSON objects of feature name -> value (an "episode" key, when its value changes, starts a new episode), or CSV rows after a header line. Write one JSON line per frame at once: {"episode", "frame", "class", "probabilities"}. A bad line (over --max-line-bytes too) is reported on stderr with its number and skipped (--strict: exit 2). Ctrl-C: exit 130, every frame read so far answered."""
+    options = stage.StreamOptions(model=model, strict=strict, max_line_bytes=max_line_bytes)
 
     def emit(line: str) -> None:
         sys.stdout.write(line + "\n")
@@ -29,7 +31,7 @@ def stream(
 
     with reported_errors():
         try:
-            stage.run(options, sys.stdin, emit, warn)
+            stage.run(options, sys.stdin.buffer, emit, warn)
         except KeyboardInterrupt:
             raise fail("interrupted; every frame read so far was answered", 130) from None
         except BrokenPipeError:  # the reader went away (e.g. `| head`): nothing is left to answer

@@ -2,9 +2,10 @@
 
 The file is a zip: ``manifest.json`` (format version, mlnseq version, method, decoding and its network
 factor weight, classes, features in order, the source, the predicate columns, the network's
-configuration, the input digests, notes), the predicate spec ``binarize.toml``, the MLN's
-``weights.parquet`` and the network's arrays ``network.npz`` (with its standardisation). A method
-that needs no MLN (lstm, undecoded) carries no spec and no weights.
+configuration, the input digests, notes, the number of formulas, every other member's size and SHA-256),
+the predicate spec ``binarize.toml``, the MLN's ``weights.parquet`` and the network's arrays
+``network.npz`` (with its standardisation). A method that needs no MLN (lstm, undecoded) carries no spec
+and no weights. stages/model_file.py writes and reads it (docs/model-file.md).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stages import artifacts, recognizer
+from stages import artifacts, model_file, recognizer
 from stages.errors import BadInput
 from stages.recognizer import DECODES, MLN_MODES
 
@@ -38,7 +39,7 @@ class ExportOptions:
     def output_path(self, workdir: Path) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{recognizer.MODEL_SUFFIX}"
+        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,6 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "inputs": {p.name: artifacts.file_digest(p) for p in inputs},
         "notes": notes,
     }
-    entries = recognizer.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
+    entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
-    return Exported(recognizer.write_model(options.output_path(workdir), entries), manifest)
+    return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)

@@ -9,9 +9,6 @@ checkpoints, so a model file is recognised without it.
 
 from __future__ import annotations
 
-import io
-import json
-import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -21,9 +18,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, sequences
+from stages import artifacts, model_file, sequences
 from stages.errors import BadInput, MissingArtifact, StaleArtifact
 from stages.inference import Network, StreamingNetwork
+from stages.model_file import NETWORK, SPEC, WEIGHTS
 from stages.mln import chain
 
 if TYPE_CHECKING:
@@ -373,75 +371,12 @@ def _scored(result: WorkdirPredictions, labels: np.ndarray, validation: np.ndarr
     return result
 
 
-# --- the model file and the Recognizer (export, info, predict, stream, the Python API) --------------
-
-MODEL_FORMAT = 1
-MODEL_SUFFIX = ".mlnseq"
-MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
+# --- the Recognizer (export, info, predict, stream, the Python API) ---------------------------------
 
 
 def needs_mln(method: str, decode: str) -> bool:
     """Whether a method with this decoding uses the MLN (and so the predicate spec and the weights)."""
     return method != "lstm" or decode != "none"
-
-
-def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.DataFrame | None,
-                  network: Network | None) -> dict[str, bytes]:
-    """The files of a model file, by name: the manifest (with the format version), the predicate spec, the
-    MLN weights, the network's arrays (its state dict's names, and its standardisation ``mean`` and ``std``)."""
-    entries = {MANIFEST: json.dumps({"format": MODEL_FORMAT, **manifest}, indent=1, sort_keys=True).encode()}
-    if spec_text is not None:
-        entries[SPEC] = spec_text.encode()
-    if weights is not None:
-        buffer = io.BytesIO()
-        weights.write_parquet(buffer, compression="zstd")
-        entries[WEIGHTS] = buffer.getvalue()
-    if network is not None:
-        buffer = io.BytesIO()
-        np.savez(buffer, mean=network.mean, std=network.std, **network.weights)
-        entries[NETWORK] = buffer.getvalue()
-    return entries
-
-
-def write_model(path: Path, entries: dict[str, bytes]) -> Path:
-    """Write a model file (a zip) atomically; its entries carry a fixed time, so a rewrite is byte-identical."""
-    with artifacts.atomic_path(path) as tmp:
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
-            for name, data in entries.items():
-                archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
-    return path
-
-
-def read_model(path: Path) -> dict[str, bytes]:
-    """A model file's entries; a file that is not one, or of another format, is one clear line."""
-    path = Path(path)
-    if not path.is_file():
-        raise BadInput(f"model file {path} not found: write one with `mlnseq export`")
-    try:
-        with zipfile.ZipFile(path) as archive:
-            entries = {name: archive.read(name) for name in archive.namelist()}
-        manifest = json.loads(entries[MANIFEST])
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as error:
-        raise BadInput(f"{path} is not an mlnseq model file (truncated or foreign: {error}); "
-                       "write one with `mlnseq export`") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != MODEL_FORMAT:
-        found = manifest.get("format") if isinstance(manifest, dict) else None
-        version = manifest.get("mlnseq_version", "?") if isinstance(manifest, dict) else "?"
-        raise BadInput(f"{path} is model-file format {found} from mlnseq {version}; this mlnseq "
-                       f"({artifacts.package_version()}) reads format {MODEL_FORMAT}: export the model again "
-                       "with `mlnseq export`")
-    return entries
-
-
-def read_network(data: bytes, config: dict[str, Any], where: str) -> Network:
-    """A network from a model file's arrays and the configuration its manifest holds."""
-    try:
-        with np.load(io.BytesIO(data)) as arrays:
-            weights = {name: arrays[name] for name in arrays.files}
-        return Network.from_state(config, {k: v for k, v in weights.items() if k not in ("mean", "std")},
-                                  weights["mean"], weights["std"])
-    except (ValueError, KeyError, OSError, zipfile.BadZipFile) as error:
-        raise BadInput(f"{where}: its network cannot be read ({error}); export the model again") from None
 
 
 @dataclass(frozen=True)
@@ -464,11 +399,19 @@ class Recognizer:
     """
 
     def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
-        from stages.binarize import StreamingBinarizer, parse_spec
+        from stages.binarize import StreamingBinarizer
         from stages.mln.factors import MLNFactors, parse_weights
 
-        self.manifest = manifest = json.loads(entries[MANIFEST])
+        model = model_file.parse_model(entries, where)
+        self.manifest = manifest = model.manifest
         self.method, self.decode = manifest["method"], manifest["decode"]
+        network = manifest["network"]
+        if (self.method not in METHODS or self.decode not in DECODES or manifest["mln_mode"] not in MLN_MODES
+                or (network or {}).get("name") != network_of(self.method)
+                or (network or {}).get("prior") not in (None, *PRIORS)):
+            raise BadInput(f"{where}: its manifest's method {self.method!r}, decoding {self.decode!r}, mln-mode "
+                           f"{manifest['mln_mode']!r} or network {(network or {}).get('name')!r} is not one this "
+                           f"mlnseq runs: export it again with `mlnseq export`")
         needed = [NETWORK] * (network_of(self.method) is not None) + [SPEC, WEIGHTS] * needs_mln(self.method, self.decode)
         missing = [name for name in needed if name not in entries]
         if missing:
@@ -478,16 +421,13 @@ class Recognizer:
         self.features: list[str] = list(manifest["features"])
         self.network_weight = float(manifest.get("network_weight") or 1.0)
         self._feature_index = {name: i for i, name in enumerate(self.features)}
-        self.network = None
-        if NETWORK in entries:
-            self.network = read_network(entries[NETWORK], manifest["network"]["model"], where)
+        self.network = model.network
         self.prior = (manifest.get("network") or {}).get("prior")  # PriorLayer's MLN input, if it has one
         self.spec: PredicateSpec | None = None
         self.weights: pl.DataFrame | None = None
         self.mln: MLNFactors | None = None
         if needs_mln(self.method, self.decode):
-            self.spec = parse_spec(entries[SPEC].decode(), Path(where) / SPEC)
-            self.weights = pl.read_parquet(io.BytesIO(entries[WEIGHTS]))
+            self.spec, self.weights = model.spec, model.weights
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
             formulas = parse_weights(self.weights, self.columns, len(self.classes))
@@ -500,7 +440,7 @@ class Recognizer:
     @classmethod
     def load(cls, path: str | Path) -> Recognizer:
         """Load an ``.mlnseq`` file written by `mlnseq export`."""
-        return cls(read_model(Path(path)), str(path))
+        return cls(model_file.read_model(Path(path)), str(path))
 
     # -- one frame at a time ---------------------------------------------------------------------
 

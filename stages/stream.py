@@ -6,9 +6,11 @@ episode whenever its value changes. Output: one JSON object per frame, written a
 next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}}``. Everything is causal
 and stateful (the previous frame for the change predicates, the network's state, the filter's belief).
 
-A bad line (not JSON, a missing feature, NaN, inf or a non-number) is reported on stderr with its line
-number and skipped; with ``strict`` it stops the stream (exit 2). Keys the model does not use (a
-timestamp, say) are ignored, and said once.
+A bad line (not JSON, not UTF-8, a missing feature, NaN, inf or a non-number) is reported on stderr with
+its line number and skipped; with ``strict`` it stops the stream (exit 2). Keys the model does not use (a
+timestamp, say) are ignored, and said once. Input is read in chunks, and a line longer than
+``max_line_bytes`` is never held: it is counted to its end, reported with its length and skipped (with
+``strict``, the stream stops as soon as the line passes the limit).
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ import signal
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from stages.errors import BadInput
 from stages.recognizer import Recognizer
 
 EPISODE = "episode"
+MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes
+CHUNK_BYTES = 64 * 1024  # read at most this much at once; a chunk holds many frames, or part of one
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,11 @@ class StreamOptions:
 
     model: Path
     strict: bool = False
+    max_line_bytes: int = MAX_LINE_BYTES
+
+    def validate(self) -> None:
+        if self.max_line_bytes < 1:
+            raise BadInput(f"--max-line-bytes {self.max_line_bytes}: a line limit is at least 1 byte")
 
 
 @dataclass
@@ -49,11 +58,47 @@ class InputLine(BadInput):
     """One input line that cannot be a frame; names the line."""
 
 
-def frames_of(lines: Iterable[str]) -> Iterator[tuple[int, dict[str, Any] | InputLine]]:
+def lines_of(source: BinaryIO, limit: int, stop_early: bool = False) -> Iterator[str | InputLine]:
+    """Every line of ``source`` without its newline, decoded as UTF-8, read in chunks of at most CHUNK_BYTES
+    as they arrive. A line over ``limit`` bytes is never held: it is an InputLine naming its number and
+    length once its end is read, or (``stop_early``) as soon as it passes the limit."""
+    read = getattr(source, "read1", source.read)  # read1: what is there, without waiting to fill the chunk
+    number, held, size = 1, [], 0  # the line being read: its number, its pieces (within the limit), its length
+    while chunk := read(CHUNK_BYTES):
+        *ends, rest = chunk.split(b"\n")
+        for piece in ends:
+            if stop_early and size + len(piece) > limit >= size:
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+            yield _line(number, b"".join([*held, piece]) if held else piece, size + len(piece), limit)
+            number, held, size = number + 1, [], 0
+        if size + len(rest) > limit:
+            if stop_early and size <= limit:
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+            held = []
+        elif rest:
+            held.append(rest)
+        size += len(rest)
+    if size:
+        yield _line(number, b"".join(held), size, limit)
+
+
+def _line(number: int, data: bytes, size: int, limit: int) -> str | InputLine:
+    if size > limit:
+        return InputLine(f"line {number}: {size:,} bytes, over --max-line-bytes {limit:,}; skipped")
+    try:
+        return data.decode().removesuffix("\r")
+    except UnicodeDecodeError as error:
+        return InputLine(f"line {number}: not UTF-8 text ({error})")
+
+
+def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str, Any] | InputLine]]:
     """(line number, the frame as a mapping, or the error that line makes) for every non-blank line."""
     header: list[str] | None = None
     json_lines: bool | None = None
     for number, line in enumerate(lines, start=1):
+        if isinstance(line, InputLine):
+            yield number, line
+            continue
         if not line.strip():
             continue
         if json_lines is None:
@@ -114,9 +159,11 @@ def answering_before_interrupt() -> Iterator[Callable[[bool], None]]:
         signal.signal(signal.SIGINT, previous)
 
 
-def run(options: StreamOptions, lines: Iterable[str], emit: Callable[[str], None],
+def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn: Callable[[str], None]) -> StreamSummary:
-    """Answer every frame of ``lines`` with one JSON line through ``emit``; report bad lines through ``warn``."""
+    """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
+    bad lines through ``warn``."""
+    options.validate()
     model = Recognizer.load(options.model)
     for note in model.manifest.get("notes", []):
         warn(f"note: {note}")
@@ -127,7 +174,7 @@ def run(options: StreamOptions, lines: Iterable[str], emit: Callable[[str], None
     summary = StreamSummary()
     episode: Any = None
     with answering_before_interrupt() as busy:
-        for number, frame in frames_of(lines):
+        for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
             busy(True)
             try:
                 if isinstance(frame, InputLine):

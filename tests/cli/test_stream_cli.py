@@ -4,6 +4,7 @@ answers what it read."""
 
 from __future__ import annotations
 
+import io
 import json
 import signal
 import subprocess
@@ -16,6 +17,7 @@ import polars as pl
 import pytest
 
 from stages import export, predict
+from stages import stream as stage
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
 FRAMES = 2000  # of the DESK test recording, through the pipe
@@ -105,3 +107,49 @@ def test_a_truncated_model_file_is_one_line_and_exit_2(model, tmp_path):
     done = stream(broken, "")
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.count("\n") == 1 and "not an mlnseq model file" in done.stderr
+
+
+class Trickle(io.RawIOBase):
+    """A pipe that hands out at most ``size`` bytes per read, as a slow feed does."""
+
+    def __init__(self, data: bytes, size: int):
+        self.data, self.size = data, size
+
+    def readable(self) -> bool:
+        return True
+
+    def read1(self, n: int = -1) -> bytes:
+        piece, self.data = self.data[: min(n, self.size)], self.data[min(n, self.size):]
+        return piece
+
+
+@pytest.mark.parametrize("size", [1, 3, 7, 64, 2**16])
+def test_lines_are_cut_the_same_whatever_the_chunks(size):
+    text = b"a,b\r\n\n1,2\n" + b"x" * 40 + b"\n" + "é,ü\n".encode() + b"\xff\n" + b"y" * 41 + b"\nlast"
+    got = [str(line) if isinstance(line, stage.InputLine) else line for line in stage.lines_of(Trickle(text, size), 40)]
+    assert got == ["a,b", "", "1,2", "x" * 40, "é,ü",
+                   "line 6: not UTF-8 text ('utf-8' codec can't decode byte 0xff in position 0: invalid start byte)",
+                   "line 7: 41 bytes, over --max-line-bytes 40; skipped", "last"]
+
+
+def test_a_line_over_the_limit_is_named_and_skipped_and_the_stream_goes_on(model, recording):
+    rows = pl.read_csv(recording).head(3).to_dicts()
+    long = json.dumps({**rows[1], "padding": " " * 2**21})
+    done = stream(model, "\r\n".join([json.dumps(rows[0]), long, json.dumps(rows[2])]))  # CRLF, no final newline
+    assert done.returncode == 0, done.stderr
+    assert [json.loads(line)["frame"] for line in done.stdout.splitlines()] == [0, 1]
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert errors == [f"error: line 2: {len(long) + 1:,} bytes, over --max-line-bytes 1,048,576; skipped"]
+    small = stream(model, "\n".join(json.dumps(r) for r in rows) + "\n", "--max-line-bytes", "60")
+    assert small.stdout == "" and small.stderr.count("over --max-line-bytes 60; skipped") == 3
+
+
+def test_a_feed_without_newlines_is_one_skipped_line_and_strict_stops_at_the_limit(model, recording):
+    done = stream(model, " " * 3_000_000)
+    assert done.returncode == 0 and done.stdout == ""
+    assert "error: line 1: 3,000,000 bytes, over --max-line-bytes 1,048,576; skipped" in done.stderr
+    rows = pl.read_csv(recording).head(2).to_dicts()
+    strict = stream(model, json.dumps(rows[0]) + "\n" + " " * 2**21 + "\n" + json.dumps(rows[1]) + "\n", "--strict")
+    assert strict.returncode == 2 and len(strict.stdout.splitlines()) == 1
+    assert strict.stderr.strip().splitlines()[-1] == "error: line 2: over --max-line-bytes 1,048,576 bytes"
+    assert stream(model, "", "--max-line-bytes", "0").returncode == 2

@@ -11,7 +11,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, export, recognizer
+from stages import artifacts, export, model_file, recognizer
 from stages.errors import BadInput
 from stages.recognizer import Recognizer
 
@@ -85,7 +85,7 @@ def test_every_part_is_in_the_file_and_lstm_alone_carries_no_mln(models):
     with zipfile.ZipFile(models["combined"]) as archive:
         assert set(archive.namelist()) == {"manifest.json", "binarize.toml", "weights.parquet", "network.npz"}
         manifest = json.loads(archive.read("manifest.json"))
-    assert manifest["format"] == recognizer.MODEL_FORMAT and manifest["network"]["name"] == "priorlayer"
+    assert manifest["format"] == model_file.MODEL_FORMAT and manifest["network"]["name"] == "priorlayer"
     assert manifest["features"] == ["arm_distance", "left_gripper", "right_gripper"] and len(manifest["classes"]) == 7
     assert set(manifest["inputs"]) == {"frames.parquet", "priorlayer.pt", "predicates.parquet", "weights.parquet"}
     with zipfile.ZipFile(models["lstm"]) as archive:
@@ -117,8 +117,8 @@ def test_broken_and_foreign_model_files_are_refused_in_one_line(models, tmp_path
             if name != "weights.parquet":
                 target.writestr(name, source.read(name))
     for path, needle in ((truncated, "not an mlnseq model file"), (foreign, "not an mlnseq model file"),
-                         (partial, "lacks weights.parquet, which a combined model needs"),
-                         (future, "format 99 from mlnseq 9.0; this mlnseq .* reads format 1"),
+                         (partial, "lacks weights.parquet, which its manifest declares"),
+                         (future, f"format 99 from mlnseq 9.0; this mlnseq .* reads format {model_file.MODEL_FORMAT}"),
                          (tmp_path / "absent.mlnseq", "not found")):
         with pytest.raises(BadInput, match=needle) as error:
             Recognizer.load(path)

@@ -1,0 +1,400 @@
+"""The model file (``.mlnseq``): a zip of ``manifest.json``, the predicate spec ``binarize.toml``, the MLN's
+``weights.parquet`` and the network's ``network.npz``; how it is written, and read without trusting it:
+every member bounded before it is read and checked against what the manifest declares (docs/model-file.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import struct
+import zipfile
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import polars as pl
+
+from stages import artifacts
+from stages.errors import BadInput
+from stages.inference import Network
+
+if TYPE_CHECKING:
+    from stages.binarize import PredicateSpec
+
+MODEL_FORMAT = 2  # 2: the manifest declares its members' sizes and digests and the number of formulas
+MODEL_SUFFIX = ".mlnseq"
+MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
+MEMBERS = (MANIFEST, SPEC, WEIGHTS, NETWORK)
+
+KIB, MIB = 1024, 1024 * 1024
+MANIFEST_LIMIT = SPEC_LIMIT = 1 * MIB  # a DESK model's manifest and spec are 2 KB each
+MEMBER_CEILING = 64 * MIB  # no member may be larger, whatever the manifest declares
+TABLE_OVERHEAD = 64 * KIB  # weights.parquet's footer, schema and metadata
+FORMULA_BYTES = 1 * KIB  # one formula's row of weights.parquet (DESK's: 27 bytes on disk, formulas <= 49 chars)
+ARRAY_OVERHEAD = 1 * KIB  # one array's npy header and zip entry in network.npz
+ITEM_BYTES = 8  # float64, the widest dtype an array may have
+ARRAY_DTYPES = (np.dtype("<f8"), np.dtype("<f4"))
+GATES = {"lstm": 4, "gru": 3}  # the recurrent cells a network may have, and their gates
+NETWORK_CONFIG = ("cell", "hidden_size", "n_classes", "n_features", "prior_layer")
+WEIGHT_COLUMNS = {"formula": pl.String, "class": pl.String, "weight": pl.Float64, "hard": pl.Boolean}
+READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError, IndexError,
+               NotImplementedError, RuntimeError, struct.error, OverflowError, RecursionError)
+EOCD = struct.Struct("<4s4H2LH")  # the zip's end-of-central-directory record
+AGAIN = "export the model again with `mlnseq export`"
+
+
+def _foreign(where: Any, reason: Any) -> BadInput:
+    return BadInput(f"{where} is not an mlnseq model file (truncated or foreign: {reason}); write one with `mlnseq export`")
+
+
+def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.DataFrame | None,
+                  network: Network | None) -> dict[str, bytes]:
+    """The files of a model file, by name: the manifest, the predicate spec, the MLN weights, the network's
+    arrays (its state dict's names, and its standardisation ``mean`` and ``std``)."""
+    members = {}
+    if spec_text is not None:
+        members[SPEC] = spec_text.encode()
+    if weights is not None:
+        buffer = io.BytesIO()
+        weights.write_parquet(buffer, compression="zstd")
+        members[WEIGHTS] = buffer.getvalue()
+    if network is not None:
+        buffer = io.BytesIO()
+        np.savez(buffer, mean=network.mean, std=network.std, **network.weights)
+        members[NETWORK] = buffer.getvalue()
+    return seal({**manifest, "formulas": 0 if weights is None else weights.height}, members)
+
+
+def seal(manifest: dict[str, Any], members: dict[str, bytes]) -> dict[str, bytes]:
+    """The manifest (with the format version and each member's size and SHA-256) and the members."""
+    declared = {name: {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()} for name, data in members.items()}
+    text = json.dumps({"format": MODEL_FORMAT, **manifest, "members": declared}, indent=1, sort_keys=True)
+    return {MANIFEST: text.encode(), **members}
+
+
+def write_model(path: Path, entries: dict[str, bytes]) -> Path:
+    """Write a model file (a zip) atomically; its entries carry a fixed time, so a rewrite is byte-identical."""
+    with artifacts.atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+            for name, data in entries.items():
+                archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
+    return path
+
+
+def parse_manifest(data: bytes, where: Any) -> dict[str, Any]:
+    """The manifest, checked: its format, every field the recogniser reads, and the network's shape."""
+    try:
+        manifest = json.loads(data)
+    except (ValueError, RecursionError) as error:
+        raise _foreign(where, f"{MANIFEST} is not JSON: {error}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != MODEL_FORMAT:
+        found = manifest.get("format") if isinstance(manifest, dict) else None
+        version = manifest.get("mlnseq_version", "?") if isinstance(manifest, dict) else "?"
+        raise BadInput(f"{where} is model-file format {found} from mlnseq {version}; this mlnseq "
+                       f"({artifacts.package_version()}) reads format {MODEL_FORMAT}: {AGAIN}")
+    _check_fields(manifest, MANIFEST_FIELDS, where, MANIFEST)
+    network = manifest["network"]
+    if network is not None:
+        _check_fields(network, NETWORK_FIELDS, where, f"{MANIFEST} network")
+        config = network["model"]
+        if config["cell"] not in GATES:
+            raise BadInput(f"{where}: its network's cell {config['cell']!r} is not one this mlnseq runs "
+                           f"({', '.join(GATES)}): {AGAIN}")
+        sizes = {"hidden_size": None, "n_features": len(manifest["features"]), "n_classes": len(manifest["classes"])}
+        for key, expected in sizes.items():
+            if not (_count(config[key]) and config[key] > 0) or (expected is not None and config[key] != expected):
+                raise BadInput(f"{where}: its network's {key} is {config[key]!r}, but the manifest declares "
+                               f"{expected if expected is not None else 'a positive count'}: {AGAIN}")
+        if not isinstance(config["prior_layer"], bool) or config["prior_layer"] != (network["prior"] is not None):
+            raise BadInput(f"{where}: its network's prior_layer ({config['prior_layer']!r}) and PriorLayer input "
+                           f"({network['prior']!r}) disagree: {AGAIN}")
+    return manifest
+
+
+def _check_fields(values: dict[str, Any], fields: dict[str, tuple[Any, str]], where: Any, what: str) -> None:
+    for key, (valid, expected) in fields.items():
+        if key not in values:
+            raise BadInput(f"{where}: {what} lacks {key!r}: {AGAIN}")
+        if not valid(values[key]):
+            raise BadInput(f"{where}: {what} {key!r} is not {expected}: {AGAIN}")
+
+
+def _integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _count(value: Any) -> bool:
+    return _integer(value) and value >= 0
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _names(empty: bool, unique: bool = True) -> tuple[Any, str]:
+    return (lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v) and bool(empty or v)
+            and (not unique or len(set(v)) == len(v)),
+            f"a list of {'unique ' if unique else ''}strings{'' if empty else ', not empty'}")
+
+
+TEXT = (lambda v: isinstance(v, str), "a string")
+MANIFEST_FIELDS = {
+    **dict.fromkeys(("method", "decode", "mln_mode", "source", "mlnseq_version", "created"), TEXT),
+    "classes": _names(empty=False), "features": _names(empty=False), "predicates": _names(empty=True),
+    "notes": _names(empty=True, unique=False),
+    "inputs": (lambda v: isinstance(v, dict) and all(isinstance(x, str) for x in [*v, *v.values()]),
+               "an object of file name -> digest"),
+    "formulas": (_count, "a count"),
+    "network_weight": (lambda v: v is None or (_number(v) and 0 < v < math.inf), "null or a positive number"),
+    "validation_frame_accuracy": (lambda v: v is None or (_number(v) and 0 <= v <= 1), "null or a fraction"),
+    "members": (lambda v: isinstance(v, dict) and all(
+        name in MEMBERS[1:] and isinstance(d, dict) and set(d) == {"bytes", "sha256"} and _count(d["bytes"])
+        and isinstance(d["sha256"], str) for name, d in v.items()), "an object of member name -> {bytes, sha256}"),
+    "network": (lambda v: v is None or isinstance(v, dict), "null or an object"),
+}
+NETWORK_FIELDS = {
+    "name": TEXT, "mode": TEXT, "prior": (lambda v: v is None or isinstance(v, str), "null or a name"),
+    "seed": (_integer, "an integer"), "kept_epoch": (_integer, "an integer"),
+    "model": (lambda v: isinstance(v, dict) and sorted(v) == sorted(NETWORK_CONFIG), f"an object of {', '.join(NETWORK_CONFIG)}"),
+}
+
+
+def network_shapes(config: dict[str, Any]) -> dict[str, tuple[int, ...]]:
+    """The arrays of network.npz and their shapes, from the network's configuration (one recurrent layer)."""
+    gates, hidden = GATES[config["cell"]] * config["hidden_size"], config["hidden_size"]
+    features, classes = config["n_features"], config["n_classes"]
+    shapes = {"rnn.weight_ih_l0": (gates, features), "rnn.weight_hh_l0": (gates, hidden), "rnn.bias_ih_l0": (gates,),
+              "rnn.bias_hh_l0": (gates,), "h2c.weight": (classes, hidden), "h2c.bias": (classes,)}
+    if config["prior_layer"]:
+        shapes |= {"prior.weight": (classes, 2 * classes), "prior.bias": (classes,)}
+    return shapes | {"mean": (features,), "std": (features,)}
+
+
+def member_limits(manifest: dict[str, Any], where: Any) -> dict[str, int]:
+    """The most bytes each member may hold: fixed for the manifest and the spec, derived from the manifest's
+    formulas and network for the others; a manifest declaring more than MEMBER_CEILING is refused."""
+    limits = {MANIFEST: MANIFEST_LIMIT, SPEC: SPEC_LIMIT, WEIGHTS: TABLE_OVERHEAD + FORMULA_BYTES * manifest["formulas"]}
+    if manifest["network"] is not None:
+        shapes = network_shapes(manifest["network"]["model"])
+        limits[NETWORK] = sum(ARRAY_OVERHEAD + ITEM_BYTES * math.prod(shape) for shape in shapes.values())
+    for name, limit in limits.items():
+        if limit > MEMBER_CEILING:
+            raise BadInput(f"{where}: its manifest declares a {name} of up to {limit:,} bytes, over the "
+                           f"{MEMBER_CEILING:,} bytes a member may hold: not a model this mlnseq loads")
+    return limits
+
+
+def _check_members(names: set[str], manifest: dict[str, Any], where: Any) -> None:
+    """The file holds exactly the members its manifest declares, and they fit the model it describes."""
+    declared = set(manifest["members"])
+    for name in sorted(names - {MANIFEST} - declared):
+        raise BadInput(f"{where} holds {name}, which its manifest does not declare: {AGAIN}")
+    for name in sorted(declared - names):
+        raise BadInput(f"{where} lacks {name}, which its manifest declares: {AGAIN}")
+    if (NETWORK in declared) != (manifest["network"] is not None):
+        raise BadInput(f"{where}: its manifest's network and its {NETWORK} member disagree: {AGAIN}")
+    if (SPEC in declared) != (WEIGHTS in declared) or (WEIGHTS not in declared and manifest["formulas"]):
+        raise BadInput(f"{where}: an MLN needs both {SPEC} and {WEIGHTS}, and the manifest's formula count: {AGAIN}")
+
+
+def read_model(path: Path) -> dict[str, bytes]:
+    """A model file's members, each read within its bound; a file that is not one is one clear line."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInput(f"model file {path} not found: write one with `mlnseq export`")
+    try:
+        with open(path, "rb") as handle:
+            _check_directory(handle, path)
+            with zipfile.ZipFile(handle) as archive:
+                infos = _infos(archive, path)
+                if MANIFEST not in infos:
+                    raise _foreign(path, f"no {MANIFEST}")
+                entries = {MANIFEST: _read(archive, infos[MANIFEST], MANIFEST_LIMIT, path)}
+                manifest = parse_manifest(entries[MANIFEST], path)
+                _check_members(set(infos), manifest, path)
+                limits = member_limits(manifest, path)
+                for name in manifest["members"]:
+                    entries[name] = _read(archive, infos[name], limits[name], path)
+    except BadInput:
+        raise
+    except READ_ERRORS as error:
+        raise _foreign(path, error) from None
+    return entries
+
+
+def _check_directory(handle: Any, where: Any) -> None:
+    """Refuse a zip whose directory holds more entries than a model file has, before zipfile parses it."""
+    handle.seek(max(0, handle.seek(0, io.SEEK_END) - EOCD.size - 0xFFFF))  # the record and a comment of up to 64 KiB
+    tail = handle.read()
+    end = len(tail) - EOCD.size  # where zipfile looks first, then at the last signature before
+    at = end if tail[end:].startswith(b"PK\x05\x06") else tail.rfind(b"PK\x05\x06")
+    if at < 0 or at > end or at + EOCD.size + EOCD.unpack_from(tail, at)[-1] != len(tail):
+        raise _foreign(where, "no zip directory at its end")
+    _, disk, _, entries, total, directory, _, _ = EOCD.unpack_from(tail, at)
+    if total > len(MEMBERS):
+        raise BadInput(f"{where}: its zip directory declares {total:,} members; a model file holds at most "
+                       f"{len(MEMBERS)} ({', '.join(MEMBERS)}): {AGAIN}")
+    if (disk or entries != total or tail[max(0, at - 20) : at].startswith(b"PK\x06\x07")
+            or directory > len(MEMBERS) * (46 + 64 * KIB)):  # an entry: 46 bytes, its name and extra field
+        raise _foreign(where, "a zip64, multi-disk or oversized zip directory")
+    handle.seek(0)
+
+
+def _infos(archive: zipfile.ZipFile, where: Any) -> dict[str, zipfile.ZipInfo]:
+    """The archive's members by name: known names, once each, stored or deflated, not encrypted."""
+    infos: dict[str, zipfile.ZipInfo] = {}
+    for info in archive.infolist():
+        if info.filename not in MEMBERS:
+            raise BadInput(f"{where} holds {info.filename!r}, which is not a model file's member "
+                           f"({', '.join(MEMBERS)}): {AGAIN}")
+        if info.filename in infos:
+            raise BadInput(f"{where} holds {info.filename} twice: {AGAIN}")
+        infos[info.filename] = info
+    return infos
+
+
+def _read(archive: zipfile.ZipFile, info: zipfile.ZipInfo, limit: int, where: Any) -> bytes:
+    """One member's bytes, never more than ``limit`` whatever its header claims."""
+    name = info.filename
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED) or info.flag_bits & 0x1:
+        raise BadInput(f"{where}: {name} is encrypted or compressed with method {info.compress_type}; a model file's "
+                       f"members are stored or deflated: {AGAIN}")
+    if info.file_size > limit or info.compress_size > limit + limit // 100 + KIB:
+        raise BadInput(f"{where}: {name} declares {info.file_size:,} bytes ({info.compress_size:,} compressed), "
+                       f"over its limit of {limit:,} bytes: {AGAIN}")
+    with archive.open(info) as member:
+        data = member.read(limit + 1)
+    if len(data) > limit:
+        raise BadInput(f"{where}: {name} holds more than its limit of {limit:,} bytes: {AGAIN}")
+    return data
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    """A model file's members, decoded and checked against its manifest."""
+
+    manifest: dict[str, Any]
+    spec: PredicateSpec | None
+    weights: pl.DataFrame | None
+    network: Network | None
+
+
+def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
+    """Decode and check every member: sizes and digests as the manifest declares, the spec's predicate
+    columns, the weights' formula count, classes and numbers, the network's shapes and numbers."""
+    manifest = parse_manifest(entries[MANIFEST], where)
+    _check_members(set(entries), manifest, where)
+    limits = member_limits(manifest, where)
+    for name, data in entries.items():
+        if len(data) > limits[name]:
+            raise BadInput(f"{where}: {name} is {len(data):,} bytes, over its limit of {limits[name]:,} bytes: {AGAIN}")
+        declared = manifest["members"].get(name)
+        if declared and (len(data) != declared["bytes"] or hashlib.sha256(data).hexdigest() != declared["sha256"]):
+            raise BadInput(f"{where}: {name} is not the one its manifest declares (its size or SHA-256 differs): "
+                           f"the file was altered or assembled from two models; {AGAIN}")
+    spec = weights = network = None
+    if SPEC in entries:
+        spec = read_spec(entries[SPEC], manifest, where)
+        weights = read_weights(entries[WEIGHTS], manifest, where)
+    if NETWORK in entries:
+        network = read_network(entries[NETWORK], manifest["network"]["model"], where)
+    return ModelFile(manifest, spec, weights, network)
+
+
+def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpec:
+    """The predicate spec, whose columns must be the manifest's predicates."""
+    from stages.binarize import parse_spec
+
+    try:
+        text = data.decode()
+    except UnicodeDecodeError as error:
+        raise BadInput(f"{where}: {SPEC} is not UTF-8 text ({error}): {AGAIN}") from None
+    try:
+        spec = parse_spec(text, Path(where) / SPEC)
+    except RecursionError:  # tomllib recurses once per nested array or table
+        raise BadInput(f"{where}: {SPEC} nests too deeply to be a predicate spec: {AGAIN}") from None
+    columns = [c for group in spec.columns().values() for c in group]
+    if sorted(columns) != sorted(manifest["predicates"]):
+        raise BadInput(f"{where}: {SPEC} makes predicate columns {columns[:3]}... ({len(columns)}), the manifest "
+                       f"declares {manifest['predicates'][:3]}... ({len(manifest['predicates'])}): {AGAIN}")
+    return spec
+
+
+def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFrame:
+    """The MLN's weights: as many formulas as declared, within the bound uncompressed too, classes of the
+    model, finite weights."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from stages.mln.grounding import class_constant
+
+    limit = TABLE_OVERHEAD + FORMULA_BYTES * manifest["formulas"]
+    try:
+        meta = pq.ParquetFile(io.BytesIO(data)).metadata
+        unpacked = sum(meta.row_group(g).column(c).total_uncompressed_size
+                       for g in range(meta.num_row_groups) for c in range(meta.num_columns))
+        if meta.num_rows != manifest["formulas"] or unpacked > limit:
+            raise BadInput(f"{where}: {WEIGHTS} holds {meta.num_rows:,} formulas in {unpacked:,} bytes uncompressed; its "
+                           f"manifest declares {manifest['formulas']:,} formulas, at most {limit:,} bytes: {AGAIN}")
+        weights = pl.read_parquet(io.BytesIO(data))
+    except (pa.ArrowException, OSError, ValueError, pl.exceptions.PolarsError, pl.exceptions.PanicException) as error:
+        raise BadInput(f"{where}: its {WEIGHTS} cannot be read ({error}): {AGAIN}") from None
+    wrong = [f"{c} ({weights.schema.get(c)})" for c, kind in WEIGHT_COLUMNS.items() if weights.schema.get(c) != kind]
+    if wrong:
+        raise BadInput(f"{where}: {WEIGHTS} lacks or mistypes the columns {', '.join(wrong)}: {AGAIN}")
+    classes = {class_constant(k) for k in range(len(manifest["classes"]))}
+    foreign = weights.filter(pl.col("class").is_not_null() & ~pl.col("class").is_in(sorted(classes)))
+    if foreign.height:
+        raise BadInput(f"{where}: {WEIGHTS} has a formula of class {foreign['class'][0]}, but the manifest declares "
+                       f"{len(classes)} classes (C0..C{len(classes) - 1}): {AGAIN}")
+    bad = weights.filter(pl.col("formula").is_null() | pl.col("hard").is_null()
+                         | (~pl.col("hard") & (pl.col("weight").is_null() | ~pl.col("weight").is_finite())))
+    if bad.height:
+        raise BadInput(f"{where}: {WEIGHTS} formula {bad['formula'][0]} has weight {bad['weight'][0]} and hard "
+                       f"{bad['hard'][0]}; a formula is hard or has a finite weight: {AGAIN}")
+    return weights
+
+
+def read_network(data: bytes, config: dict[str, Any], where: str) -> Network:
+    """A network from a model file's arrays: each of the shape its configuration makes, float, finite."""
+    shapes = network_shapes(config)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            names = [info.filename for info in archive.infolist()]
+            if sorted(names) != sorted(f"{name}.npy" for name in shapes):
+                raise BadInput(f"{where}: its {NETWORK} holds {', '.join(sorted(names))}; a {config['cell']} network "
+                               f"{'with' if config['prior_layer'] else 'without'} PriorLayer holds "
+                               f"{', '.join(sorted(f'{n}.npy' for n in shapes))}: {AGAIN}")
+            arrays = {}
+            for info in archive.infolist():
+                name = info.filename.removesuffix(".npy")
+                limit = ARRAY_OVERHEAD + ITEM_BYTES * math.prod(shapes[name])
+                arrays[name] = _array(_read(archive, info, limit, f"{where}: {NETWORK}"), name, shapes[name], where)
+    except BadInput:
+        raise
+    except READ_ERRORS as error:
+        raise BadInput(f"{where}: its network cannot be read ({error}): {AGAIN}") from None
+    if not (arrays["std"] > 0).all():
+        raise BadInput(f"{where}: its network's standardisation has a std that is not positive: {AGAIN}")
+    return Network.from_state(config, {k: v for k, v in arrays.items() if k not in ("mean", "std")},
+                              arrays["mean"], arrays["std"])
+
+
+def _array(data: bytes, name: str, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """One .npy array, its header checked before its data is read: float, the expected shape, finite."""
+    stream = io.BytesIO(data)
+    major, _ = np.lib.format.read_magic(stream)
+    header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+    found, fortran, dtype = header(stream)
+    if dtype not in ARRAY_DTYPES or tuple(found) != shape or fortran:
+        raise BadInput(f"{where}: its network's {name} is {dtype} of shape {tuple(found)}; its manifest's network "
+                       f"makes float of shape {shape}: {AGAIN}")
+    array = np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)
+    if not np.isfinite(array).all():
+        raise BadInput(f"{where}: its network's {name} holds NaN or infinity: {AGAIN}")
+    return array
