@@ -75,7 +75,7 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions, 
     elif env == "jigsaws":
         from stages.sources import jigsaws
 
-        recordings = jigsaws.read(source, columns, options, with_labels=options.labels is None and label != "none")
+        recordings = jigsaws.read(source, columns, options, table_label)
     elif env == "rosbag":
         from stages.sources import rosbag
 
