@@ -189,7 +189,10 @@ def collect_recordings(options: CollectOptions) -> Collected:
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(_split(frames.height, options.train_frames)))
     meta["source"] = options.env
-    meta["reading"] = reading_record(options.env, options.columns, **options.recordings.record(options.env))
+    resolved = {k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}
+    meta["reading"] = reading_record(options.env, options.columns, **{**options.recordings.record(options.env), **resolved})
+    meta["notes"] = [f"{r.path}: topics without a numeric field left out: {', '.join(r.resolved['skipped_topics'])}"
+                     for r in recordings if r.resolved.get("skipped_topics")]
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
     return Collected(frames, meta, inputs=inputs)

@@ -115,7 +115,8 @@ def run(options: PredictOptions) -> Predicted:
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
     decode = options.decode or model.decode
     reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
-               "time_column": columns.time, **source_options.record(env)}
+               "time_column": columns.time, **source_options.record(env),
+               **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
     inputs = [Path(options.model), *map(Path, meta["source_files"])]
     if source_options.labels is not None:
         inputs.append(Path(source_options.labels))

@@ -12,7 +12,7 @@ feature unless ``features`` lists them. A folder holds one episode per file, in 
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,7 @@ class Recording:
     split: pl.Series | None = None  # train/test per row, if the source says
     row: pl.Series | None = None  # the row number messages give (default: 0, 1, ...)
     where: str = "{file} row {row}"  # "{file}:{row}" for a CSV's lines
+    resolved: dict[str, Any] = field(default_factory=dict)  # options the source chose (a bag's rate, topics)
 
 
 def row_where(recording: Recording, index: int) -> str:
