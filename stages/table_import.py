@@ -261,10 +261,15 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], for_predict
     keys = {"episode": episode_index, "frame": within, "label": indices, "split": split}
     table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})
     table = table.sort(["episode", "frame"], maintain_order=True)
-    files = list(dict.fromkeys(str(r.path.resolve()) for r in recordings))
+    files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
     meta = {"source": "table", "source_files": files, "classes": names, "features": list(feature_names),
             "labelled": labelled, "episode_names": ids.to_list()}
     return table, meta
+
+
+def _files_of(path: Path) -> list[Path]:
+    """The files a recording was read from: itself, or a bag folder's files."""
+    return sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
 
 
 def _common_dtype(series: list[pl.Series]) -> pl.Series:
