@@ -79,15 +79,15 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions, 
     elif env == "rosbag":
         from stages.sources import rosbag
 
-        recordings = rosbag.read(source, columns, options)
+        recordings = rosbag.read(source, columns, options, table_label)
     elif env == "lerobot":
         from stages.sources import lerobot
 
-        recordings = lerobot.read(source, columns)
+        recordings = lerobot.read(source, columns, table_label)
     else:
         from stages.sources import hdf5
 
-        recordings = hdf5.read(source, columns)
+        recordings = hdf5.read(source, columns, table_label)
     if options.labels is not None:
         recordings = intervals.apply(recordings, intervals.read(Path(options.labels)), options.unit(env),
                                      options.unlabelled)

@@ -45,7 +45,7 @@ def bag_paths(source: Path) -> list[Path]:
     return found
 
 
-def read(source: Path, columns: TableColumns, options) -> list[Recording]:
+def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:
     """One recording per bag; the topics and rate the first bag resolves hold for the others."""
     try:
         from rosbags.highlevel import AnyReader
@@ -60,7 +60,10 @@ def read(source: Path, columns: TableColumns, options) -> list[Recording]:
     for path in bag_paths(Path(source)):
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
-                recording = read_bag(reader, path, topics, rate, options.label_topic)
+                label_topic = options.label_topic if label != "none" else None
+                if label == "optional" and label_topic not in reader.topics:
+                    label_topic = None  # new recordings without their phases: unlabelled
+                recording = read_bag(reader, path, topics, rate, label_topic)
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
