@@ -20,7 +20,7 @@ import polars as pl
 from stages import artifacts, metrics, sources
 from stages.errors import BadInput
 from stages.recognizer import DECODES, Recognizer
-from stages.sources import RECORDING_ENVS, SourceOptions
+from stages.sources import RECORDING_ENVS, SourceOptions, intervals
 from stages.table_import import TableColumns, prediction_frames
 
 
@@ -105,7 +105,7 @@ def run(options: PredictOptions) -> Predicted:
     model = Recognizer.load(options.model)
     env, columns, source_options, label = reading_of(model, options)
     recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
-    frames, meta = prediction_frames(recordings, columns.classes)
+    frames, meta, times = prediction_frames(recordings, columns.classes)
     table, predicted = predict(model, frames, options.decode)
     names = meta["episode_names"]
     table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
@@ -126,4 +126,16 @@ def run(options: PredictOptions) -> Predicted:
          "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading},
         inputs=inputs,
     )
-    return Predicted(path, table, scores, len(names), reading)
+    written = []
+    if options.intervals is not None:
+        segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
+                                      table["class"].to_list(), source_options.unit(env))
+        with artifacts.atomic_path(Path(options.intervals)) as tmp:
+            segments.write_csv(tmp)
+        written.append(Path(options.intervals))
+    if options.rerun is not None:
+        from stages.sources import rerun
+
+        written.append(rerun.write(Path(options.rerun), table["episode"].to_list(), frames, times, table,
+                                   list(model.features), list(model.classes)))
+    return Predicted(path, table, scores, len(names), reading, tuple(written))

@@ -210,16 +210,18 @@ def read_tables(source: Path, columns: TableColumns, label: str = "required") ->
 
 def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = ()) -> tuple[pl.DataFrame, dict]:
     """Frames for ``collect``: every frame labelled, two classes or more, the split from the source or by position."""
-    return _assemble(recordings, classes, for_prediction=False)
+    table, meta, _ = _assemble(recordings, classes, for_prediction=False)
+    return table, meta
 
 
-def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> tuple[pl.DataFrame, dict]:
+def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> tuple[pl.DataFrame, dict, np.ndarray]:
     """Frames for ``predict``: labels optional (absent: every label -1, ``labelled: false``), one class enough,
-    every frame test."""
+    every frame test; and each frame's time, row by row."""
     return _assemble(recordings, classes, for_prediction=True)
 
 
-def _assemble(recordings: list[Recording], classes: tuple[str, ...], for_prediction: bool) -> tuple[pl.DataFrame, dict]:
+def _assemble(recordings: list[Recording], classes: tuple[str, ...],
+              for_prediction: bool) -> tuple[pl.DataFrame, dict, np.ndarray]:
     if not recordings:
         raise BadInput("no recording to read")
     feature_names = recordings[0].features.columns
@@ -260,11 +262,12 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], for_predict
     features = pl.concat([r.features for r in recordings], how="vertical_relaxed")
     keys = {"episode": episode_index, "frame": within, "label": indices, "split": split}
     table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})
-    table = table.sort(["episode", "frame"], maintain_order=True)
+    order = np.lexsort((within, episode_index))
+    table = table[order]
     files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
     meta = {"source": "table", "source_files": files, "classes": names, "features": list(feature_names),
             "labelled": labelled, "episode_names": ids.to_list()}
-    return table, meta
+    return table, meta, frames["time"].to_numpy()[order]
 
 
 def _files_of(path: Path) -> list[Path]:

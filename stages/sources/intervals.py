@@ -150,3 +150,26 @@ def _label_episode(key: np.ndarray, found: list[Interval], unit: str, rows: np.n
             raise BadInput(f"{interval.where}: overlaps the interval before it in {what}")
         labels[rows[inside]] = interval.label
         keep[rows[inside]] = True
+
+
+def segments(episodes: list, positions: np.ndarray, times: np.ndarray, classes: list[str], unit: str) -> pl.DataFrame:
+    """The runs of one class per episode as ``episode,start,end,label`` in ``unit``, the form ``read`` takes
+    back: frames inclusive, seconds from a run's first frame to the next run's (the last run: one median
+    step past its last frame)."""
+    rows: dict[str, list] = {"episode": [], "start": [], "end": [], "label": []}
+    ids = np.asarray(episodes, dtype=object)
+    labels = np.asarray(classes, dtype=object)
+    change = np.flatnonzero((ids[1:] != ids[:-1]) | (labels[1:] != labels[:-1])) + 1
+    starts, ends = np.r_[0, change], np.r_[change, len(ids)]
+    for a, b in zip(starts, ends):
+        rows["episode"].append(str(ids[a]))
+        rows["label"].append(labels[a])
+        if unit == "frames":
+            rows["start"].append(int(positions[a]))
+            rows["end"].append(int(positions[b - 1]))
+        else:
+            episode_times = times[ids == ids[a]]
+            step = float(np.median(np.diff(episode_times))) if len(episode_times) > 1 else 0.0
+            rows["start"].append(float(times[a]))
+            rows["end"].append(float(times[b]) if b < len(ids) and ids[b] == ids[a] else float(times[b - 1]) + step)
+    return pl.DataFrame(rows)

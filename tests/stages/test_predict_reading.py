@@ -103,3 +103,45 @@ def test_predict_through_the_cli_refuses_to_overwrite(model, recordings, tmp_pat
     again = runner.invoke(app, ["predict", str(model), "--source", str(recordings[1]), "-o", str(out)])
     assert again.exit_code == 2 and "exists; pass --force" in again.stderr
     assert again.stderr.strip().count("\n") == 0
+
+
+@pytest.mark.parametrize("unit", ["frames", "seconds"])
+def test_predicted_intervals_read_back_as_labels_give_the_predicted_classes(model, recordings, tmp_path, unit):
+    from stages import sources
+    from stages.sources import SourceOptions
+    from stages.table_import import collect_frames
+
+    segments = tmp_path / f"segments-{unit}.csv"
+    result = predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "p.parquet",
+                                                intervals=segments, overrides={"labels_unit": unit}))
+    assert result.written == (segments,)
+    written = pl.read_csv(segments)
+    assert written.columns == ["episode", "start", "end", "label"] and set(written["episode"]) == {101, 102}
+    unlabelled = tmp_path / "unlabelled.csv"
+    pl.read_csv(recordings[1]).drop("phase").write_csv(unlabelled)
+    back, meta = collect_frames(sources.read("table", unlabelled, TableColumns(episode="trial", time="t"),
+                                             SourceOptions(labels=segments, labels_unit=unit)))
+    assert back.height == result.table.height  # every frame in exactly one segment
+    assert [meta["classes"][k] for k in back["label"]] == result.table["class"].to_list()
+
+
+def test_predict_writes_a_rerun_recording_of_signals_classes_and_probabilities(model, recordings, tmp_path):
+    rr = pytest.importorskip("rerun", reason="the [recordings] extra is not installed")
+    path = tmp_path / "view.rrd"
+    result = predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "p.parquet",
+                                                rerun=path))
+    assert result.written == (path,)
+    rows: dict[str, int] = {}
+    timelines = set()
+    for chunk in rr.chunk.RrdReader(path).stream():
+        if chunk.entity_path.startswith("/episode/"):
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+            timelines |= set(chunk.timeline_names)
+    for episode in ("101", "102"):
+        expected = {f"/episode/{episode}/{e}" for e in (
+            "features/arm_distance", "features/left_gripper", "features/right_gripper", "class/predicted", "class/true",
+            *(f"probability/{rr.escape_entity_path_part(c)}" for c in DESK_CLASSES))}
+        assert expected <= set(rows) and all(rows[e] == TRIAL for e in expected)
+    assert {"time", "frame"} <= timelines
+    with pytest.raises(BadInput, match="view.rrd exists; pass --force"):
+        predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "q.parquet", rerun=path))
