@@ -63,7 +63,7 @@ def read(source: Path, columns: TableColumns, options, label: str = "required") 
                 label_topic = options.label_topic if label != "none" else None
                 if label == "optional" and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
-                recording = read_bag(reader, path, topics, rate, label_topic)
+                recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
@@ -80,7 +80,9 @@ def read(source: Path, columns: TableColumns, options, label: str = "required") 
     return recordings
 
 
-def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None) -> Recording:
+def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
+             unlabelled: str | None = None) -> Recording:
+    """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
     available = reader.topics
     if reader.message_count == 0:
         raise BadInput(f"{path}: the bag holds no message")
@@ -105,13 +107,11 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
     current: dict[str, np.ndarray] = {}
     last_time: dict[str, int] = {}
     skipped: list[str] = []
-    label: str | None = None
     start = reader.start_time
     row: np.ndarray | None = None
     offsets: dict[str, tuple[int, int]] = {}
     blocks: list[np.ndarray] = []
-    times: list[int] = []
-    labels: list[str | None] = []
+    label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label): ticks' times and labels follow
     block = np.empty((0, 0))
     filled = 0
     tick = 0
@@ -131,12 +131,10 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
                     block, filled = np.empty((CHUNK, len(row))), 0
                 block[filled] = row
                 filled += 1
-                times.append(clock0 + round(tick * period))
-                labels.append(label)
                 tick += 1
         message = reader.deserialize(raw, connection.msgtype)
         if topic == label_topic:
-            label = message.data
+            label_changes.append((tick, message.data))
             continue
         if topic not in extractors:
             if topic in skipped:
@@ -180,18 +178,29 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
             block, filled = np.empty((CHUNK, len(row))), 0
         block[filled] = row
         filled += 1
-        times.append(clock0 + round(tick * period))
-        labels.append(label)
         tick += 1
     values = np.concatenate([*blocks, block[:filled]]) if blocks else block[:filled]
     feature_names = [name for t in candidates for name in names[t]]
-    features = check_features(pl.DataFrame(values, schema=feature_names, orient="row"), path, "{file} frame {row}")
-    n = len(times)
+    n = tick
+    times = clock0 + np.round(np.arange(n) * period).astype(np.int64)
+    labels = np.full(n, None, dtype=object)
+    for (first, name), (after, _) in zip(label_changes, [*label_changes[1:], (n, None)]):
+        labels[first:after] = name
+    rows = np.arange(n)
+    if label_topic:
+        if unlabelled is not None:
+            labels[labels == None] = unlabelled  # noqa: E711
+        keep = labels != None  # noqa: E711
+        values, times, labels, rows = values[keep], times[keep], labels[keep], rows[keep]
+        if not len(rows):
+            raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
+    features = check_features(pl.DataFrame(values, schema=feature_names, orient="row"), path, "{file} frame {row}",
+                              pl.Series(rows))
     return Recording(
-        path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * n),
-        time=(pl.Series(times, dtype=pl.Int64) - start) / 1e9,
-        label=pl.Series("label", labels, dtype=pl.String) if label_topic else None,
-        where="{file} frame {row}",
+        path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
+        time=pl.Series((times - start) / 1e9),
+        label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
+        row=pl.Series(rows), where="{file} frame {row}",
         resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
     )
 
