@@ -179,7 +179,7 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         block[filled] = row
         filled += 1
         tick += 1
-    values = np.concatenate([*blocks, block[:filled]]) if blocks else block[:filled]
+    blocks.append(block[:filled])
     feature_names = [name for t in candidates for name in names[t]]
     n = tick
     times = clock0 + np.round(np.arange(n) * period).astype(np.int64)
@@ -191,11 +191,15 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         if unlabelled is not None:
             labels[labels == None] = unlabelled  # noqa: E711
         keep = labels != None  # noqa: E711
-        values, times, labels, rows = values[keep], times[keep], labels[keep], rows[keep]
+        times, labels, rows = times[keep], labels[keep], rows[keep]
         if not len(rows):
             raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
-    features = check_features(pl.DataFrame(values, schema=feature_names, orient="row"), path, "{file} frame {row}",
-                              pl.Series(rows))
+    columns = {}
+    for i, name in enumerate(feature_names):  # one column at a time: the blocks and the frames, never a third copy
+        column = np.concatenate([b[:, i] for b in blocks])
+        columns[name] = column[keep] if label_topic else column
+    del blocks, block
+    features = check_features(pl.DataFrame(columns), path, "{file} frame {row}", pl.Series(rows))
     return Recording(
         path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
         time=pl.Series((times - start) / 1e9),
