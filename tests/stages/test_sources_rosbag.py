@@ -197,3 +197,20 @@ def test_a_model_from_a_bag_predicts_new_bags_read_the_same_way(bags, tmp_path):
                                   "-w", str(tmp_path / "w2")])
     assert refused.exit_code == 2 and "no topic '/odom'" in refused.stderr
     assert refused.stderr.strip().count("\n") == 0 and not (tmp_path / "w2" / "frames.parquet").exists()
+
+
+def test_a_missing_reader_library_is_one_line_naming_the_extra(bags, tmp_path):
+    """Run in a process where rosbags cannot be imported, as on an install without the extra."""
+    import subprocess
+    import sys
+
+    script = ("import sys; sys.modules['rosbags'] = None\n"
+              "from mlnseq_cli.main import main\n"
+              f"sys.argv = ['mlnseq', 'collect', '--env', 'rosbag', '--source', {str(bags['bare'])!r}, '-w', {str(tmp_path)!r}]\n"
+              "main()\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == ("error: reading this format needs rosbags, which is not installed: "
+                                   "pip install 'mlnseq[recordings]'")
+    assert not (tmp_path / "frames.parquet").exists()
