@@ -64,31 +64,28 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions, 
     source = Path(source)
     if not source.exists():
         raise BadInput(f"--source {source} not found")
-    if options.labels is not None:
-        from stages.sources import intervals
-
-        table_label = "none"
-    else:
-        table_label = label
+    own_label = "none" if options.labels is not None else label  # --labels replaces the recordings' own
     if env == "table":
-        recordings = read_tables(source, columns, table_label)
+        recordings = read_tables(source, columns, own_label)
     elif env == "jigsaws":
         from stages.sources import jigsaws
 
-        recordings = jigsaws.read(source, columns, options, table_label)
+        recordings = jigsaws.read(source, columns, options, own_label)
     elif env == "rosbag":
         from stages.sources import rosbag
 
-        recordings = rosbag.read(source, columns, options, table_label)
+        recordings = rosbag.read(source, columns, options, own_label)
     elif env == "lerobot":
         from stages.sources import lerobot
 
-        recordings = lerobot.read(source, columns, table_label)
+        recordings = lerobot.read(source, columns, own_label)
     else:
         from stages.sources import hdf5
 
-        recordings = hdf5.read(source, columns, table_label)
+        recordings = hdf5.read(source, columns, own_label)
     if options.labels is not None:
+        from stages.sources import intervals
+
         recordings = intervals.apply(recordings, intervals.read(Path(options.labels)), options.unit(env),
                                      options.unlabelled)
     return recordings

@@ -214,3 +214,22 @@ def test_a_missing_reader_library_is_one_line_naming_the_extra(bags, tmp_path):
     assert done.stderr.strip() == ("error: reading this format needs rosbags, which is not installed: "
                                    "pip install 'mlnseq[recordings]'")
     assert not (tmp_path / "frames.parquet").exists()
+
+
+def test_ticks_before_the_first_label_message_are_dropped_or_unlabelled(desk, tmp_path):
+    listed = list(messages(desk))
+    first = next(m for m in listed if m[0] == "/phase")
+    listed.remove(first)
+    listed.insert(next(i for i, m in enumerate(listed) if m[1] == START + 10 * STEP) + 1,
+                  ("/phase", START + 10 * STEP, first[2]))
+    path = tmp_path / "late.bag"
+    with Writer1(path) as writer:
+        connections = {}
+        for topic, t, message in listed:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=STORE)
+            writer.write(connections[topic], t, STORE.serialize_ros1(message, message.__msgtype__))
+    dropped = sources.read("rosbag", path, TableColumns(), OPTIONS)[0]
+    assert dropped.features.height == FRAMES - 10 and dropped.time[0] == pytest.approx(10 * STEP / 1e9)
+    kept = sources.read("rosbag", path, TableColumns(), SourceOptions(**{**OPTIONS.__dict__, "unlabelled": "idle"}))[0]
+    assert kept.features.height == FRAMES and kept.label.head(11).to_list() == ["idle"] * 10 + [first[2].data]
