@@ -13,8 +13,8 @@ from stages import collect as stage
 
 
 def collect(
-    env: Annotated[str, typer.Option(help="Data source: fetch (MuJoCo simulation), desk (real Taurus files) or table (your own CSV/Parquet).")] = "fetch",
-    source: Annotated[Optional[Path], typer.Option(help="desk: folder of the DESK Taurus text files; table: a CSV/Parquet file or folder.")] = None,
+    env: Annotated[str, typer.Option(help="Data source: fetch (MuJoCo simulation), desk (real Taurus files), table (your own CSV/Parquet), or robot recordings as they are: rosbag, lerobot, hdf5, jigsaws (see docs/recordings.md).")] = "fetch",
+    source: Annotated[Optional[Path], typer.Option(help="desk: folder of the DESK Taurus text files; table: a CSV/Parquet file or folder; rosbag: a .bag, a ROS 2 bag folder, a .mcap or a folder of them; lerobot: the dataset folder; hdf5: a robomimic-style file; jigsaws: a task folder.")] = None,
     channels: Annotated[str, typer.Option(help="desk: motion (3 channels, all frames) or kinematics (14 channels, training file only).")] = "motion",
     episodes: Annotated[int, typer.Option(help="fetch: number of 50-step demonstrations.")] = stage.CollectOptions.episodes,
     seed: Annotated[int, typer.Option(help="fetch: seed of resets and action noise.")] = 0,
@@ -25,7 +25,13 @@ def collect(
     episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
     classes: Annotated[Optional[str], typer.Option(help="table: class names in label order, comma-separated.")] = None,
-    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column].")] = None,
+    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column]; hdf5: dataset paths in a demo (obs/joint_pos, actions).")] = None,
+    labels: Annotated[Optional[Path], typer.Option(help="Labels as intervals: a CSV/TSV of episode,start,end,label (every recording env).", dir_okay=False)] = None,
+    labels_unit: Annotated[Optional[str], typer.Option(help="--labels' start and end: seconds or frames \\[default: seconds for rosbag, frames otherwise].")] = None,
+    unlabelled: Annotated[Optional[str], typer.Option(help="jigsaws, --labels: the class of frames outside every interval \\[default: such frames are dropped].")] = None,
+    topics: Annotated[Optional[str], typer.Option(help="rosbag: topics to read, comma-separated \\[default: every topic with numeric fields].")] = None,
+    rate: Annotated[Optional[float], typer.Option(help="rosbag: the frames' clock in Hz \\[default: the first topic's rate].")] = None,
+    label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of phase names, each holding until the next.")] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
@@ -36,6 +42,8 @@ def collect(
             label=label_column, episode=episode_column, time=time_column,
             classes=_names(classes), features=_names(features),
         ),
+        recordings=stage.SourceOptions(labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
+                                       topics=_names(topics), rate=rate, label_topic=label_topic),
     )
     with reported_errors():
         options.validate()
@@ -55,6 +63,8 @@ def collect(
         f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
         f"{counted(len(collected.meta['features']), 'feature')})"
     )
+    for note in collected.meta.get("notes", []):
+        console.print(f"note: {note}")
     if "success_rate" in collected.meta:
         console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")
 

@@ -10,25 +10,39 @@ from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
 from stages import predict as stage
-from stages.table_import import TableColumns
 
 
 def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
-    source: Annotated[Path, typer.Option(help="A CSV or Parquet file, or a folder of them (one episode each), with the model's feature columns.")],
+    source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: SOURCE-NAME.predictions.parquet here].", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option(help="Overwrite the output files if they exist.")] = False,
     decode: Annotated[Optional[str], typer.Option(help="none, filter or viterbi \\[default: the model's]; viterbi decodes a filter model offline.")] = None,
-    label_column: Annotated[str, typer.Option(help="The label column, if the recordings have one: then the metrics are printed and stored too.")] = "label",
-    episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: 'episode' if present, else one episode per file].")] = None,
-    time_column: Annotated[Optional[str], typer.Option(help="The time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
+    env: Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")] = None,
+    label_column: Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; with labels the metrics are printed and stored too.")] = None,
+    episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file].")] = None,
+    time_column: Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's; else 'frame' if present, else file order].")] = None,
+    labels: Annotated[Optional[Path], typer.Option(help="True labels as intervals (episode,start,end,label), to score the predictions.", dir_okay=False)] = None,
+    labels_unit: Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: the model's].")] = None,
+    topics: Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")] = None,
+    rate: Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")] = None,
+    label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
+    intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
+    rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities (needs rerun-sdk).", dir_okay=False)] = None,
 ) -> None:
-    """Read MODEL and the recordings at SOURCE (as `collect --env table` reads them); write per frame its episode, frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata)."""
-    options = stage.PredictOptions(model=model, source=source, output=output, decode=decode,
-                                   columns=TableColumns(label=label_column, episode=episode_column, time=time_column))
+    """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). An existing output is kept unless --force."""
+    given = dict(labels=labels, labels_unit=labels_unit, topics=_names(topics), rate=rate, label_topic=label_topic)
+    options = stage.PredictOptions(
+        model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
+        episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
+        overrides={k: v for k, v in given.items() if v not in (None, ())},
+    )
     with reported_errors():
         result = stage.run(options)
     console.print(f"[green]predict[/]: wrote {result.path} ({counted(result.table.height, 'frame')}, "
                   f"{counted(result.episodes, 'episode')})")
+    for path in result.written:
+        console.print(f"[green]predict[/]: wrote {path}")
     if result.metrics is not None:
         m = result.metrics
         table = Table("segments", "frames", "macro F1 (segments)", "edit", "F1@10", "F1@25", "F1@50", box=None,
@@ -36,3 +50,7 @@ def predict(
         table.add_row(f"{m['segment_accuracy']:.1%}", f"{m['frame_accuracy']:.1%}", f"{m['macro_f1']:.3f}",
                       *(f"{m[k]:.1f}" for k in ("edit", "f1@10", "f1@25", "f1@50")))
         console.print(table)
+
+
+def _names(text: Optional[str]) -> tuple[str, ...]:
+    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else ()

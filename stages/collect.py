@@ -2,7 +2,8 @@
 
 Sources: ``fetch`` simulates scripted pick-and-place demonstrations in MuJoCo (see
 ``stages.fetch_demos``); ``desk`` imports the real DESK Taurus text files; ``table`` imports a user's
-own CSV or Parquet recordings (see ``stages.table_import``).
+own CSV or Parquet recordings, and ``rosbag``, ``lerobot``, ``hdf5`` and ``jigsaws`` robot recordings as
+they are (see ``stages.sources``), all assembled by ``stages.table_import``.
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, fetch_demos
+from stages import artifacts, fetch_demos, sources
 from stages.errors import BadInput
-from stages.table_import import TableColumns, import_table
+from stages.sources import RECORDING_ENVS, SourceOptions
+from stages.table_import import TableColumns, collect_frames, reading_record
 
-ENVS = ("fetch", "desk", "table")
+ENVS = ("fetch", "desk", *RECORDING_ENVS)
 DESK_CHANNELS = ("motion", "kinematics")
 
 DESK_CLASSES = (
@@ -61,6 +63,7 @@ class CollectOptions:
     train_frames: int | None = None  # first K frames train; default 126 (fetch), 1,405 (desk)
     goals: bool = False  # fetch: add achieved and desired goal to the 25 observation values
     columns: TableColumns = TableColumns()  # table: which columns are keys and features
+    recordings: SourceOptions = SourceOptions()  # recording sources: labels file, topics, rate...
     cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
 
     def validate(self) -> None:
@@ -70,8 +73,12 @@ class CollectOptions:
             raise BadInput(f"--episodes must be at least 1, got {self.episodes}")
         if self.train_frames is not None and self.train_frames < 0:
             raise BadInput(f"--train-frames must be 0 or more, got {self.train_frames}")
-        if self.env == "table" and self.source is None:
-            raise BadInput("--env table needs --source FILE or DIR, a CSV or Parquet file or a folder of them")
+        if self.env in RECORDING_ENVS and self.source is None:
+            raise BadInput(f"--env {self.env} needs --source PATH, the recordings to read")
+        if self.env not in RECORDING_ENVS and self.recordings != SourceOptions():
+            raise BadInput(f"--labels, --topics, --rate, --label-topic and --unlabelled are for recordings "
+                           f"({', '.join(RECORDING_ENVS)}), not --env {self.env}")
+        self.recordings.validate()
         if self.env == "desk":
             if self.source is None:
                 raise BadInput("--env desk needs --source DIR, the folder of the DESK Taurus files")
@@ -175,12 +182,22 @@ def collect_desk(options: CollectOptions) -> Collected:
     return Collected(frame_table, meta, inputs=tuple(path for path, _ in files))
 
 
-def collect_table(options: CollectOptions) -> Collected:
-    """Import a user's table; ``train_frames``, when given, overrides its split (first K frames train)."""
-    frames, meta = import_table(Path(options.source), options.columns)
+def collect_recordings(options: CollectOptions) -> Collected:
+    """Import a user's recordings; ``train_frames``, when given, overrides their split (first K frames train)."""
+    recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings)
+    frames, meta = collect_frames(recordings, options.columns.classes)
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(_split(frames.height, options.train_frames)))
-    return Collected(frames, meta, inputs=tuple(Path(name) for name in meta["source_files"]))
+    meta["source"] = options.env
+    resolved = {k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}
+    meta["reading"] = reading_record(options.env, options.columns, **{**options.recordings.record(options.env), **resolved})
+    meta["notes"] = list(dict.fromkeys(
+        f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
+        for key, what in (("skipped_topics", "topics without a numeric field"), ("skipped_features", "image and video features"))
+        if r.resolved.get(key)))
+    labels = options.recordings.labels
+    inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
+    return Collected(frames, meta, inputs=inputs)
 
 
 def collect_fetch(options: CollectOptions, progress: Progress | None = None) -> Collected:
@@ -226,8 +243,8 @@ def collect(options: CollectOptions, progress: Progress | None = None) -> Collec
     options.validate()
     if options.env == "desk":
         return collect_desk(options)
-    if options.env == "table":
-        return collect_table(options)
+    if options.env in RECORDING_ENVS:
+        return collect_recordings(options)
     return collect_fetch(options, progress)
 
 

@@ -96,6 +96,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "classes": list(frames_meta["classes"]),
         "features": list(frames_meta["features"]),
         "source": frames_meta.get("source", ""),
+        "reading": frames_meta.get("reading") or {"env": frames_meta.get("source", "")},  # how predict reads
         "predicates": columns,
         "network": network,
         "inputs": {p.name: artifacts.file_digest(p) for p in inputs},

@@ -1,13 +1,15 @@
-"""predict: a model file over new recordings (CSV or Parquet, a file or a folder of them).
+"""predict: a model file over new recordings (a table, or any recording source collect reads).
 
-The recordings are read as `collect --env table` reads them (the same column options); every frame of
-every episode is recognised, and written with its keys, its class name and every class's probability.
-When the recordings carry labels, the eval metrics are computed too (each episode scored as a stream:
-segment, frame, edit and F1@k).
+The recordings are read as the model's own were read (its manifest's ``reading``: env, episode, time and
+label columns, the source's options such as topics and rate); options given override it. Every frame of
+every episode is recognised, and written with the user's episode id, its frame, its class name and every
+class's probability. When the recordings carry labels, the eval metrics are computed too (each episode
+scored as a stream: segment, frame, edit and F1@k).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,27 +17,39 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, metrics
+from stages import artifacts, metrics, sources
 from stages.errors import BadInput
 from stages.recognizer import DECODES, Recognizer
-from stages.table_import import TableColumns, import_table
+from stages.sources import RECORDING_ENVS, SourceOptions, intervals
+from stages.table_import import TableColumns, prediction_frames
 
 
 @dataclass(frozen=True)
 class PredictOptions:
-    """Options of `mlnseq predict`."""
+    """Options of `mlnseq predict`; None: as the model's recordings were read."""
 
     model: Path
     source: Path
     output: Path | None = None  # default: SOURCE's name + .predictions.parquet, in the current folder
     decode: str | None = None  # default: the model's own; viterbi decodes a filter model offline
-    columns: TableColumns = field(default_factory=TableColumns)  # label, episode, time (features: the model's)
+    env: str | None = None  # table, rosbag, lerobot, hdf5 or jigsaws; default: the model's (table for fetch/desk)
+    label_column: str | None = None  # given: the recordings must have it
+    episode_column: str | None = None
+    time_column: str | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)  # SourceOptions fields given; the rest: the model's
+    force: bool = False  # overwrite an existing output
+    intervals: Path | None = None  # also write the predicted segments as episode,start,end,label
+    rerun: Path | None = None  # also write a Rerun recording
 
     def validate(self) -> None:
         if self.decode is not None and self.decode not in DECODES:
             raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
-        if self.columns.features:
-            raise BadInput("predict reads the model's own features; leave out --features")
+        if self.env is not None and self.env not in RECORDING_ENVS:
+            raise BadInput(f"unknown --env {self.env!r}: choose one of {', '.join(RECORDING_ENVS)}")
+        if not self.force:
+            for path in (self.output_path(), self.intervals, self.rerun):
+                if path is not None and Path(path).exists():
+                    raise BadInput(f"{path} exists; pass --force to overwrite it, or name another file")
 
     def output_path(self) -> Path:
         return Path(self.output) if self.output is not None else Path(f"{Path(self.source).stem}.predictions.parquet")
@@ -51,6 +65,8 @@ class Predicted:
     table: pl.DataFrame
     metrics: dict[str, Any] | None  # with labels in the recordings
     episodes: int
+    reading: dict[str, Any] = field(default_factory=dict)  # how the recordings were read
+    written: tuple[Path, ...] = ()  # the intervals and Rerun files, if asked
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -66,23 +82,60 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
     ), predicted
 
 
+def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
+    """The env, columns and source options to read new recordings with: the model's, overridden by options;
+    and whether labels are required (a named label column) or optional."""
+    kept = model.manifest.get("reading") or {}
+    env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
+    same = env == kept.get("env")
+    pick = lambda given, key, default=None: given if given is not None else (kept.get(key, default) if same else default)  # noqa: E731
+    columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
+                           episode=pick(options.episode_column, "episode_column"),
+                           time=pick(options.time_column, "time_column"),
+                           features=tuple(model.features), classes=tuple(model.classes))
+    names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
+    known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
+    recordings = SourceOptions(**{**known, **options.overrides})
+    return env, columns, recordings, "required" if options.label_column is not None else "optional"
+
+
 def run(options: PredictOptions) -> Predicted:
     """Read the model and the recordings; write the per-frame predictions (and metrics, given labels)."""
     options.validate()
     model = Recognizer.load(options.model)
-    columns = TableColumns(label=options.columns.label, episode=options.columns.episode, time=options.columns.time,
-                           features=tuple(model.features), classes=tuple(model.classes))
-    frames, meta = import_table(Path(options.source), columns, for_prediction=True)
+    env, columns, source_options, label = reading_of(model, options)
+    recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
+    frames, meta, times = prediction_frames(recordings, columns.classes)
     table, predicted = predict(model, frames, options.decode)
+    names = meta["episode_names"]
+    table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
     decode = options.decode or model.decode
+    reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
+               "time_column": columns.time, **source_options.record(env),
+               **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
+    inputs = [Path(options.model), *map(Path, meta["source_files"])]
+    if source_options.labels is not None:
+        inputs.append(Path(source_options.labels))
     path = artifacts.write_table(
         table, options.output_path(), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
-         "classes": model.classes, "episodes": meta["episode_names"], "metrics": scores},
-        inputs=[Path(options.model), *map(Path, meta["source_files"])],
+         "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading},
+        inputs=inputs,
     )
-    return Predicted(path, table, scores, len(meta["episode_names"]))
+    written = []
+    if options.intervals is not None:
+        segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
+                                      table["class"].to_list(), source_options.unit(env))
+        with artifacts.atomic_path(Path(options.intervals)) as tmp:
+            segments.write_csv(tmp)
+        written.append(Path(options.intervals))
+    if options.rerun is not None:
+        from stages.sources import rerun
+
+        written.append(rerun.write(Path(options.rerun), table["episode"].to_list(), frames, times, table,
+                                   list(model.features), list(model.classes)))
+    return Predicted(path, table, scores, len(names), reading, tuple(written))

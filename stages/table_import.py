@@ -1,15 +1,20 @@
-"""Import a user's own recordings (CSV or Parquet, one file or a folder of them) as frames.
+"""Recordings as frames: a user's CSV/Parquet tables, and the one assembly every recording source goes through.
 
-Columns named by the options are keys (label, episode, time); every other numeric column is a feature
-unless ``features`` lists them. A folder holds one episode per file, in name order.
+A source (this module's table reader, or one in ``stages.sources``) turns its files into ``Recording``s:
+per file its features and, per row, the user's episode id, time and label. ``collect_frames`` (for
+``collect``) and ``prediction_frames`` (for ``predict``) check and assemble them into frames.parquet's
+schema with one core: time rising within an episode, labels to class indices, the split, the metadata.
+
+A table's columns named by the options are keys (label, episode, time); every other numeric column is a
+feature unless ``features`` lists them. A folder holds one episode per file, in name order.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
 import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
@@ -34,6 +39,28 @@ class TableColumns:
     features: tuple[str, ...] = ()  # default: every other numeric column
     classes: tuple[str, ...] = ()  # class names in label order; default: from the labels
 
+
+@dataclass(frozen=True)
+class Recording:
+    """One file's frames as a source read them; rows are named in messages as ``where`` formats them."""
+
+    path: Path
+    features: pl.DataFrame  # one column per feature, in order, numeric and finite
+    episode: pl.Series  # the user's episode id per row (Int64 or String)
+    time: pl.Series  # rising within an episode
+    label: pl.Series | None = None  # class index or name per row; None: unlabelled
+    split: pl.Series | None = None  # train/test per row, if the source says
+    row: pl.Series | None = None  # the row number messages give (default: 0, 1, ...)
+    where: str = "{file} row {row}"  # "{file}:{row}" for a CSV's lines
+    resolved: dict[str, Any] = field(default_factory=dict)  # options the source chose (a bag's rate, topics)
+
+
+def row_where(recording: Recording, index: int) -> str:
+    row = int(recording.row[index]) if recording.row is not None else index
+    return recording.where.format(file=recording.path, row=row)
+
+
+# ---- the table reader ------------------------------------------------------------------------------------
 
 def table_files(source: Path) -> list[Path]:
     """The files to import: ``source`` itself, or the CSV/Parquet files of a folder in name order."""
@@ -99,22 +126,49 @@ def _refuse_numbers_with_typos(table: pl.DataFrame, path: Path, keys: set[str], 
                                         "or name the feature columns with --features", csv_header)
 
 
-def import_table(source: Path, columns: TableColumns, for_prediction: bool = False) -> tuple[pl.DataFrame, dict]:
-    """Read, check and assemble the frames and their metadata.
+def check_features(features: pl.DataFrame, path: Path, where: str = "{file} row {row}",
+                   rows: pl.Series | None = None) -> pl.DataFrame:
+    """Every feature numeric and finite within float32's range, else the first bad row and column named."""
+    def error(name: str, mask: pl.Series, what: str) -> BadInput:
+        index = int(np.flatnonzero(mask.to_numpy())[0])
+        row = int(rows[index]) if rows is not None else index
+        return BadInput(f"{where.format(file=path, row=row)}: column {name!r} {what}")
 
-    ``for_prediction`` (new recordings for a trained model): the label column is optional (absent: every
-    label is -1 and the metadata says ``labelled: false``), one class is enough, and every frame is test.
-    """
+    checked = {}
+    for name in features.columns:
+        column = features[name]
+        if column.dtype == pl.String:
+            numbers = column.str.strip_chars().cast(pl.Float64, strict=False)
+            bad = numbers.is_null() & column.is_not_null()
+            if bad.any():
+                raise error(name, bad, f"is not numeric: it holds {column.filter(bad)[0]!r} here")
+            column = numbers
+        elif not column.dtype.is_numeric():
+            raise error(name, pl.Series([True] * features.height), f"is not numeric ({column.dtype})")
+        values = column.cast(pl.Float64)
+        bad = values.is_null() | ~values.is_finite()
+        if bad.any():
+            raise error(name, bad, "is empty, NaN or infinite")
+        bad = values.abs() > FLOAT32_MAX
+        if bad.any():
+            raise error(name, bad, f"holds {values.filter(bad)[0]:g}, beyond the float32 range "
+                                   f"(±{FLOAT32_MAX:.4g}) features are stored in")
+        checked[name] = values
+    return pl.DataFrame(checked)
+
+
+def read_tables(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
+    """A user's CSV/Parquet file or folder as recordings. ``label``: ``required`` (the label column must be
+    there), ``optional`` (read if the first file has it) or ``none``."""
     files = table_files(Path(source))
-    labelled = True
-    parts = []
-    feature_names: list[str] | None = None
+    labelled = label == "required"
+    recordings = []
     for file_number, path in enumerate(files):
         table = read_one(path)
         is_csv = path.suffix.lower() == ".csv"
         episode_col = columns.episode or ("episode" if "episode" in table.columns else None)
         time_col = columns.time or ("frame" if "frame" in table.columns else None)
-        if for_prediction and file_number == 0:
+        if label == "optional" and file_number == 0:
             labelled = columns.label in table.columns
         label_col = columns.label if labelled else None
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
@@ -129,55 +183,108 @@ def import_table(source: Path, columns: TableColumns, for_prediction: bool = Fal
             _refuse_numbers_with_typos(table, path, keys, is_csv)
         if not names:
             raise BadInput(f"{path}: no numeric feature column; name them with --features")
-        if feature_names is None:
-            feature_names = names
-        elif names != feature_names:
-            raise BadInput(f"{path}: feature columns {names} differ from {files[0]}'s {feature_names}")
-        for name in names:
-            if not table[name].dtype.is_numeric():
-                raise BadInput(f"{path}: feature column {name!r} is not numeric ({table[name].dtype})")
-            values = table[name].cast(pl.Float64)
-            bad = values.is_null() | ~values.is_finite()
-            if bad.any():
-                raise _row_error(path, bad, f"column {name!r} is empty, NaN or infinite", is_csv)
-            bad = values.abs() > FLOAT32_MAX
-            if bad.any():
-                raise _row_error(path, bad, f"column {name!r} holds {values.filter(bad)[0]:g}, beyond the "
-                                            f"float32 range (±{FLOAT32_MAX:.4g}) features are stored in", is_csv)
-        episode = (
-            table[episode_col] if episode_col else pl.Series([file_number] * table.height)
-        ).alias("episode")
-        if episode.dtype.is_numeric() and episode.is_null().any():
-            raise _row_error(path, episode.is_null(), "episode is empty", is_csv)
-        part = table.select(names).with_columns(
-            episode=episode.cast(pl.String) if len(files) == 1 else pl.lit(f"{file_number}:") + episode.cast(pl.String),
-            label=table[label_col] if label_col else pl.lit(-1),
-            time=table[time_col] if time_col else pl.int_range(pl.len()),
-            split=table["split"].cast(pl.String) if "split" in table.columns else pl.lit(None, pl.String),
-            file=pl.lit(str(path)),
-            row=pl.int_range(pl.len()) + (2 if is_csv else 0),
-        )
-        parts.append(part)
-    frames = pl.concat(parts, how="vertical_relaxed")
-    _check_time(frames)
-    if labelled:
-        labels, classes = _label_indices(frames, columns.classes, min_classes=1 if for_prediction else 2)
-    else:
-        labels, classes = np.full(frames.height, -1, dtype=np.int16), list(columns.classes)
-    names = list(dict.fromkeys(frames["episode"].to_list()))
-    order = {name: i for i, name in enumerate(names)}
-    episode_index = np.array([order[e] for e in frames["episode"].to_list()], dtype=np.int32)
-    within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
-    split = np.full(frames.height, "test") if for_prediction else _split(frames, episode_index)
-    keys = {"episode": episode_index, "frame": within, "label": labels, "split": split}
-    table = artifacts.frames_table(keys, {n: frames[n].cast(pl.Float64).to_numpy() for n in feature_names})
-    table = table.sort(["episode", "frame"], maintain_order=True)
-    meta = {"source": "table", "source_files": [str(p.resolve()) for p in files],
-            "classes": classes, "features": list(feature_names), "labelled": labelled, "episode_names": names}
+        where = "{file}:{row}" if is_csv else "{file} row {row}"
+        rows = pl.int_range(table.height, eager=True) + (2 if is_csv else 0)
+        if episode_col is None:
+            episode = pl.Series([path.stem] * table.height)
+        else:
+            episode = table[episode_col]
+            if episode.is_null().any():
+                raise _row_error(path, episode.is_null(), f"episode column {episode_col!r} is empty", is_csv)
+            if len(files) > 1:
+                episode = pl.Series([f"{path.stem}/"] * table.height) + episode.cast(pl.String)
+            elif not episode.dtype.is_integer():
+                episode = episode.cast(pl.String)
+        recordings.append(Recording(
+            path=path, features=check_features(table.select(names), path, where, rows),
+            episode=episode.alias("episode"),
+            time=table[time_col] if time_col else pl.int_range(table.height, eager=True),
+            label=table[label_col] if label_col else None,
+            split=table["split"].cast(pl.String) if "split" in table.columns else None,
+            row=rows, where=where,
+        ))
+    return recordings
+
+
+# ---- the one assembly --------------------------------------------------------------------------------------
+
+def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = ()) -> tuple[pl.DataFrame, dict]:
+    """Frames for ``collect``: every frame labelled, two classes or more, the split from the source or by position."""
+    table, meta, _ = _assemble(recordings, classes, for_prediction=False)
     return table, meta
 
 
-def _split(frames: pl.DataFrame, episode_index: np.ndarray) -> np.ndarray:
+def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> tuple[pl.DataFrame, dict, np.ndarray]:
+    """Frames for ``predict``: labels optional (absent: every label -1, ``labelled: false``), one class enough,
+    every frame test; and each frame's time, row by row."""
+    return _assemble(recordings, classes, for_prediction=True)
+
+
+def _assemble(recordings: list[Recording], classes: tuple[str, ...],
+              for_prediction: bool) -> tuple[pl.DataFrame, dict, np.ndarray]:
+    if not recordings:
+        raise BadInput("no recording to read")
+    feature_names = recordings[0].features.columns
+    labelled = recordings[0].label is not None
+    for recording in recordings[1:]:
+        if recording.features.columns != feature_names:
+            raise BadInput(f"{recording.path}: feature columns {recording.features.columns} differ from "
+                           f"{recordings[0].path}'s {feature_names}")
+        if (recording.label is not None) != labelled:
+            raise BadInput(f"{recording.path}: {'has no' if labelled else 'has'} labels, unlike {recordings[0].path}")
+    if not labelled and not for_prediction:
+        raise BadInput(f"{recordings[0].path}: no labels; give a label column, or label intervals with --labels")
+    episode_ids = _common_dtype([r.episode for r in recordings])
+    labels = _common_dtype([r.label for r in recordings]) if labelled else None
+    where = {str(r.path): r.where for r in recordings}
+    frames = pl.DataFrame({
+        "episode": episode_ids,
+        "time": pl.concat([r.time.cast(pl.Float64) for r in recordings]),
+        "label": labels if labels is not None else pl.Series([-1] * len(episode_ids)),
+        "split": pl.concat([r.split.cast(pl.String) if r.split is not None else pl.Series([None] * r.features.height,
+                                                                                          dtype=pl.String)
+                            for r in recordings]),
+        "file": pl.concat([pl.Series([str(r.path)] * r.features.height, dtype=pl.String) for r in recordings]),
+        "row": pl.concat([(r.row if r.row is not None else pl.int_range(r.features.height, eager=True)).cast(pl.Int64)
+                          for r in recordings]),
+    })
+    at = lambda row: where[row["file"]].format(file=row["file"], row=row["row"])  # noqa: E731
+    _check_time(frames, at)
+    if labelled:
+        indices, names = _label_indices(frames, classes, at, min_classes=1 if for_prediction else 2)
+    else:
+        indices, names = np.full(frames.height, -1, dtype=np.int16), list(classes)
+    ids = frames["episode"].unique(maintain_order=True)
+    episode_index = frames["episode"].replace_strict(ids, pl.int_range(len(ids), eager=True),
+                                                     return_dtype=pl.Int32).to_numpy()
+    within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
+    split = np.full(frames.height, "test") if for_prediction else _split(frames, episode_index, at)
+    features = pl.concat([r.features for r in recordings], how="vertical_relaxed")
+    keys = {"episode": episode_index, "frame": within, "label": indices, "split": split}
+    table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})
+    order = np.lexsort((within, episode_index))
+    table = table[order]
+    files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
+    meta = {"source": "table", "source_files": files, "classes": names, "features": list(feature_names),
+            "labelled": labelled, "episode_names": ids.to_list()}
+    return table, meta, frames["time"].to_numpy()[order]
+
+
+def _files_of(path: Path) -> list[Path]:
+    """The files a recording was read from: itself, or a bag folder's files."""
+    return sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
+
+
+def _common_dtype(series: list[pl.Series]) -> pl.Series:
+    """One series of them all: integers stay integers, anything else becomes text."""
+    if all(s.dtype.is_integer() for s in series):
+        return pl.concat([s.cast(pl.Int64) for s in series])
+    if all(s.dtype.is_numeric() for s in series):
+        return pl.concat([s.cast(pl.Float64) for s in series])
+    return pl.concat([s.cast(pl.String) for s in series])
+
+
+def _split(frames: pl.DataFrame, episode_index: np.ndarray, at) -> np.ndarray:
     """A ``split`` column of the source if it has one, else the first 70 % of episodes train.
 
     With a single episode, the first 70 % of its frames train.
@@ -185,12 +292,12 @@ def _split(frames: pl.DataFrame, episode_index: np.ndarray) -> np.ndarray:
     given = frames["split"]
     if given.is_null().any() and given.is_not_null().any():
         first = frames.filter(given.is_null()).row(0, named=True)
-        raise BadInput(f"{first['file']}:{first['row']}: empty split; give every row train or test, or drop the column")
+        raise BadInput(f"{at(first)}: empty split; give every row train or test, or drop the column")
     if given.is_not_null().all():
         bad = ~given.is_in(list(artifacts.SPLITS))
         if bad.any():
             first = frames.filter(bad).row(0, named=True)
-            raise BadInput(f"{first['file']}:{first['row']}: split {first['split']!r} is neither train nor test")
+            raise BadInput(f"{at(first)}: split {first['split']!r} is neither train nor test")
         return given.to_numpy()
     n_episodes = int(episode_index.max()) + 1
     if n_episodes == 1:
@@ -200,35 +307,34 @@ def _split(frames: pl.DataFrame, episode_index: np.ndarray) -> np.ndarray:
     return np.where(position, "train", "test")
 
 
-def _check_time(frames: pl.DataFrame) -> None:
+def _check_time(frames: pl.DataFrame, at) -> None:
     """Time must rise strictly within each episode, in file order."""
-    step = frames.select(
-        pl.col("time").diff().over("episode").alias("step"), "file", "row"
-    )
+    if frames["time"].is_null().any() or not frames["time"].is_finite().all():
+        first = frames.filter(frames["time"].is_null() | ~frames["time"].is_finite().fill_null(False)).row(0, named=True)
+        raise BadInput(f"{at(first)}: time is empty, NaN or infinite")
+    step = frames.select(pl.col("time").diff().over("episode").alias("step"), "file", "row")
     bad = step.filter(pl.col("step").is_not_null() & (pl.col("step") <= 0))
     if bad.height:
         first = bad.row(0, named=True)
         what = "repeats the previous frame index" if first["step"] == 0 else "goes back in time"
-        raise BadInput(f"{first['file']}:{first['row']}: time {what}; each episode's frames must rise strictly")
+        raise BadInput(f"{at(first)}: time {what}; each episode's frames must rise strictly")
 
 
-def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
+def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
     labels = frames["label"]
     if labels.is_null().any():
         first = frames.filter(labels.is_null()).row(0, named=True)
-        raise BadInput(f"{first['file']}:{first['row']}: empty label")
+        raise BadInput(f"{at(first)}: empty label")
     if labels.dtype.is_numeric():
         values = labels.cast(pl.Float64).to_numpy()
         if not np.all(values == np.round(values)) or values.min() < 0:
             bad = frames.row(int(np.flatnonzero((values != np.round(values)) | (values < 0))[0]), named=True)
-            raise BadInput(f"{bad['file']}:{bad['row']}: label {bad['label']} is not a class index 0, 1, ...")
+            raise BadInput(f"{at(bad)}: label {bad['label']:g} is not a class index 0, 1, ...")
         indices = values.astype(np.int64)
         names = list(classes) or [str(k) for k in range(int(indices.max()) + 1)]
         if indices.max() >= len(names):
             bad = frames.row(int(np.flatnonzero(indices >= len(names))[0]), named=True)
-            raise BadInput(
-                f"{bad['file']}:{bad['row']}: label {bad['label']} is outside the {len(names)} classes of --classes"
-            )
+            raise BadInput(f"{at(bad)}: label {bad['label']:g} is outside the {len(names)} classes of --classes")
     else:
         text = labels.cast(pl.String).to_list()
         names = list(classes) or sorted(set(text))
@@ -236,8 +342,15 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], min_classes: 
         unknown = [i for i, t in enumerate(text) if t not in lookup]
         if unknown:
             bad = frames.row(unknown[0], named=True)
-            raise BadInput(f"{bad['file']}:{bad['row']}: label {bad['label']!r} is not one of --classes")
+            raise BadInput(f"{at(bad)}: label {bad['label']!r} is not one of --classes ({', '.join(names)})")
         indices = np.array([lookup[t] for t in text], dtype=np.int64)
     if len(set(indices.tolist())) < min_classes:
         raise BadInput(f"the labels hold a single class ({names[int(indices[0])]!r}); mlnseq needs two or more")
     return indices.astype(np.int16), names
+
+
+def reading_record(env: str, columns: TableColumns, **options: Any) -> dict[str, Any]:
+    """How recordings were read, as a model remembers it for ``predict``: the env, the key columns, the
+    source's own options (JSON-ready)."""
+    return {"env": env, "label_column": columns.label, "episode_column": columns.episode,
+            "time_column": columns.time, **{k: (str(v) if isinstance(v, Path) else v) for k, v in options.items()}}

@@ -43,9 +43,9 @@ def test_an_unlabelled_folder_of_recordings_is_one_episode_per_file(combined, de
     frames.slice(300, 200).write_parquet(folder / "b.parquet")
     result = predict.run(predict.PredictOptions(model=combined, source=folder, output=tmp_path / "out.parquet"))
     assert result.metrics is None and "label" not in result.table.columns
-    assert result.table.group_by("episode").len().sort("episode")["len"].to_list() == [300, 200]
+    assert result.table.group_by("episode").len().sort("episode").rows() == [("a", 300), ("b", 200)]  # the files' names
     whole = predict.run(predict.PredictOptions(model=combined, source=folder / "a.csv", output=tmp_path / "a.parquet"))
-    assert whole.table.drop("episode").equals(result.table.filter(pl.col("episode") == 0).drop("episode"))
+    assert whole.table.drop("episode").equals(result.table.filter(pl.col("episode") == "a").drop("episode"))
 
 
 def test_a_recording_without_the_model_features_names_every_missing_column(combined, desk_test_recording, tmp_path):

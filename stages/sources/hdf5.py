@@ -1,0 +1,90 @@
+"""robomimic-style HDF5 demonstrations read with h5py: ``data/demo_N/obs/*`` and ``data/demo_N/actions``,
+one episode a demo in number order.
+
+``--features`` names datasets by their path in a demo (``obs/robot0_eef_pos``, ``actions``); by default
+every numeric dataset under ``obs/`` with one value or one vector a frame, then ``actions`` (images and
+other higher-dimensional datasets are left out). A vector dataset gives one feature per element,
+``PATH/0``, ``PATH/1``...; a frame's time is its index. A dataset named by ``--label-column`` in a demo
+labels its frames.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from stages.errors import BadInput
+from stages.table_import import Recording, TableColumns, check_features
+
+
+def _datasets(group, prefix: str = "") -> list[str]:
+    import h5py
+
+    found = []
+    for name, item in group.items():
+        path = f"{prefix}{name}"
+        if isinstance(item, h5py.Dataset):
+            found.append(path)
+        else:
+            found += _datasets(item, f"{path}/")
+    return found
+
+
+def read(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
+    try:
+        import h5py
+    except ImportError as error:
+        from stages.sources import missing_extra
+
+        raise missing_extra("h5py", error) from error
+    source = Path(source)
+    if not source.is_file():
+        raise BadInput(f"--source {source}: expected an HDF5 file (robomimic layout: data/demo_N/obs, actions)")
+    try:
+        handle = h5py.File(source, "r")
+    except OSError as error:
+        raise BadInput(f"{source}: cannot read it as HDF5 ({error})") from error
+    with handle:
+        if "data" not in handle or not len(handle["data"]):
+            raise BadInput(f"{source}: no data/demo_N groups (robomimic layout)")
+        demos = sorted(handle["data"], key=lambda n: [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", n)])
+        recordings = []
+        chosen: list[str] | None = list(columns.features) or None
+        for demo in demos:
+            group = handle["data"][demo]
+            where = f"{source}:/data/{demo}"
+            present = _datasets(group)
+            if chosen is None:
+                chosen = [p for p in present if p.startswith("obs/") and group[p].dtype.kind in "biuf"
+                          and group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
+                if not chosen:
+                    raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
+            missing = [p for p in chosen if p not in present]
+            if missing:
+                raise BadInput(f"{where}: no dataset {missing[0]!r}; the demo's datasets are {', '.join(present)}")
+            flat: dict[str, np.ndarray] = {}
+            length = None
+            for path in chosen:
+                values = np.asarray(group[path])
+                if values.ndim > 2 or values.dtype.kind not in "biuf":
+                    raise BadInput(f"{where}/{path}: {values.dtype} of shape {values.shape} is not one value or "
+                                   "one vector a frame")
+                if length is not None and len(values) != length:
+                    raise BadInput(f"{where}/{path}: {len(values)} frames, where {chosen[0]} has {length}")
+                length = len(values)
+                if values.ndim == 1:
+                    flat[path] = values
+                else:
+                    flat.update({f"{path}/{k}": values[:, k] for k in range(values.shape[1])})
+            labels = None
+            if label != "none" and columns.label in present:
+                raw = np.asarray(group[columns.label])
+                labels = pl.Series("label", [v.decode() if isinstance(v, bytes) else v for v in raw.tolist()])
+            recordings.append(Recording(
+                path=source, features=check_features(pl.DataFrame(flat), Path(where), "{file} frame {row}"),
+                episode=pl.Series([demo] * length), time=pl.int_range(length, eager=True), label=labels,
+                where=f"{where} frame {{row}}"))
+    return recordings

@@ -1,0 +1,175 @@
+"""Labels as time intervals: ``episode,start,end,label`` rows (CSV or TSV), or a folder of JIGSAWS-style
+``start end label`` files named by episode, applied to recordings.
+
+Units: ``frames`` counts a frame's position in its episode from 0, an interval holding ``start`` to ``end``
+inclusive (the JIGSAWS convention); ``seconds`` is the recording's time, an interval holding
+``start <= t < end`` (so one interval may end where the next starts). Frames outside every interval are
+dropped, or given the class ``unlabelled``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from stages.errors import BadInput
+from stages.table_import import Recording
+
+COLUMNS = ("episode", "start", "end", "label")
+
+
+@dataclass(frozen=True)
+class Interval:
+    start: float
+    end: float
+    label: str | int
+    where: str  # file and line, for messages
+
+
+def read(path: Path) -> dict[str, list[Interval]]:
+    """The intervals of ``path`` by episode id (as text), in start order; overlaps and reversed ends refused."""
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() == ".txt")
+        if not files:
+            raise BadInput(f"--labels {path} holds no .txt file of start end label lines")
+        return {p.stem: checked(transcription(p)) for p in files}
+    if not path.is_file():
+        raise BadInput(f"--labels {path} not found")
+    try:
+        separator = "\t" if path.suffix.lower() == ".tsv" or "\t" in path.open(encoding="utf-8").readline() else ","
+        table = pl.read_csv(path, separator=separator, infer_schema_length=10_000)
+    except Exception as error:  # polars raises many types for unreadable files
+        raise BadInput(f"{path}: cannot read it as intervals ({str(error).strip().splitlines()[0][:120]})") from error
+    missing = [c for c in COLUMNS if c not in table.columns]
+    if missing:
+        raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; intervals need {','.join(COLUMNS)}")
+    for name in ("start", "end"):
+        values = table[name].cast(pl.Float64, strict=False)
+        bad = values.is_null() | ~values.is_finite().fill_null(False)
+        if bad.any():
+            row = int(bad.arg_true()[0])
+            raise BadInput(f"{path}:{row + 2}: {name} {table[name][row]!r} is not a number")
+        table = table.with_columns(values.alias(name))
+    if table["label"].is_null().any():
+        raise BadInput(f"{path}:{int(table['label'].is_null().arg_true()[0]) + 2}: empty label")
+    by_episode: dict[str, list[Interval]] = {}
+    for line, row in enumerate(table.iter_rows(named=True), start=2):
+        by_episode.setdefault(str(row["episode"]), []).append(
+            Interval(row["start"], row["end"], row["label"], f"{path}:{line}"))
+    return {episode: checked(found) for episode, found in by_episode.items()}
+
+
+def transcription(path: Path, first_frame: int = 0) -> list[Interval]:
+    """A JIGSAWS-style file: ``start end label`` per line, whitespace-separated, frames numbered from
+    ``first_frame`` (JIGSAWS: 1)."""
+    found = []
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise BadInput(f"cannot read {path}: {error}") from error
+    for number, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 3:
+            raise BadInput(f"{path}:{number}: expected start end label, found {len(fields)} fields")
+        try:
+            start, end = int(fields[0]) - first_frame, int(fields[1]) - first_frame
+        except ValueError:
+            raise BadInput(f"{path}:{number}: start and end must be frame numbers, got {line.strip()[:40]!r}") from None
+        found.append(Interval(start, end, fields[2], f"{path}:{number}"))
+    if not found:
+        raise BadInput(f"{path} holds no interval")
+    return found
+
+
+def checked(found: list[Interval]) -> list[Interval]:
+    for interval in found:
+        if interval.end < interval.start:
+            raise BadInput(f"{interval.where}: ends ({interval.end:g}) before it starts ({interval.start:g})")
+    ordered = sorted(found, key=lambda i: i.start)
+    for before, after in zip(ordered, ordered[1:]):
+        if after.start < before.end:
+            raise BadInput(f"{after.where}: overlaps the interval of {before.where}; intervals may touch, not overlap")
+    return ordered
+
+
+def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], unit: str,
+          unlabelled: str | None = None) -> list[Recording]:
+    """Each recording labelled from its episode's intervals; frames outside every interval dropped or
+    labelled ``unlabelled``. Every episode needs intervals, and every interval's episode a recording."""
+    seen: set[str] = set()
+    labelled = []
+    for recording in recordings:
+        episodes = recording.episode.cast(pl.String).to_numpy()
+        keep = np.zeros(len(episodes), dtype=bool)
+        labels = np.full(len(episodes), unlabelled, dtype=object)
+        for episode in dict.fromkeys(episodes.tolist()):
+            rows = np.flatnonzero(episodes == episode)
+            found = intervals.get(episode)
+            if found is None:
+                known = ", ".join(list(intervals)[:5])
+                raise BadInput(f"{recording.path}: episode {episode!r} has no interval in --labels "
+                               f"(its episodes: {known}{', ...' if len(intervals) > 5 else ''})")
+            seen.add(episode)
+            key = np.arange(len(rows), dtype=np.float64) if unit == "frames" else recording.time.to_numpy()[rows]
+            _label_episode(key, found, unit, rows, labels, keep, f"{recording.path} episode {episode!r}")
+        if unlabelled is not None:
+            keep[:] = True
+        mask = pl.Series(keep)
+        values = labels[keep].tolist()
+        label_series = (pl.Series("label", values, dtype=pl.Int64) if all(isinstance(v, int) for v in values)
+                        else pl.Series("label", [str(v) for v in values], dtype=pl.String))
+        labelled.append(dataclasses.replace(
+            recording, features=recording.features.filter(mask), episode=recording.episode.filter(mask),
+            time=recording.time.filter(mask), label=label_series,
+            split=None if recording.split is None else recording.split.filter(mask),
+            row=(recording.row if recording.row is not None else pl.int_range(len(keep), eager=True)).filter(mask)))
+        if not keep.any():
+            raise BadInput(f"{recording.path}: no frame falls in an interval of --labels")
+    unused = [e for e in intervals if e not in seen]
+    if unused:
+        raise BadInput(f"{intervals[unused[0]][0].where}: episode {unused[0]!r} is in no recording")
+    return labelled
+
+
+def _label_episode(key: np.ndarray, found: list[Interval], unit: str, rows: np.ndarray, labels: np.ndarray,
+                   keep: np.ndarray, what: str) -> None:
+    last = key[-1] if unit == "frames" else key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
+    for interval in found:
+        inside = (key >= interval.start) & ((key <= interval.end) if unit == "frames" else (key < interval.end))
+        if interval.start < key[0] or interval.end > last + 1e-9 or not inside.any():
+            raise BadInput(f"{interval.where}: interval {interval.start:g}..{interval.end:g} falls outside {what} "
+                           f"({key[0]:g}..{last:g} {unit})")
+        if keep[rows[inside]].any():
+            raise BadInput(f"{interval.where}: overlaps the interval before it in {what}")
+        labels[rows[inside]] = interval.label
+        keep[rows[inside]] = True
+
+
+def segments(episodes: list, positions: np.ndarray, times: np.ndarray, classes: list[str], unit: str) -> pl.DataFrame:
+    """The runs of one class per episode as ``episode,start,end,label`` in ``unit``, the form ``read`` takes
+    back: frames inclusive, seconds from a run's first frame to the next run's (the last run: one median
+    step past its last frame)."""
+    rows: dict[str, list] = {"episode": [], "start": [], "end": [], "label": []}
+    ids = np.asarray(episodes, dtype=object)
+    labels = np.asarray(classes, dtype=object)
+    change = np.flatnonzero((ids[1:] != ids[:-1]) | (labels[1:] != labels[:-1])) + 1
+    starts, ends = np.r_[0, change], np.r_[change, len(ids)]
+    for a, b in zip(starts, ends):
+        rows["episode"].append(str(ids[a]))
+        rows["label"].append(labels[a])
+        if unit == "frames":
+            rows["start"].append(int(positions[a]))
+            rows["end"].append(int(positions[b - 1]))
+        else:
+            episode_times = times[ids == ids[a]]
+            step = float(np.median(np.diff(episode_times))) if len(episode_times) > 1 else 0.0
+            rows["start"].append(float(times[a]))
+            rows["end"].append(float(times[b]) if b < len(ids) and ids[b] == ids[a] else float(times[b - 1]) + step)
+    return pl.DataFrame(rows)

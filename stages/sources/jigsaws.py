@@ -1,0 +1,89 @@
+"""JIGSAWS-style recordings: ``kinematics/AllGestures/TRIAL.txt`` (whitespace-separated, one row a frame)
+with ``transcriptions/TRIAL.txt`` (``start end gesture``, frames from 1, inclusive); one episode a trial.
+
+The 76 kinematic variables are named as the dataset's readme lists them: per manipulator (the left and
+right master tool manipulators, then the left and right patient-side ones) position, rotation matrix,
+linear and angular velocity and gripper angle. A file of another width gets ``k1``, ``k2``, ...
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from stages.errors import BadInput
+from stages.sources import intervals
+from stages.table_import import Recording, TableColumns, check_features
+
+MANIPULATORS = ("mtm_left", "mtm_right", "psm_left", "psm_right")
+VARIABLES = ("x", "y", "z", *(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)),
+             "vx", "vy", "vz", "wx", "wy", "wz", "gripper")
+FEATURES = tuple(f"{m}_{v}" for m in MANIPULATORS for v in VARIABLES)
+RATE = 30.0  # Hz: the dataset's kinematics rate, giving each frame its time in seconds
+KINEMATICS, TRANSCRIPTIONS = Path("kinematics") / "AllGestures", Path("transcriptions")
+
+
+def read_kinematics(path: Path) -> np.ndarray:
+    rows: list[list[float]] = []
+    width = None
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise BadInput(f"cannot read {path}: {error}") from error
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        width = width or len(fields)
+        if len(fields) != width:
+            raise BadInput(f"{path}:{number}: expected {width} columns as on the first line, found {len(fields)}")
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            raise BadInput(f"{path}:{number}: non-numeric value in {line.strip()[:60]!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise BadInput(f"{path}:{number}: NaN or infinite value; remove or repair that frame")
+        rows.append(values)
+    if not rows:
+        raise BadInput(f"{path} is empty: expected one frame of kinematics per line")
+    return np.asarray(rows)
+
+
+def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:
+    """Every trial of a JIGSAWS task folder; labelled from its transcription (``with_labels``), frames
+    outside every gesture dropped or given ``options.unlabelled``. ``label``: required (every trial has a
+    transcription), optional (trials without one are unlabelled: then all must be) or none."""
+    folder = Path(source) / KINEMATICS
+    if not folder.is_dir():
+        raise BadInput(f"--source {source}: no {KINEMATICS} folder; point it at a JIGSAWS task folder "
+                       "(kinematics/AllGestures/*.txt, transcriptions/*.txt)")
+    files = sorted(folder.glob("*.txt"))
+    if not files:
+        raise BadInput(f"{folder} holds no .txt kinematics file")
+    recordings = []
+    for path in files:
+        values = read_kinematics(path)
+        names = FEATURES if values.shape[1] == len(FEATURES) else tuple(f"k{i + 1}" for i in range(values.shape[1]))
+        table = pl.DataFrame({n: values[:, i] for i, n in enumerate(names)})
+        if columns.features:
+            missing = [n for n in columns.features if n not in names]
+            if missing:
+                raise BadInput(f"{path}: no variable {', '.join(map(repr, missing))}; its variables are "
+                               f"{', '.join(names[:6])}, ...")
+            table = table.select(columns.features)
+        rows = pl.int_range(1, len(values) + 1, eager=True)
+        recording = Recording(path=path, features=check_features(table, path, "{file}:{row}", rows),
+                              episode=pl.Series([path.stem] * len(values)), time=(rows - 1) / RATE, row=rows,
+                              where="{file}:{row}")
+        transcript = Path(source) / TRANSCRIPTIONS / path.name
+        if label == "required" or (label == "optional" and transcript.is_file()):
+            if not transcript.is_file():
+                raise BadInput(f"{path}: no transcription {transcript}; label every trial, or leave it out")
+            found = intervals.transcription(transcript, first_frame=1)
+            recording = intervals.apply([recording], {path.stem: intervals.checked(found)}, "frames",
+                                        options.unlabelled)[0]
+        recordings.append(recording)
+    return recordings

@@ -1,0 +1,107 @@
+"""LeRobot datasets read with polars alone: v2.x (``data/chunk-*/episode_*.parquet``, ``meta/episodes.jsonl``)
+and v3 (``data/chunk-*/file-*.parquet``, ``meta/episodes/``), as ``meta/info.json`` describes them.
+
+Episodes come from ``episode_index``, frames from ``frame_index``, a frame's time from ``timestamp``
+(seconds). Every numeric feature of ``info.json`` is read (a vector column as one feature per element,
+named ``COLUMN/NAME`` from its ``names``, else ``COLUMN/0``, ``COLUMN/1``...); image and video features
+are skipped with a note. A column named by ``--label-column`` labels the frames, if the data has it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from stages.errors import BadInput
+from stages.table_import import Recording, TableColumns, check_features
+
+VERSIONS = ("v2.0", "v2.1", "v3.0")
+KEYS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+NUMERIC = ("float16", "float32", "float64", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "bool")
+
+
+def info_of(source: Path) -> dict[str, Any]:
+    path = source / "meta" / "info.json"
+    if not path.is_file():
+        raise BadInput(f"--source {source}: no meta/info.json; point it at a LeRobot dataset folder")
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise BadInput(f"{path}: cannot read it as JSON ({error})") from error
+    version = str(info.get("codebase_version"))
+    if version not in VERSIONS:
+        raise BadInput(f"{path}: codebase_version {version!r} is not supported; mlnseq reads {', '.join(VERSIONS)}")
+    if not isinstance(info.get("features"), dict):
+        raise BadInput(f"{path}: no 'features' table")
+    return info
+
+
+def element_names(column: str, spec: dict[str, Any]) -> list[str]:
+    """One name per element of a feature: from ``names`` (a list, or a dict of one list as v2.0 writes it)."""
+    shape = list(spec.get("shape") or [1])
+    size = 1
+    for n in shape:
+        size *= int(n)
+    names = spec.get("names")
+    if isinstance(names, dict) and len(names) == 1:
+        names = next(iter(names.values()))
+    if isinstance(names, list) and len(names) == size and all(isinstance(n, str) for n in names):
+        return [f"{column}/{n}" for n in names] if size > 1 or shape != [1] else [column]
+    return [column] if size == 1 else [f"{column}/{k}" for k in range(size)]
+
+
+def read(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
+    source = Path(source)
+    info = info_of(source)
+    features = info["features"]
+    chosen = [name for name, spec in features.items()
+              if name not in KEYS and name != columns.label and spec.get("dtype") in NUMERIC]
+    skipped = [name for name, spec in features.items() if spec.get("dtype") in ("image", "video")]
+    if columns.features:
+        missing = [n for n in columns.features if n not in features]
+        if missing:
+            raise BadInput(f"{source}/meta/info.json: no feature {missing[0]!r}; its features are {', '.join(features)}")
+        chosen = list(columns.features)
+    if not chosen:
+        raise BadInput(f"{source}/meta/info.json: no numeric feature ({', '.join(features)})")
+    pattern = "episode_*.parquet" if info["codebase_version"].startswith("v2") else "file-*.parquet"
+    files = sorted((source / "data").glob(f"chunk-*/{pattern}"))
+    if not files:
+        raise BadInput(f"{source}/data holds no chunk-*/{pattern} ({info['codebase_version']} layout)")
+    recordings = []
+    for path in files:
+        try:
+            table = pl.read_parquet(path)
+        except Exception as error:  # polars raises many types for unreadable files
+            raise BadInput(f"{path}: cannot read it as parquet ({str(error).strip().splitlines()[0][:120]})") from error
+        missing = [n for n in ("episode_index", "frame_index", *chosen) if n not in table.columns]
+        if missing:
+            raise BadInput(f"{path}: no column {missing[0]!r}; columns are {', '.join(table.columns)}")
+        flat = {}
+        for name in chosen:
+            names = element_names(name, features[name])
+            column = table[name]
+            if isinstance(column.dtype, (pl.List, pl.Array)):
+                lengths = column.list.len() if isinstance(column.dtype, pl.List) else None
+                if lengths is None and column.dtype.size != len(names):
+                    raise BadInput(f"{path}: column {name!r} holds {column.dtype.size} values a frame, info.json's "
+                                   f"shape {len(names)}")
+                if lengths is not None and (lengths != len(names)).any():
+                    row = int((lengths != len(names)).arg_true()[0])
+                    raise BadInput(f"{path} row {row}: column {name!r} holds {lengths[row]} values, info.json's "
+                                   f"shape {len(names)}")
+                elements = column.list if lengths is not None else column.arr
+                for k, feature in enumerate(names):
+                    flat[feature] = elements.get(k)
+            else:
+                flat[names[0]] = column
+        time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
+        labelled = label != "none" and columns.label in table.columns
+        recordings.append(Recording(
+            path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),
+            time=time, label=table[columns.label] if labelled else None,
+            resolved={"skipped_features": skipped}))
+    return recordings

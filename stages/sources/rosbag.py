@@ -1,0 +1,281 @@
+"""ROS bags as recordings, read with ``rosbags`` (no ROS install): a ROS 1 ``.bag``, a ROS 2 bag folder
+(``metadata.yaml``; sqlite3 or MCAP storage), a bare ``.mcap``, or a folder of them, one episode each.
+
+Numeric fields are flattened into features named ``TOPIC/FIELD/PATH`` (array elements by index, a
+``sensor_msgs/JointState``'s by joint name; headers, text and byte arrays are left out). All topics are put
+on one clock at ``rate`` Hz (default: the first topic's rate), starting when every topic has sent a message,
+each tick holding each topic's last value at or before it (causal: never a value from the future). A frame's
+time is seconds since the bag's first message, the bag's own record time. ``label_topic`` (std_msgs/String)
+labels every tick with its last message. Messages are streamed, never all held.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import operator
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from stages.errors import BadInput
+from stages.table_import import Recording, TableColumns, check_features
+
+BAG_SUFFIXES = (".bag", ".mcap")
+STRING = "std_msgs/msg/String"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+RATE_PROBE = 200  # messages of the first topic whose median period gives the default rate
+CHUNK = 8192  # frames per buffer block
+
+
+def bag_paths(source: Path) -> list[Path]:
+    """The bags at ``source``: itself, or a folder's bags (files and ROS 2 bag folders) in name order."""
+    if source.is_file():
+        if source.suffix.lower() not in BAG_SUFFIXES:
+            raise BadInput(f"--source {source}: expected a .bag or .mcap file, a ROS 2 bag folder, or a folder of them")
+        return [source]
+    if (source / "metadata.yaml").is_file():
+        return [source]
+    found = sorted(p for p in source.iterdir()
+                   if (p.is_file() and p.suffix.lower() in BAG_SUFFIXES) or (p / "metadata.yaml").is_file())
+    if not found:
+        raise BadInput(f"--source {source} holds no .bag, .mcap or ROS 2 bag folder (metadata.yaml)")
+    return found
+
+
+def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:
+    """One recording per bag; the topics and rate the first bag resolves hold for the others."""
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as error:
+        from stages.sources import missing_extra
+
+        raise missing_extra("rosbags", error) from error
+    typestore = get_typestore(Stores.ROS2_HUMBLE)  # for bags that carry no message definitions
+    recordings: list[Recording] = []
+    topics, rate = tuple(options.topics), options.rate
+    for path in bag_paths(Path(source)):
+        try:
+            with AnyReader([path], default_typestore=typestore) as reader:
+                label_topic = options.label_topic if label != "none" else None
+                if label == "optional" and label_topic not in reader.topics:
+                    label_topic = None  # new recordings without their phases: unlabelled
+                recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+        except BadInput:
+            raise
+        except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
+            text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
+        topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
+        if columns.features:
+            missing = [n for n in columns.features if n not in recording.features.columns]
+            if missing:
+                raise BadInput(f"{path}: no feature {missing[0]!r}; its features are "
+                               f"{', '.join(recording.features.columns[:8])}")
+            recording = dataclasses.replace(recording, features=recording.features.select(columns.features))
+        recordings.append(recording)
+    return recordings
+
+
+def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
+             unlabelled: str | None = None) -> Recording:
+    """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
+    available = reader.topics
+    if reader.message_count == 0:
+        raise BadInput(f"{path}: the bag holds no message")
+    listed = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(available.items()))
+    for topic in (*topics, *([label_topic] if label_topic else [])):
+        if topic not in available:
+            raise BadInput(f"{path}: no topic {topic!r}; its topics are {listed}")
+        if not available[topic].msgcount:
+            raise BadInput(f"{path}: topic {topic!r} has no message")
+    if label_topic and available[label_topic].msgtype != STRING:
+        raise BadInput(f"{path}: --label-topic {label_topic} is {available[label_topic].msgtype}, not {STRING}")
+    named = bool(topics)
+    candidates = list(topics) or sorted(t for t, info in available.items() if info.msgcount and t != label_topic)
+    if rate is None:
+        rate = _rate_of(reader, path, candidates[0])
+    period = 1e9 / rate
+    wanted = set(candidates) | ({label_topic} if label_topic else set())
+    connections = [c for c in reader.connections if c.topic in wanted]
+
+    extractors: dict[str, Callable[[Any], np.ndarray]] = {}
+    names: dict[str, list[str]] = {}
+    current: dict[str, np.ndarray] = {}
+    last_time: dict[str, int] = {}
+    skipped: list[str] = []
+    start = reader.start_time
+    row: np.ndarray | None = None
+    offsets: dict[str, tuple[int, int]] = {}
+    blocks: list[np.ndarray] = []
+    label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label): ticks' times and labels follow
+    block = np.empty((0, 0))
+    filled = 0
+    tick = 0
+    clock0 = None
+
+    for connection, timestamp, raw in reader.messages(connections=connections):
+        topic = connection.topic
+        previous = last_time.get(topic)
+        if previous is not None and timestamp < previous:
+            raise BadInput(f"{path}: topic {topic!r} goes back in time at {(timestamp - start) / 1e9:.6f} s "
+                           f"(after {(previous - start) / 1e9:.6f} s)")
+        last_time[topic] = timestamp
+        if row is not None:
+            while clock0 + round(tick * period) < timestamp:  # ticks before this message hold the values so far
+                if filled == CHUNK:
+                    blocks.append(block)
+                    block, filled = np.empty((CHUNK, len(row))), 0
+                block[filled] = row
+                filled += 1
+                tick += 1
+        message = reader.deserialize(raw, connection.msgtype)
+        if topic == label_topic:
+            label_changes.append((tick, message.data))
+            continue
+        if topic not in extractors:
+            if topic in skipped:
+                continue
+            fields = _leaves(message, topic, connection.msgtype)
+            if not fields:
+                if named:
+                    raise BadInput(f"{path}: topic {topic!r} ({connection.msgtype}) has no numeric field")
+                skipped.append(topic)
+                candidates.remove(topic)
+            else:
+                names[topic] = [name for group, _, _ in fields for name in group]
+                extractors[topic] = _extractor(fields)
+        if topic in extractors:
+            try:
+                values = extractors[topic](message)
+            except ValueError:
+                raise BadInput(f"{path}: topic {topic!r} changes its number of values at "
+                               f"{(timestamp - start) / 1e9:.6f} s; a topic's fields must keep their length") from None
+            if row is not None:
+                a, b = offsets[topic]
+                row[a:b] = values
+                continue
+            current[topic] = values
+        if row is None and candidates and all(t in current for t in candidates):
+            position = 0
+            for t in candidates:
+                offsets[t] = (position, position + len(current[t]))
+                position += len(current[t])
+            row = np.concatenate([current[t] for t in candidates])
+            block, filled, clock0 = np.empty((CHUNK, len(row))), 0, timestamp
+    if row is None:
+        if not candidates:
+            raise BadInput(f"{path}: no topic has a numeric field ({listed})")
+        waiting = [t for t in candidates if t not in current]
+        raise BadInput(f"{path}: topic {waiting[0]!r} sent no message, so no frame has every topic's value")
+    end = max(last_time.values())
+    while clock0 + round(tick * period) <= end:
+        if filled == CHUNK:
+            blocks.append(block)
+            block, filled = np.empty((CHUNK, len(row))), 0
+        block[filled] = row
+        filled += 1
+        tick += 1
+    blocks.append(block[:filled])
+    feature_names = [name for t in candidates for name in names[t]]
+    n = tick
+    times = clock0 + np.round(np.arange(n) * period).astype(np.int64)
+    labels = np.full(n, None, dtype=object)
+    for (first, name), (after, _) in zip(label_changes, [*label_changes[1:], (n, None)]):
+        labels[first:after] = name
+    rows = np.arange(n)
+    if label_topic:
+        if unlabelled is not None:
+            labels[labels == None] = unlabelled  # noqa: E711
+        keep = labels != None  # noqa: E711
+        times, labels, rows = times[keep], labels[keep], rows[keep]
+        if not len(rows):
+            raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
+    columns = {}
+    for i, name in enumerate(feature_names):  # one column at a time: the blocks and the frames, never a third copy
+        column = np.concatenate([b[:, i] for b in blocks])
+        columns[name] = column[keep] if label_topic else column
+    del blocks, block
+    features = check_features(pl.DataFrame(columns), path, "{file} frame {row}", pl.Series(rows))
+    return Recording(
+        path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
+        time=pl.Series((times - start) / 1e9),
+        label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
+        row=pl.Series(rows), where="{file} frame {row}",
+        resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
+    )
+
+
+def _rate_of(reader, path: Path, topic: str) -> float:
+    """The first topic's rate: 1 / the median period of its first messages (timestamps only, no decoding)."""
+    stamps = []
+    for connection, timestamp, _ in reader.messages(connections=[c for c in reader.connections if c.topic == topic]):
+        stamps.append(timestamp)
+        if len(stamps) > RATE_PROBE:
+            break
+    steps = np.diff(np.asarray(stamps, dtype=np.int64))
+    steps = steps[steps > 0]
+    if not steps.size:
+        raise BadInput(f"{path}: topic {topic!r} has too few messages to give a rate; pass --rate HZ")
+    return float(1e9 / np.median(steps))
+
+
+def _leaves(message: Any, prefix: str, msgtype: str) -> list[tuple[list[str], Callable[[Any], Any], bool]]:
+    """Every numeric field of ``message`` in field order: (its feature names, its getter, whether an array)."""
+    found: list[tuple[list[str], Callable[[Any], Any], bool]] = []
+    joints = list(message.name) if msgtype == JOINT_STATE else None
+
+    def walk(value: Any, name: str, path: tuple[Any, ...]) -> None:
+        if isinstance(value, (bool, int, float, np.integer, np.floating)):
+            found.append(([name], _getter(path), False))
+        elif isinstance(value, np.ndarray):
+            if value.dtype.kind in "biuf" and value.dtype.itemsize > 1 and value.size:  # not bytes: images, blobs
+                labels = joints if joints is not None and len(joints) == value.size and len(path) == 1 else range(value.size)
+                found.append(([f"{name}/{label}" for label in labels], _getter(path), True))
+        elif isinstance(value, list):
+            for k, item in enumerate(value):
+                if not isinstance(item, str):
+                    walk(item, f"{name}/{k}", (*path, k))
+        elif hasattr(value, "__dataclass_fields__"):
+            for field in value.__dataclass_fields__:
+                if field != "__msgtype__" and not (field == "header" and not path):
+                    walk(getattr(value, field), f"{name}/{field}", (*path, field))
+
+    walk(message, prefix, ())
+    return found
+
+
+def _getter(path: tuple[Any, ...]) -> Callable[[Any], Any]:
+    if all(isinstance(step, str) for step in path):
+        return operator.attrgetter(".".join(path))
+
+    def get(message: Any) -> Any:
+        for step in path:
+            message = message[step] if isinstance(step, int) else getattr(message, step)
+        return message
+    return get
+
+
+def _extractor(fields: list[tuple[list[str], Callable[[Any], Any], bool]]) -> Callable[[Any], np.ndarray]:
+    """One function giving a message's values in order; an array field is copied whole."""
+    groups, position = [], 0
+    for names, getter, is_array in fields:
+        groups.append((getter, position, len(names) if is_array else 0))
+        position += len(names)
+    size = position
+
+    def extract(message: Any) -> np.ndarray:
+        out = np.empty(size)
+        for getter, at, length in groups:
+            if length:
+                value = getter(message)
+                if len(value) != length:
+                    raise ValueError("length changed")
+                out[at:at + length] = value
+            else:
+                out[at] = getter(message)
+        return out
+    return extract
