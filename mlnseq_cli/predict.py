@@ -27,7 +27,13 @@ def predict(
                                    columns=TableColumns(label=label_column, episode=episode_column, time=time_column))
     with reported_errors():
         result = stage.run(options)
-    console.print(f"[green]predict[/]: wrote {result.path} ({result.table.height:,} frames, {result.episodes} episodes)")
+    from stages.recognizer import restart_note
+
+    restarted = ""
+    if result.restarts:
+        console.print(f"[yellow]note[/]: {restart_note('predict', result.restarts)}")
+        restarted = f", {len(result.restarts)} chain restart{'s' * (len(result.restarts) != 1)}"
+    console.print(f"[green]predict[/]: wrote {result.path} ({result.table.height:,} frames, {result.episodes} episodes{restarted})")
     if result.metrics is not None:
         m = result.metrics
         table = Table("segments", "frames", "macro F1", "edit", "F1@10", "F1@25", "F1@50", box=None,

@@ -51,6 +51,7 @@ class Predicted:
     table: pl.DataFrame
     metrics: dict[str, Any] | None  # with labels in the recordings
     episodes: int
+    restarts: list[tuple[Any, int]] = field(default_factory=list)  # (episode, frame) where the chain restarted
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -79,10 +80,13 @@ def run(options: PredictOptions) -> Predicted:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
     decode = options.decode or model.decode
+    names = meta["episode_names"]
+    restarts = [(names[episode] if 0 <= episode < len(names) else episode, frame) for episode, frame in model.restarts]
     path = artifacts.write_table(
         table, options.output_path(), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
-         "classes": model.classes, "episodes": meta["episode_names"], "metrics": scores},
+         "classes": model.classes, "episodes": meta["episode_names"], "metrics": scores,
+         "restarts": [[str(episode), frame] for episode, frame in restarts]},
         inputs=[Path(options.model), *map(Path, meta["source_files"])],
     )
-    return Predicted(path, table, scores, len(meta["episode_names"]))
+    return Predicted(path, table, scores, len(meta["episode_names"]), restarts)

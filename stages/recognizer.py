@@ -13,7 +13,7 @@ import io
 import json
 import zipfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -210,13 +210,19 @@ def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndar
     return replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight))
 
 
-def decode_chain(kind: str, factors: chain.ChainFactors) -> tuple[np.ndarray, np.ndarray]:
-    """(class probabilities [T, C], predicted classes [T]): filter is online (each frame from the frames up
-    to it); viterbi is offline (the most probable path, with forward-backward marginals as probabilities)."""
-    if kind == "filter":
-        probabilities = np.exp(chain.filtered(factors))
-        return probabilities, probabilities.argmax(1)
-    return np.exp(chain.smoothed(factors)), chain.viterbi(factors)
+def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
+    """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
+    filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
+    forward-backward marginals as probabilities)."""
+    return chain.decode(factors, kind)
+
+
+def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:
+    """One line naming where a decoded method's chain restarted: (episode, frame) of each dead end."""
+    where = ", ".join(f"episode {episode} frame {frame}" for episode, frame in restarts[:shown])
+    more = f" and {len(restarts) - shown} more" if len(restarts) > shown else ""
+    return (f"{name}: the chain restarted at {len(restarts)} frame(s) that no allowed transition reaches (a missed "
+            f"episode boundary, or evidence that breaks a hard rule): {where}{more}")
 
 
 @dataclass(frozen=True)
@@ -239,7 +245,7 @@ def choose_network_weight(method: str, kind: str, mln: MLNFactors, evidence: np.
     tried = {}
     for weight in NETWORK_WEIGHTS:
         factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
-        tried[weight] = float((decode_chain(kind, factors)[1] == labels[validation]).mean())
+        tried[weight] = float((decode_chain(kind, factors).path == labels[validation]).mean())
     best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
     return WeightChoice(best, tried[best], tried)
 
@@ -268,6 +274,7 @@ class WorkdirPredictions:
     inputs: list[Path]
     notes: list[str]
     meta: dict[str, Any]  # frames.parquet's metadata
+    restarts: dict[str, list[tuple[Any, int]]] = field(default_factory=dict)  # decoded method -> (episode, frame)
 
 
 def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("none",),
@@ -360,7 +367,12 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
                                                data.labels, rows == "val")
                 result.choices[name], weight = choice, choice.weight
             factors = chain_of(method, mln, evidence, starts, log_p_network.get(network), weight)
-            result.probabilities[name], result.predicted[name] = decode_chain(kind, factors)
+            decoded = decode_chain(kind, factors)
+            result.probabilities[name], result.predicted[name] = decoded.probabilities, decoded.path
+            if len(decoded.restarts):
+                keys = result.keys[decoded.restarts]
+                result.restarts[name] = list(zip(keys["episode"].to_list(), keys["frame"].to_list()))
+                notes.append(restart_note(name, result.restarts[name]))
             result.modes[name] = result.modes[method]
     return _scored(result, data.labels, validation)
 
@@ -452,6 +464,7 @@ class Prediction:
     label: int
     name: str
     probabilities: np.ndarray
+    restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
 
 
 class Recognizer:
@@ -495,6 +508,7 @@ class Recognizer:
             if self.decode != "none":
                 self.mln = MLNFactors(formulas, self.columns, len(self.classes))
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
+        self.restarts: list[tuple[Any, int]] = []  # where the last ``predict`` restarted its chain: (episode, frame)
         self.reset()
 
     @classmethod
@@ -538,7 +552,8 @@ class Recognizer:
     def step(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> Prediction:
         """Recognise the next frame of the current episode from its raw features."""
         x = self.vector(frame)
-        evidence = self.binarizer.step(x) if self.spec is not None else None
+        # predicates from the values as a frames table holds them (float32), as `predict` binarizes them
+        evidence = self.binarizer.step(x.astype(np.float32)) if self.spec is not None else None
         p_mln = prior = unary = None
         if evidence is not None:
             p_mln, prior, unary = self._mln_row(evidence.tobytes())
@@ -551,7 +566,8 @@ class Recognizer:
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
-        prediction = Prediction(self._frame, label, self.classes[label], probabilities)
+        restarted = self._filter is not None and self._filter.restarted
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
         self._frame += 1
         return prediction
 
@@ -580,7 +596,9 @@ class Recognizer:
                 decode: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
-        model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline)."""
+        model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
+        dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
+        ``restarts`` then lists (episode, frame within it) of each."""
         from stages.binarize import binarize
 
         decode = self.decode if decode is None else decode
@@ -589,13 +607,15 @@ class Recognizer:
                            "transition factors; export it again with --decode filter or viterbi")
         features = np.asarray(features, dtype=np.float64)
         episodes = np.zeros(len(features), dtype=np.int64) if episodes is None else np.asarray(episodes)
+        self.restarts = []
         spans = sequences.runs(episodes)
+        frame_of = np.concatenate([np.arange(s.stop - s.start) for s in spans]) if spans else np.zeros(0, np.int64)
         starts = chain.chain_starts(episodes)
         p_mln = prior = evidence = None
         if self.spec is not None:
             from stages.mln import classifier
 
-            keys = {"episode": episodes, "frame": np.concatenate([np.arange(s.stop - s.start) for s in spans]),
+            keys = {"episode": episodes, "frame": frame_of,
                     "label": np.zeros(len(features)), "split": np.full(len(features), "test")}
             frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
             predicates = binarize(frames, self.spec)
@@ -606,4 +626,6 @@ class Recognizer:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
             return probabilities, probabilities.argmax(1)
         factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight)
-        return decode_chain(decode, factors)
+        decoded = decode_chain(decode, factors)
+        self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
+        return decoded.probabilities, decoded.path

@@ -127,3 +127,12 @@ def test_decoding_needs_the_mln_and_known_names(tmp_path, desk_stream_workdir):
     assert conflate.parse_decode("none, viterbi") == ("none", "viterbi")
     with pytest.raises(BadInput, match="--network-weight"):
         conflate.parse_network_weight("heavy")
+
+
+def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_with_a_note(tmp_path, own_data_glitch):
+    shutil.copytree(own_data_glitch["workdir"], tmp_path, dirs_exist_ok=True)
+    result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter", "viterbi")))
+    for name in ("mln+filter", "mln+viterbi"):
+        assert [n for n in result.notes if n.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
+            f"{name}: the chain restarted at 1 frame(s) that no allowed transition reaches (a missed episode boundary, "
+            f"or evidence that breaks a hard rule): episode 11 frame {own_data_glitch['frame']}"]
