@@ -54,6 +54,7 @@ def collect(
         f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
         f"{len(collected.meta['features'])} features)"
     )
+    console.print(collected.classes_line, markup=False, highlight=False)
     if "success_rate" in collected.meta:
         console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")
 

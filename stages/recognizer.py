@@ -154,12 +154,12 @@ def read_mln(workdir: Path, frames: pl.DataFrame) -> tuple[pl.DataFrame, pl.Data
     return predicates, weights, [predicates_path, weights_path]
 
 
-def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
+def mln_class_scores(workdir: Path, frames: pl.DataFrame, classes: int | Sequence[str]) -> tuple[np.ndarray, list[Path]]:
     """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
     from stages.mln import classifier
 
     predicates, weights, inputs = read_mln(workdir, frames)
-    return classifier.class_scores(predicates, weights, n_classes), inputs
+    return classifier.class_scores(predicates, weights, classes), inputs
 
 
 def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
@@ -300,7 +300,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     if (workdir / artifacts.WEIGHTS).exists():
         predicates, weights, mln_inputs = read_mln(workdir, frames)
         inputs += mln_inputs
-        scores = classifier.class_scores(predicates, weights, len(classes))
+        scores = classifier.class_scores(predicates, weights, classes)
         p_mln = np.exp(classifier.class_log_probs(scores, mln_mode, source))
     else:
         notes.append(f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined left out "
@@ -345,7 +345,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     from stages.mln.factors import MLNFactors
 
     columns = artifacts.feature_columns(predicates)
-    mln = MLNFactors.from_weights(weights, columns, len(classes))
+    mln = MLNFactors.from_weights(weights, columns, classes)
     if not mln.temporal:
         notes.append(f"{artifacts.WEIGHTS} has no temporal formula (Next): decoding uses uniform transitions")
     evidence = predicates.select(columns).to_numpy().astype(bool)
@@ -503,7 +503,7 @@ class Recognizer:
             self.weights = pl.read_parquet(io.BytesIO(entries[WEIGHTS]))
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
-            formulas = parse_weights(self.weights, self.columns, len(self.classes))
+            formulas = parse_weights(self.weights, self.columns, self.classes)
             self._per_frame = [f for f in formulas if not f.temporal]
             if self.decode != "none":
                 self.mln = MLNFactors(formulas, self.columns, len(self.classes))
@@ -620,7 +620,7 @@ class Recognizer:
             frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
             predicates = binarize(frames, self.spec)
             evidence = predicates.select(self.columns).to_numpy().astype(bool)
-            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, len(self.classes)))
+            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, self.classes))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)

@@ -41,9 +41,10 @@ def test_own_data_example_runs_as_documented(tmp_path: Path) -> None:
     weights = pl.read_parquet(work / "weights.parquet")
     conjunctions = weights.filter(pl.col("formula").str.contains(r"\^"))
     expert = conjunctions.filter(pl.col("fixed")).row(0, named=True)
-    assert (expert["class"], expert["weight"]) == ("C3", 2.0)
+    assert (expert["class"], expert["weight"]) == ("release", 2.0)  # the classes as the frames name them
     learned = conjunctions.filter(~pl.col("fixed")).row(0, named=True)
-    assert learned["class"] == "C2" and learned["weight"] != 0.0
+    assert learned["class"] == "lift" and learned["weight"] != 0.0
+    assert 'Topic("release",p) ^ Next(p,q) => Topic("release",q).' in (work / "formulas.mln").read_text()
     order = weights.filter(pl.col("hard"))
     assert order.height == 4 and order["temporal"].all()
     meta = json.loads(pq.read_schema(work / "weights.parquet").metadata[b"mlnseq"])
