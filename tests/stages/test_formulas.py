@@ -41,6 +41,7 @@ def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) ->
     written = stage.run(workdir, stage.FormulasOptions(spec=path)).path.read_text()
     assert 'Has("grippers_closed_closed",p) => Topic("S5",p)' in written  # names survive, the paper's C<k> too:
     assert 'Has("left_gripper_open",p) => Topic("S1",p)' in written  # written as the frames name the class
+    assert "// label order (the paper's C0 .. C6): S1, S2, S3, S4, S5, S6, S7\n" in written
 
 
 def test_a_misspelt_class_gets_the_nearest_names(workdir: Path, tmp_path: Path) -> None:
