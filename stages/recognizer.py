@@ -370,8 +370,9 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
             decoded = decode_chain(kind, factors)
             result.probabilities[name], result.predicted[name] = decoded.probabilities, decoded.path
             if len(decoded.restarts):
-                keys = result.keys[decoded.restarts]
-                result.restarts[name] = list(zip(keys["episode"].to_list(), keys["frame"].to_list()))
+                keys, names = result.keys[decoded.restarts], meta.get("episode_names") or []  # the user's ids, if any
+                result.restarts[name] = [(names[e] if 0 <= e < len(names) else e, f)
+                                         for e, f in zip(keys["episode"].to_list(), keys["frame"].to_list())]
                 notes.append(restart_note(name, result.restarts[name]))
             result.modes[name] = result.modes[method]
     return _scored(result, data.labels, validation)
