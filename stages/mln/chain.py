@@ -11,7 +11,8 @@ forbidding transition; a frame whose unary is -inf everywhere becomes uniform. `
 frame at a time; the batch functions find the same frames and then treat them as chain starts, so they
 agree (``decode`` also says which frames they were). Where the scan's block products underflow although
 every frame stays possible (a chain the hard rules hold in a few states for hundreds of frames, their
-probabilities far below e^-745 within a block), the forward pass runs frame by frame instead, as ``Filter``. Numbers: each unary row and each pairwise matrix is scaled by its maximum and finite entries
+probabilities far below e^-745 within a block), the forward pass runs frame by frame instead, as ``Filter``.
+Numbers: each unary row and each pairwise matrix is scaled by its maximum and finite entries
 more than ``CLIP`` below it count as ``CLIP`` below (e^-300: far below any probability that matters),
 so a product of one step never underflows to zero while a class is possible.
 
@@ -716,9 +717,11 @@ def decode(factors: ChainFactors, kind: str) -> Decoded:
         return Decoded(np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     forward = _forward(factors)
     restarts = dead_ends(factors, forward.factors)
-    if kind == "filter":
-        return Decoded(forward.alpha, forward.alpha.argmax(axis=1), restarts)
-    return Decoded(_smoothed(forward)[0], viterbi(forward.factors), restarts)
+    with np.errstate(divide="ignore"):  # exp of the log-probabilities `filtered` and `smoothed` give: the same numbers
+        if kind == "filter":
+            probabilities = np.exp(np.log(forward.alpha))
+            return Decoded(probabilities, probabilities.argmax(axis=1), restarts)
+        return Decoded(np.exp(np.log(_smoothed(forward)[0])), viterbi(forward.factors), restarts)
 
 
 def chain_starts(episode: np.ndarray, split: np.ndarray | None = None) -> np.ndarray:

@@ -303,7 +303,7 @@ def test_chains_whose_block_products_underflow_decode_as_the_filter_does(own_dat
         restarted += [t] * live.restarted
     decoded = chain.decode(factors, "filter")
     assert np.abs(np.exp(online) - decoded.probabilities).max() < 1e-9 and decoded.restarts.tolist() == restarted
-    assert np.allclose(np.exp(chain.filtered(factors)), decoded.probabilities, rtol=1e-12, atol=1e-300)
+    assert np.array_equal(np.exp(chain.filtered(factors)), decoded.probabilities)
     offline = chain.decode(factors, "viterbi")
     assert np.isfinite(chain.log_partition(factors))
     assert np.allclose(offline.probabilities.sum(axis=1), 1.0) and np.array_equal(offline.restarts, decoded.restarts)
