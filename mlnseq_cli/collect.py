@@ -63,6 +63,7 @@ def collect(
         f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
         f"{counted(len(collected.meta['features']), 'feature')})"
     )
+    console.print(collected.classes_line, markup=False, highlight=False)
     for note in collected.meta.get("notes", []):
         console.print(f"note: {note}")
     if "success_rate" in collected.meta:

@@ -39,8 +39,14 @@ def predict(
     )
     with reported_errors():
         result = stage.run(options)
+    from stages.recognizer import restart_note
+
+    restarted = ""
+    if result.restarts:
+        console.print(f"[yellow]note[/]: {restart_note('predict', result.restarts)}")
+        restarted = f", {counted(len(result.restarts), 'chain restart')}"
     console.print(f"[green]predict[/]: wrote {result.path} ({counted(result.table.height, 'frame')}, "
-                  f"{counted(result.episodes, 'episode')})")
+                  f"{counted(result.episodes, 'episode')}{restarted})")
     for path in result.written:
         console.print(f"[green]predict[/]: wrote {path}")
     if result.metrics is not None:

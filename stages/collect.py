@@ -93,6 +93,12 @@ class Collected:
     frames: pl.DataFrame
     meta: dict[str, Any]
     inputs: tuple[Path, ...] = ()
+    class_order: str = "the dataset's own order"  # how the classes got their label order, in words
+
+    @property
+    def classes_line(self) -> str:
+        """The classes in label order (label 0 first) and how that order was chosen: one line for the user."""
+        return f"classes in label order ({self.class_order}): {', '.join(self.meta['classes'])}"
 
 
 Progress = Callable[[int, int], None]
@@ -197,7 +203,16 @@ def collect_recordings(options: CollectOptions) -> Collected:
         if r.resolved.get(key)))
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
-    return Collected(frames, meta, inputs=inputs)
+    return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))
+
+
+def table_class_order(columns: TableColumns, classes: list[str]) -> str:
+    """How a table's classes were ordered: as --classes lists them, by numeric label, or by name."""
+    if columns.classes:
+        return "as --classes lists them"
+    if classes == [str(k) for k in range(len(classes))]:
+        return "numeric labels: label k is class k"
+    return "label names sorted alphabetically; give --classes to choose the order"
 
 
 def collect_fetch(options: CollectOptions, progress: Progress | None = None) -> Collected:

@@ -13,7 +13,11 @@ from pathlib import Path
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.mln.grounding import class_constant, check_mln, default_declarations, name_classes
+from dataclasses import replace
+
+from stages.mln.grounding import (
+    check_class_names, check_mln, class_aliases, default_declarations, duplicates, name_classes, shown,
+)
 from stages.mln.syntax import MLN, format_weighted, parse_mln
 
 DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
@@ -37,7 +41,7 @@ class WrittenFormulas:
     path: Path
     mln: MLN
     words: tuple[str, ...]  # predicate columns true somewhere in the training split
-    classes: tuple[str, ...]
+    classes: tuple[str, ...]  # the classes the training split shows, as the frames name them
 
 
 def read_spec(path: Path) -> MLN:
@@ -54,24 +58,30 @@ def read_spec(path: Path) -> MLN:
     return mln
 
 
-def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...]) -> str:
-    """formulas.mln: provenance, the training constants as comments, declarations, formulas."""
+def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...], class_names: list[str]) -> str:
+    """formulas.mln: provenance, the training constants as comments, declarations, formulas (classes as the
+    frames name them)."""
+    order = [f"// label order (the paper's C0 .. C{len(class_names) - 1}): {', '.join(class_names)}"] if class_names else []
     lines = [
         f"// mlnseq formulas from {spec.name}: templates are expanded by `mlnseq learn-weights`",
         f"// word = {{{', '.join(words)}}}",
         f"// class = {{{', '.join(classes)}}}",
+        *order,
         "",
         *(f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items()),
         "",
-        *(format_weighted(item) for item in mln.formulas),
+        *(format_weighted(replace(item, formula=shown(item.formula, class_names))) for item in mln.formulas),
     ]
     return "\n".join(lines) + "\n"
 
 
 def formulas_for(mln: MLN, spec: Path, columns: list[str], class_names: list[str]) -> None:
-    """Write class names as their ``C<k>``, then check the spec against the predicate columns and classes."""
+    """Check the spec against the predicate columns and the classes (as the frames name them, or the paper's
+    ``C<k>``), then write each class as its ``C<k>``; a formula written twice is refused."""
+    check_class_names(class_names, str(spec))
+    check_mln(mln, str(spec), set(columns), set(class_aliases(class_names)), class_names)
     name_classes(mln, class_names)
-    check_mln(mln, str(spec), set(columns), {class_constant(k) for k in range(len(class_names))})
+    duplicates(mln, str(spec), class_names)
 
 
 def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
@@ -86,6 +96,7 @@ def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:
     seen = train.select(columns).sum().row(0) if train.height else [0] * len(columns)
     words = tuple(c for c, n in zip(columns, seen) if n)
     labels = set(train["label"].to_list())
-    class_names = tuple(class_constant(k) for k in range(len(classes)) if k in labels)
-    path = artifacts.write_text(Path(workdir) / artifacts.FORMULAS, render(mln, options.spec_path, words, class_names))
-    return WrittenFormulas(path, mln, words, class_names)
+    present = tuple(name for k, name in enumerate(classes) if k in labels)
+    path = artifacts.write_text(Path(workdir) / artifacts.FORMULAS,
+                                render(mln, options.spec_path, words, present, list(classes)))
+    return WrittenFormulas(path, mln, words, present)

@@ -12,6 +12,7 @@ frames of one episode (a change of split within an episode cuts it).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,7 +26,7 @@ from stages.mln import bpll, cll, pracmln_compat
 from stages.mln.chain import chain_starts
 from stages.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
-    space_of, truth,
+    show, shown, space_of, truth,
 )
 from stages.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
 
@@ -85,7 +86,7 @@ class Training:
         return f"episode {self.episodes[index]} frame {self.frames[index]}"
 
 
-def training_data(predicates: pl.DataFrame, n_classes: int) -> Training:
+def training_data(predicates: pl.DataFrame, n_classes: int, class_names: Sequence[str] | None = None) -> Training:
     """The constants the training split shows, its atom matrix and chains, and warnings for unseen classes."""
     starts = chain_starts(predicates["episode"].to_numpy(), predicates["split"].to_numpy())
     is_train = (predicates["split"] == "train").to_numpy()
@@ -100,7 +101,8 @@ def training_data(predicates: pl.DataFrame, n_classes: int) -> Training:
     words = [c for c, seen in zip(columns, evidence.any(axis=0)) if seen]
     present = sorted(set(labels.tolist()))
     warnings = [
-        f"class {class_constant(k)} never occurs in the training split; formulas about it get weight 0"
+        f"class {class_constant(k) if class_names is None else class_names[k]} never occurs in the training split; "
+        "formulas about it get weight 0"
         for k in range(n_classes) if k not in present
     ]
     space = AtomSpace(tuple(words), tuple(class_constant(k) for k in present))
@@ -110,7 +112,8 @@ def training_data(predicates: pl.DataFrame, n_classes: int) -> Training:
                     train["episode"].to_numpy(), train["frame"].to_numpy(), warnings)
 
 
-def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: str) -> None:
+def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: str,
+               class_names: Sequence[str] | None = None) -> None:
     """Refuse a hard formula that the training frames (or consecutive pairs) break, naming the frames."""
     pairs = np.flatnonzero(~training.starts)
     pair_rows = np.concatenate([training.rows[pairs - 1], training.rows[pairs]], axis=1)
@@ -125,7 +128,7 @@ def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: st
         if broken.any():
             named = ", ".join(training.frame_name(i) for i in frames[broken][:SHOWN_FRAMES])
             more = f" and {broken.sum() - SHOWN_FRAMES} more" if broken.sum() > SHOWN_FRAMES else ""
-            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula {format_formula(item.formula)} is "
+            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula {show(item.formula, class_names)} is "
                            f"false at {broken.sum()} training frame(s): {named}{more}; fix their labels, or give the "
                            "formula a weight to make it soft")
 
@@ -167,31 +170,36 @@ def pracmln_weights(mln: MLN, expanded: list[Expanded], training: Training, l2: 
     return np.array(weights, dtype=np.float64)
 
 
-def head_class(item: Expanded) -> str | None:
-    """The class a formula is about: its one Topic constant (a temporal formula: on the later frame), else None."""
+def head_class(item: Expanded, class_names: Sequence[str] | None = None) -> str | None:
+    """The class a formula is about: its one Topic constant (a temporal formula: on the later frame), else None;
+    as the frames name it (``class_names``) or as its C<k>."""
     joined = next_atom(item.formula)
     constants = {a.args[0].value for a in atoms(item.formula) if a.predicate == CLASS and isinstance(a.args[0], Const)
                  and (joined is None or a.args[-1] == joined.args[1])}
-    return constants.pop() if len(constants) == 1 else None
+    if len(constants) != 1:
+        return None
+    constant = constants.pop()
+    return constant if class_names is None else class_names[int(constant[1:])]
 
 
 def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native", objective: str | None = None,
-          l2: float | None = None, where: str = artifacts.FORMULAS) -> Learned:
+          l2: float | None = None, where: str = artifacts.FORMULAS, class_names: Sequence[str] | None = None) -> Learned:
     """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure); ``where`` names
-    the formulas in messages."""
+    the formulas in messages; ``class_names`` (label order) name the classes in the weights table, learned.mln
+    and messages (None: the paper's C<k>)."""
     options = LearnWeightsOptions(engine=engine, objective=objective, l2=l2)
     options.validate()
-    training = training_data(predicates, n_classes)
+    training = training_data(predicates, n_classes, class_names)
     warnings = list(training.warnings)
-    expanded, left_out, expand_warnings = expand_templates(mln.formulas, training.space)
+    expanded, left_out, expand_warnings = expand_templates(mln.formulas, training.space, class_names)
     warnings += expand_warnings
     uses_next = [item for item in mln.formulas if is_temporal(item.formula)]
     objective, l2 = resolve_objective(options, bool(uses_next))
     if uses_next and training.starts.all():
-        raise BadInput(f"{where}:{uses_next[0].line}: {format_formula(uses_next[0].formula)} uses {NEXT}, but every "
+        raise BadInput(f"{where}:{uses_next[0].line}: {show(uses_next[0].formula, class_names)} uses {NEXT}, but every "
                        "episode of the training split has one frame: no transitions can be learned; collect longer "
                        f"episodes or remove the formulas with {NEXT}")
-    check_hard(expanded, mln, training, where)
+    check_hard(expanded, mln, training, where, class_names)
     if not expanded:
         weights = np.zeros(0)
     elif engine == "pracmln":
@@ -205,8 +213,8 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
     values = np.concatenate([weights, np.zeros(len(left_out))])
     table = pl.DataFrame(
         {
-            "formula": [format_formula(e.formula) for e in every],
-            "class": [head_class(e) for e in every],
+            "formula": [show(e.formula, class_names) for e in every],
+            "class": [head_class(e, class_names) for e in every],
             "weight": values,
             "fixed": [e.fixed for e in every],
             "hard": [e.weight is None for e in every],
@@ -216,26 +224,29 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         schema={"formula": pl.String, "class": pl.String, "weight": pl.Float64, "fixed": pl.Boolean,
                 "hard": pl.Boolean, "template": pl.Int32, "temporal": pl.Boolean},
     )
-    return Learned(table, render_learned(mln, every, values, engine, objective, l2), warnings, objective, l2)
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings, objective, l2)
 
 
 def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
-                   l2: float) -> str:
+                   l2: float, class_names: Sequence[str] | None = None) -> str:
     temporal = any(is_temporal(e.formula) for e in formulas)
     lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas", ""]
     lines += [f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items() if name != NEXT or temporal]
     lines += [""]
-    lines += [format_weighted(WeightedFormula(e.formula, None if e.weight is None else float(w)))
+    lines += [format_weighted(WeightedFormula(shown(e.formula, class_names), None if e.weight is None else float(w)))
               for e, w in zip(formulas, weights)]
     return "\n".join(lines) + "\n"
 
 
 def strongest(weights: pl.DataFrame, per_class: int = 3) -> pl.DataFrame:
-    """The ``per_class`` largest weights of each class among the per-frame formulas (hard formulas first)."""
+    """The ``per_class`` largest weights of each class among the per-frame formulas (hard formulas first); classes
+    in the order they first appear."""
     per_frame = weights.filter(~pl.col("temporal")) if "temporal" in weights.columns else weights
+    per_frame = per_frame.filter(pl.col("class").is_not_null())
+    order = {name: i for i, name in enumerate(dict.fromkeys(per_frame["class"].to_list()))}
     return (
-        per_frame.filter(pl.col("class").is_not_null())
-        .sort(["class", "hard", "weight"], descending=[False, True, True])
+        per_frame.with_columns(pl.col("class").replace_strict(order, return_dtype=pl.Int64).alias("_order"))
+        .sort(["_order", "hard", "weight"], descending=[False, True, True]).drop("_order")
         .group_by("class", maintain_order=True).head(per_class)
     )
 
@@ -261,7 +272,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
-    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path))
+    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
+                    list(classes))
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}

@@ -67,6 +67,7 @@ class Predicted:
     episodes: int
     reading: dict[str, Any] = field(default_factory=dict)  # how the recordings were read
     written: tuple[Path, ...] = ()  # the intervals and Rerun files, if asked
+    restarts: list[tuple[Any, int]] = field(default_factory=list)  # (episode, frame) where the chain restarted
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -117,13 +118,15 @@ def run(options: PredictOptions) -> Predicted:
     reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
                "time_column": columns.time, **source_options.record(env),
                **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
+    restarts = [(names[episode] if 0 <= episode < len(names) else episode, frame) for episode, frame in model.restarts]
     inputs = [Path(options.model), *map(Path, meta["source_files"])]
     if source_options.labels is not None:
         inputs.append(Path(source_options.labels))
     path = artifacts.write_table(
         table, options.output_path(), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
-         "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading},
+         "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading,
+         "restarts": [[str(episode), frame] for episode, frame in restarts]},
         inputs=inputs,
     )
     written = []
@@ -138,4 +141,4 @@ def run(options: PredictOptions) -> Predicted:
 
         written.append(rerun.write(Path(options.rerun), table["episode"].to_list(), frames, times, table,
                                    list(model.features), list(model.classes)))
-    return Predicted(path, table, scores, len(names), reading, tuple(written))
+    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts)

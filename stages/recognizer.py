@@ -10,7 +10,7 @@ checkpoints, so a model file is recognised without it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -152,12 +152,12 @@ def read_mln(workdir: Path, frames: pl.DataFrame) -> tuple[pl.DataFrame, pl.Data
     return predicates, weights, [predicates_path, weights_path]
 
 
-def mln_class_scores(workdir: Path, frames: pl.DataFrame, n_classes: int) -> tuple[np.ndarray, list[Path]]:
+def mln_class_scores(workdir: Path, frames: pl.DataFrame, classes: int | Sequence[str]) -> tuple[np.ndarray, list[Path]]:
     """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
     from stages.mln import classifier
 
     predicates, weights, inputs = read_mln(workdir, frames)
-    return classifier.class_scores(predicates, weights, n_classes), inputs
+    return classifier.class_scores(predicates, weights, classes), inputs
 
 
 def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
@@ -208,13 +208,19 @@ def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndar
     return replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight))
 
 
-def decode_chain(kind: str, factors: chain.ChainFactors) -> tuple[np.ndarray, np.ndarray]:
-    """(class probabilities [T, C], predicted classes [T]): filter is online (each frame from the frames up
-    to it); viterbi is offline (the most probable path, with forward-backward marginals as probabilities)."""
-    if kind == "filter":
-        probabilities = np.exp(chain.filtered(factors))
-        return probabilities, probabilities.argmax(1)
-    return np.exp(chain.smoothed(factors)), chain.viterbi(factors)
+def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
+    """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
+    filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
+    forward-backward marginals as probabilities)."""
+    return chain.decode(factors, kind)
+
+
+def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:
+    """One line naming where a decoded method's chain restarted: (episode, frame) of each dead end."""
+    where = ", ".join(f"episode {episode} frame {frame}" for episode, frame in restarts[:shown])
+    more = f" and {len(restarts) - shown} more" if len(restarts) > shown else ""
+    return (f"{name}: the chain restarted at {len(restarts)} frame(s) that no allowed transition reaches (a missed "
+            f"episode boundary, or evidence that breaks a hard rule): {where}{more}")
 
 
 @dataclass(frozen=True)
@@ -237,7 +243,7 @@ def choose_network_weight(method: str, kind: str, mln: MLNFactors, evidence: np.
     tried = {}
     for weight in NETWORK_WEIGHTS:
         factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
-        tried[weight] = float((decode_chain(kind, factors)[1] == labels[validation]).mean())
+        tried[weight] = float((decode_chain(kind, factors).path == labels[validation]).mean())
     best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
     return WeightChoice(best, tried[best], tried)
 
@@ -266,6 +272,7 @@ class WorkdirPredictions:
     inputs: list[Path]
     notes: list[str]
     meta: dict[str, Any]  # frames.parquet's metadata
+    restarts: dict[str, list[tuple[Any, int]]] = field(default_factory=dict)  # decoded method -> (episode, frame)
 
 
 def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("none",),
@@ -291,7 +298,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     if (workdir / artifacts.WEIGHTS).exists():
         predicates, weights, mln_inputs = read_mln(workdir, frames)
         inputs += mln_inputs
-        scores = classifier.class_scores(predicates, weights, len(classes))
+        scores = classifier.class_scores(predicates, weights, classes)
         p_mln = np.exp(classifier.class_log_probs(scores, mln_mode, source))
     else:
         notes.append(f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined left out "
@@ -336,7 +343,7 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
     from stages.mln.factors import MLNFactors
 
     columns = artifacts.feature_columns(predicates)
-    mln = MLNFactors.from_weights(weights, columns, len(classes))
+    mln = MLNFactors.from_weights(weights, columns, classes)
     if not mln.temporal:
         notes.append(f"{artifacts.WEIGHTS} has no temporal formula (Next): decoding uses uniform transitions")
     evidence = predicates.select(columns).to_numpy().astype(bool)
@@ -358,7 +365,13 @@ def predict_workdir(workdir: Path, mln_mode: str, decodes: Sequence[str] = ("non
                                                data.labels, rows == "val")
                 result.choices[name], weight = choice, choice.weight
             factors = chain_of(method, mln, evidence, starts, log_p_network.get(network), weight)
-            result.probabilities[name], result.predicted[name] = decode_chain(kind, factors)
+            decoded = decode_chain(kind, factors)
+            result.probabilities[name], result.predicted[name] = decoded.probabilities, decoded.path
+            if len(decoded.restarts):
+                keys, names = result.keys[decoded.restarts], meta.get("episode_names") or []  # the user's ids, if any
+                result.restarts[name] = [(names[e] if 0 <= e < len(names) else e, f)
+                                         for e, f in zip(keys["episode"].to_list(), keys["frame"].to_list())]
+                notes.append(restart_note(name, result.restarts[name]))
             result.modes[name] = result.modes[method]
     return _scored(result, data.labels, validation)
 
@@ -387,6 +400,7 @@ class Prediction:
     label: int
     name: str
     probabilities: np.ndarray
+    restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
 
 
 class Recognizer:
@@ -430,11 +444,12 @@ class Recognizer:
             self.spec, self.weights = model.spec, model.weights
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
-            formulas = parse_weights(self.weights, self.columns, len(self.classes))
+            formulas = parse_weights(self.weights, self.columns, self.classes)
             self._per_frame = [f for f in formulas if not f.temporal]
             if self.decode != "none":
                 self.mln = MLNFactors(formulas, self.columns, len(self.classes))
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
+        self.restarts: list[tuple[Any, int]] = []  # where the last ``predict`` restarted its chain: (episode, frame)
         self.reset()
 
     @classmethod
@@ -478,7 +493,8 @@ class Recognizer:
     def step(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> Prediction:
         """Recognise the next frame of the current episode from its raw features."""
         x = self.vector(frame)
-        evidence = self.binarizer.step(x) if self.spec is not None else None
+        # predicates from the values as a frames table holds them (float32), as `predict` binarizes them
+        evidence = self.binarizer.step(x.astype(np.float32)) if self.spec is not None else None
         p_mln = prior = unary = None
         if evidence is not None:
             p_mln, prior, unary = self._mln_row(evidence.tobytes())
@@ -491,7 +507,8 @@ class Recognizer:
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
-        prediction = Prediction(self._frame, label, self.classes[label], probabilities)
+        restarted = self._filter is not None and self._filter.restarted
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
         self._frame += 1
         return prediction
 
@@ -520,7 +537,9 @@ class Recognizer:
                 decode: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
-        model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline)."""
+        model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
+        dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
+        ``restarts`` then lists (episode, frame within it) of each."""
         from stages.binarize import binarize
 
         decode = self.decode if decode is None else decode
@@ -529,21 +548,25 @@ class Recognizer:
                            "transition factors; export it again with --decode filter or viterbi")
         features = np.asarray(features, dtype=np.float64)
         episodes = np.zeros(len(features), dtype=np.int64) if episodes is None else np.asarray(episodes)
+        self.restarts = []
         spans = sequences.runs(episodes)
+        frame_of = np.concatenate([np.arange(s.stop - s.start) for s in spans]) if spans else np.zeros(0, np.int64)
         starts = chain.chain_starts(episodes)
         p_mln = prior = evidence = None
         if self.spec is not None:
             from stages.mln import classifier
 
-            keys = {"episode": episodes, "frame": np.concatenate([np.arange(s.stop - s.start) for s in spans]),
+            keys = {"episode": episodes, "frame": frame_of,
                     "label": np.zeros(len(features)), "split": np.full(len(features), "test")}
             frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
             predicates = binarize(frames, self.spec)
             evidence = predicates.select(self.columns).to_numpy().astype(bool)
-            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, len(self.classes)))
+            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, self.classes))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
             return probabilities, probabilities.argmax(1)
         factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight)
-        return decode_chain(decode, factors)
+        decoded = decode_chain(decode, factors)
+        self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
+        return decoded.probabilities, decoded.path

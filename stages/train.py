@@ -294,7 +294,7 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
     inputs = [frames_path]
     prior = None
     if options.method == "priorlayer":
-        scores, mln_inputs = mln_class_scores(workdir, frames, n_classes)
+        scores, mln_inputs = mln_class_scores(workdir, frames, meta["classes"])
         prior = prior_input(scores, options.prior, meta.get("source", ""))
         inputs += mln_inputs
     data = FrameData.from_frames(frames, prior)

@@ -103,3 +103,46 @@ def desk_test_recording(tmp_path_factory, desk_frames_workdir) -> Path:
     path = tmp_path_factory.mktemp("recording") / "desk-test.csv"
     frames.select("frame", "label", "arm_distance", "left_gripper", "right_gripper").write_csv(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
+    """The own-data example's recordings (examples/own-data/make_data.py) with a sensor glitch in a test trial:
+    three lift frames of trial 11 read as held still and loaded (a release, by a hard rule) then closed and free
+    (a grasp, by another), so the order's hard rules leave the third no possible class. Its workdir has
+    robot.mln plus those two hard rules learned, and an ``mln`` filter model: {csv, workdir, model, frame}."""
+    import subprocess
+    import sys
+
+    import polars as pl
+
+    from stages import binarize, export, formulas, learn_weights
+    from stages.table_import import TableColumns
+
+    folder = tmp_path_factory.mktemp("own-data-glitch")
+    example = REPO / "examples" / "own-data"
+    for name in ("make_data.py", "robot.binarize.toml", "robot.mln"):
+        shutil.copy(example / name, folder / name)
+    subprocess.run([sys.executable, "make_data.py"], cwd=folder, check=True, capture_output=True)
+    recordings = pl.read_csv(folder / "recordings.csv").with_row_index("row")
+    lift = recordings.filter((pl.col("trial") == 11) & (pl.col("phase") == "lift"))["row"].to_list()
+    g0, g1, g2 = lift[5:8]
+    z = recordings["ee_z"][g0 - 1]
+    glitch = {g0: (z, 50.0, 3.0), g1: (z, 50.0, 3.0), g2: (z, 20.0, 0.0)}
+    rows = recordings["row"].to_list()
+    values = {name: [glitch[r][i] if r in glitch else v for r, v in zip(rows, recordings[name].to_list())]
+              for i, name in enumerate(("ee_z", "gripper_mm", "wrist_force"))}
+    csv = folder / "glitch.csv"
+    recordings.drop("row").with_columns(pl.Series(k, v) for k, v in values.items()).write_csv(csv)
+    spec = folder / "glitch.mln"
+    spec.write_text((folder / "robot.mln").read_text() + '\nHas("hold_closed_free", p) => Topic("grasp", p).\n'
+                    'Has("ee_z_static", p) ^ Has("hold_static_loaded", p) => Topic("release", p).\n')
+    workdir = folder / "work"
+    columns = TableColumns(label="phase", episode="trial", time="t", classes=("approach", "grasp", "lift", "release"))
+    collect.run(workdir, collect.CollectOptions(env="table", source=csv, columns=columns))
+    binarize.run(workdir, binarize.BinarizeOptions(spec=folder / "robot.binarize.toml"))
+    formulas.run(workdir, formulas.FormulasOptions(spec=spec))
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=workdir / "formulas.mln"))
+    model = export.run(workdir, export.ExportOptions(method="mln", decode="filter", output=folder / "mln.mlnseq")).path
+    frame = g2 - recordings.filter(pl.col("trial") == 11)["row"][0]
+    return {"csv": csv, "workdir": workdir, "model": model, "frame": frame}

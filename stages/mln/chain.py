@@ -9,7 +9,10 @@ Dead ends (a frame where no class is possible given the previous frames: hard ru
 other or the previous state) restart the chain at that frame from its unary alone, without the
 forbidding transition; a frame whose unary is -inf everywhere becomes uniform. ``Filter`` does this one
 frame at a time; the batch functions find the same frames and then treat them as chain starts, so they
-agree. Numbers: each unary row and each pairwise matrix is scaled by its maximum and finite entries
+agree (``decode`` also says which frames they were). Where the scan's block products underflow although
+every frame stays possible (a chain the hard rules hold in a few states for hundreds of frames, their
+probabilities far below e^-745 within a block), the forward pass runs frame by frame instead, as ``Filter``.
+Numbers: each unary row and each pairwise matrix is scaled by its maximum and finite entries
 more than ``CLIP`` below it count as ``CLIP`` below (e^-300: far below any probability that matters),
 so a product of one step never underflows to zero while a class is possible.
 
@@ -74,6 +77,7 @@ class Filter:
     def __init__(self, n_classes: int):
         self.n_classes = n_classes
         self._alpha: np.ndarray | None = None
+        self.restarted = False
         self._pairwise = b""  # the last pairwise matrix passed (its bytes), and its scaled form
         self._transition = np.ones((n_classes, n_classes))
 
@@ -82,8 +86,9 @@ class Filter:
         self._alpha = None
 
     def step(self, unary: np.ndarray, pairwise: np.ndarray | None) -> np.ndarray:
-        """log p(y_t | frames so far) [C]; pairwise [C, C] joins the previous frame (None: first frame)."""
-        self._advance(unary, pairwise)
+        """log p(y_t | frames so far) [C]; pairwise [C, C] joins the previous frame (None: first frame).
+        ``restarted`` then says whether the frame was a dead end (no class possible: the chain starts anew)."""
+        self.restarted = self._advance(unary, pairwise)
         if self._alpha.min() > 0.0:
             return np.log(self._alpha)
         with np.errstate(divide="ignore"):
@@ -386,16 +391,39 @@ def _forward_once(factors: ChainFactors, vectors: bool, repeats: Repeats | None)
     return _Forward(factors, steps, size, levels, log_z, entering, alpha, moved)
 
 
+def _forward_sequential(factors: ChainFactors, vectors: bool) -> _Forward:
+    """The forward pass one frame at a time, each vector normalised (as ``Filter``): for chains whose block
+    products underflow although every frame stays possible (probabilities below e^-745 that ``Filter`` keeps)."""
+    steps = _steps(factors)
+    n_frames, n_classes = len(factors.link), factors.n_classes
+    levels = [(steps.matrices(slice(0, 1)), steps.scale[:1])]  # one leaf standing for all steps: passes go frame by frame
+    entering, alpha, moved = np.empty((n_frames, n_classes)), np.empty((n_frames, n_classes)), np.empty(n_frames)
+    vector = np.eye(n_classes)[:1]
+    for frame in range(n_frames):
+        entering[frame] = vector[0]
+        try:
+            alpha[frame] = vector[0] = _normalised(steps.forward(vector, slice(frame, frame + 1)), moved[frame:frame + 1])[0]
+        except _Dead:
+            raise FloatingPointError(f"the chain's forward pass underflows at frame {frame} even after restarting "
+                                     "at its dead ends") from None
+    log_z = float(steps.scale.sum() + np.log(moved).sum())
+    if not vectors:
+        return _Forward(factors, steps, n_frames, levels, log_z, None, None, None)
+    return _Forward(factors, steps, n_frames, levels, log_z, entering, alpha, moved)
+
+
 def _forward(factors: ChainFactors, vectors: bool = True, repeats: Repeats | None = None) -> _Forward:
-    """The up-sweep and (with ``vectors``) the forward vectors, dead ends turned into chain starts."""
+    """The up-sweep and (with ``vectors``) the forward vectors, dead ends turned into chain starts; where the
+    scan's block products underflow, the same pass frame by frame."""
     try:
         return _forward_once(factors, vectors, repeats)
     except _Dead:
         pass
+    restarted = _restarted(factors)
     try:
-        return _forward_once(_restarted(factors), vectors, None)  # its chain starts are not those of the repeats
+        return _forward_once(restarted, vectors, None)  # its chain starts are not those of the repeats
     except _Dead:
-        raise FloatingPointError("the chain's forward pass underflows even after restarting at its dead ends") from None
+        return _forward_sequential(restarted, vectors)
 
 
 def _backward(forward: _Forward) -> np.ndarray:
@@ -664,6 +692,36 @@ def viterbi(factors: ChainFactors) -> np.ndarray:
         return _viterbi_once(factors)
     except _Dead:
         return _viterbi_once(_restarted(factors))
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A decoded chain: class probabilities, the predicted classes and where a dead end restarted the chain."""
+
+    probabilities: np.ndarray  # [T, C] filter: p(y_t | frames up to t); viterbi: p(y_t | all frames of its chain)
+    path: np.ndarray  # [T] int64 filter: each frame's most probable class; viterbi: the most probable path
+    restarts: np.ndarray  # [R] int64 the frames where no class was possible given the previous ones: a new chain
+
+
+def dead_ends(original: ChainFactors, restarted: ChainFactors) -> np.ndarray:
+    """[R] the frames that ``restarted`` starts anew (dead ends) and the frames no class is possible at."""
+    return np.flatnonzero((restarted.link != original.link) | ~np.isfinite(original.unary).any(axis=1))
+
+
+def decode(factors: ChainFactors, kind: str) -> Decoded:
+    """Decode online (``filter``, as ``Filter`` does frame by frame) or offline (``viterbi``, with the
+    forward-backward marginals as probabilities), restarting the chain at each dead end as ``Filter`` does."""
+    if kind not in ("filter", "viterbi"):
+        raise ValueError(f"unknown decoding {kind!r}: filter or viterbi")
+    if len(factors.link) == 0:
+        return Decoded(np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    forward = _forward(factors)
+    restarts = dead_ends(factors, forward.factors)
+    with np.errstate(divide="ignore"):  # exp of the log-probabilities `filtered` and `smoothed` give: the same numbers
+        if kind == "filter":
+            probabilities = np.exp(np.log(forward.alpha))
+            return Decoded(probabilities, probabilities.argmax(axis=1), restarts)
+        return Decoded(np.exp(np.log(_smoothed(forward)[0])), viterbi(forward.factors), restarts)
 
 
 def chain_starts(episode: np.ndarray, split: np.ndarray | None = None) -> np.ndarray:

@@ -7,6 +7,8 @@ weight to class k exactly when the body holds. Hard formulas count with ``HARD_W
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import polars as pl
 from scipy.special import log_softmax
@@ -18,16 +20,18 @@ HARD_WEIGHT = 1000.0  # a hard formula's weight in the scores: far above any lea
 MODES = ("paper", "exact")
 
 
-def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, n_classes: int) -> np.ndarray:
+def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, classes: int | Sequence[str]) -> np.ndarray:
     """[n_frames, n_classes] float64: per frame, sum of the weights of the formulas whose body (the
     evidence part) is true in that frame and whose head is Topic(C<k>) — i.e. the formulas that are
     satisfied only if the class is k. Row order = predicates' row order. Temporal formulas (Next) are
-    left out: they are factors between frames (stages.mln.factors)."""
+    left out: they are factors between frames (stages.mln.factors). ``classes``: the frames' class names in
+    label order, or their number (formulas naming classes as C<k> only)."""
     from stages.mln.factors import frame_scores, parse_weights
 
     words = tuple(artifacts.feature_columns(predicates))
     evidence = predicates.select(words).to_numpy().astype(bool) if words else np.zeros((predicates.height, 0), bool)
-    per_frame = [f for f in parse_weights(weights, words, n_classes) if not f.temporal]
+    per_frame = [f for f in parse_weights(weights, words, classes) if not f.temporal]
+    n_classes = classes if isinstance(classes, int) else len(classes)
     unique, inverse = np.unique(evidence, axis=0, return_inverse=True)
     return frame_scores(per_frame, unique, words, n_classes, hard_weight=HARD_WEIGHT)[inverse.reshape(-1)]
 

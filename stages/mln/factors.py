@@ -18,7 +18,7 @@ import polars as pl
 from stages.errors import BadInput
 from stages.mln.chain import ChainFactors
 from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
-from stages.mln.grounding import EVIDENCE, AtomSpace, class_constant, is_temporal
+from stages.mln.grounding import EVIDENCE, AtomSpace, class_aliases, class_constant, is_temporal, rename_classes
 from stages.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
 
 
@@ -33,15 +33,19 @@ class LearnedFormula:
     temporal: bool
 
 
-def parse_weights(weights: pl.DataFrame, columns: Sequence[str], n_classes: int) -> list[LearnedFormula]:
-    """The formulas of a weights table that count (non-zero or hard), checked against the evidence columns."""
+def parse_weights(weights: pl.DataFrame, columns: Sequence[str], classes: int | Sequence[str]) -> list[LearnedFormula]:
+    """The formulas of a weights table that count (non-zero or hard), checked against the evidence columns.
+    ``classes``: the frames' class names in label order (a formula may name a class so, or as the paper's
+    ``C<k>``), or their number (``C<k>`` only)."""
+    n_classes = classes if isinstance(classes, int) else len(classes)
+    aliases = class_aliases([class_constant(k) for k in range(classes)] if isinstance(classes, int) else classes)
     space = frame_space(columns, n_classes)
     parsed = []
     for text, weight, hard in weights.select("formula", "weight", "hard").iter_rows():
         if weight == 0.0 and not hard:
             continue
         try:
-            formula = parse_formula(text, "weights.parquet")
+            formula = rename_classes(parse_formula(text, "weights.parquet"), aliases)
         except MLNSyntaxError as error:
             raise BadInput(f"{error}; rerun `mlnseq learn-weights`") from error
         for atom in atoms(formula):
@@ -100,10 +104,11 @@ class MLNFactors:
         self._pairwise: dict[bytes, np.ndarray] = {}
 
     @classmethod
-    def from_weights(cls, weights: pl.DataFrame, columns: Sequence[str], n_classes: int) -> "MLNFactors":
+    def from_weights(cls, weights: pl.DataFrame, columns: Sequence[str], classes: int | Sequence[str]) -> "MLNFactors":
         """weights: a weights.parquet table; columns: the evidence columns, in the order of the arrays passed
         later; refuses a formula over a column it lacks (BadInput)."""
-        return cls(parse_weights(weights, columns, n_classes), list(columns), n_classes)
+        n_classes = classes if isinstance(classes, int) else len(classes)
+        return cls(parse_weights(weights, columns, classes), list(columns), n_classes)
 
     def unary(self, evidence: np.ndarray) -> np.ndarray:
         """bool [T, W] -> [T, C] the per-frame formulas' log-potentials (-inf: a hard formula forbids)."""

@@ -17,8 +17,8 @@ so a ground formula is evaluated on all frames or pairs at once.
 from __future__ import annotations
 
 import difflib
-
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -124,26 +124,68 @@ def default_declarations(mln: MLN) -> str:
     return DECLARATIONS + (NEXT_DECLARATION if any(is_temporal(f.formula) for f in mln.formulas) else "")
 
 
-def name_classes(mln: MLN, class_names: list[str]) -> MLN:
-    """Let formulas name a class as the frames do, ``Topic("lift", p)``: rewritten to its ``C<k>``.
-    A constant already of the form ``C<k>`` is left as it is."""
-    constants = {name: class_constant(k) for k, name in enumerate(class_names)}
-    paper_form = {class_constant(k) for k in range(len(class_names))}
+def class_aliases(class_names: Sequence[str]) -> dict[str, str]:
+    """What a formula may call each class -> its constant ``C<k>`` inside mlnseq: the frames' own name, or the
+    paper's ``C<k>`` (a frames' name wins where the two forms clash)."""
+    aliases = {class_constant(k): class_constant(k) for k in range(len(class_names))}
+    aliases.update({name: class_constant(k) for k, name in enumerate(class_names)})
+    return aliases
 
+
+def rename_classes(formula: Formula, names: dict[str, str]) -> Formula:
+    """The formula with each Topic constant found in ``names`` replaced by what it maps to."""
     def rename(atom: Atom) -> Atom:
         first = atom.args[0] if atom.args else None
-        if atom.predicate == CLASS and isinstance(first, Const) and first.value not in paper_form \
-                and first.value in constants:
-            return Atom(atom.predicate, (Const(constants[first.value]), *atom.args[1:]), atom.column)
+        if atom.predicate == CLASS and isinstance(first, Const) and first.value in names:
+            return Atom(atom.predicate, (Const(names[first.value]), *atom.args[1:]), atom.column)
         return atom
 
-    mln.formulas = [replace(item, formula=map_atoms(item.formula, rename)) for item in mln.formulas]
+    return map_atoms(formula, rename)
+
+
+def name_classes(mln: MLN, class_names: Sequence[str]) -> MLN:
+    """Turn the classes a formula names, ``Topic("lift", p)`` or the paper's ``Topic(C2, p)``, into the constants
+    mlnseq grounds (``C<k>`` by label); ``shown`` turns them back into the frames' names."""
+    aliases = class_aliases(class_names)
+    mln.formulas = [replace(item, formula=rename_classes(item.formula, aliases)) for item in mln.formulas]
     return mln
 
 
-def check_mln(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
+def shown(formula: Formula, class_names: Sequence[str] | None) -> Formula:
+    """The formula with each ``C<k>`` as the frames name class k (None: kept as ``C<k>``)."""
+    if class_names is None:
+        return formula
+    return rename_classes(formula, {class_constant(k): name for k, name in enumerate(class_names)})
+
+
+def show(formula: Formula, class_names: Sequence[str] | None) -> str:
+    """``format_formula`` with the frames' class names."""
+    return format_formula(shown(formula, class_names))
+
+
+def check_class_names(class_names: Sequence[str], where: str) -> None:
+    """Refuse a class name that a formula cannot write (a quoted constant holds no '"' and no line break)."""
+    for name in class_names:
+        if '"' in name or "\n" in name or not name.strip():
+            raise BadInput(f"{where}: class name {name!r} cannot be written in a formula (it holds a '\"', a line "
+                           "break or nothing); rename the classes with `mlnseq collect --classes`")
+
+
+def duplicates(mln: MLN, where: str, class_names: Sequence[str] | None = None) -> None:
+    """Refuse a formula written twice (the same formula once its classes are resolved), naming both lines."""
+    first: dict[str, int] = {}
+    for item in mln.formulas:
+        text = format_formula(item.formula)
+        if text in first:
+            raise BadInput(f"{where}:{item.line}:{item.column}: {show(item.formula, class_names)} is written twice, "
+                           f"here and on line {first[text]}: remove one (a formula has one weight)")
+        first[text] = item.line
+
+
+def check_mln(mln: MLN, where: str, words: set[str], classes: set[str], class_names: Sequence[str] = ()) -> None:
     """Refuse what mlnseq's database cannot ground: other predicates, atoms across frames that are not joined
-    by Next, unknown constants."""
+    by Next, unknown constants. ``classes``: the constants a class may be written as; ``class_names``: the
+    frames' names, in label order, for messages."""
     for name, domains in mln.predicates.items():
         if name not in (EVIDENCE, CLASS, NEXT) or len(domains) != 2:
             raise BadInput(
@@ -153,10 +195,11 @@ def check_mln(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
     if any(any(flags) for flags in mln.mutex.values()):
         raise BadInput(f"{where}: mutually exclusive arguments ('!') are not supported; declare {CLASS}(class, page)")
     for item in mln.formulas:
-        check_formula(item, mln, where, words, classes)
+        check_formula(item, mln, where, words, classes, class_names)
 
 
-def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
+def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], classes: set[str],
+                  class_names: Sequence[str] = ()) -> None:
     def at(atom: Atom | None = None) -> str:
         return f"{where}:{item.line}:{atom.column if atom is not None and atom.column else item.column}"
 
@@ -188,8 +231,12 @@ def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], 
                 hint = f"did you mean {', '.join(close)}?" if close else "see the columns of predicates.parquet"
                 raise BadInput(f"{at(atom)}: unknown constant {first.value!r} in {format_formula(atom)}: "
                                f"no such predicate column; {hint}")
-            raise BadInput(f"{at(atom)}: unknown constant {first.value!r} in {format_formula(atom)}: classes are "
-                           f"{', '.join(sorted(known, key=lambda c: int(c[1:])))} (C<k> in the frames' class order)")
+            names = list(class_names) or sorted(known, key=lambda c: int(c[1:]) if c[1:].isdigit() else -1)
+            close = difflib.get_close_matches(first.value, names, n=3)
+            hint = f"did you mean {', '.join(close)}? " if close else ""
+            paper = f" (or C0 .. C{len(names) - 1} in that order)" if class_names else ""
+            raise BadInput(f"{at(atom)}: unknown class {first.value!r} in {format_formula(atom)}: {hint}the classes "
+                           f"are {', '.join(names)}{paper}")
         if isinstance(first, Var) and first_domain.setdefault(first.name, atom.predicate) != atom.predicate:
             raise BadInput(f"{at(atom)}: variable {first.name} ranges over both words and classes")
     clash = sorted(frame_vars & set(first_domain))
@@ -265,29 +312,40 @@ class Expanded:
 
 
 def expand_templates(
-    formulas: list[WeightedFormula], space: AtomSpace
+    formulas: list[WeightedFormula], space: AtomSpace, class_names: Sequence[str] | None = None
 ) -> tuple[list[Expanded], list[Expanded], list[str]]:
     """Expand `+var` over the constants of ``space``; formulas over constants outside it are left out.
 
-    Returns the expanded formulas, the left-out ones and one warning per left-out formula. A template's weight is
-    learned when it is 0, else it is an expert's weight and kept fixed; hard formulas stay hard.
+    Returns the expanded formulas, the left-out ones and the warnings (one per left-out formula, one per template
+    whose expansions repeat formulas of other lines: each formula is learned once, a written one's weight winning
+    over a template's, an earlier template's over a later one's). A template's weight is learned when it is 0, else
+    it is an expert's weight and kept fixed; hard formulas stay hard. ``class_names``: for the warnings.
     """
     expanded, left_out, warnings = [], [], []
+    seen = {format_formula(item.formula): item.line for item in formulas if not is_template(item.formula)}
     for index, item in enumerate(formulas):
         plus = _first_vars(item.formula, expand=True)
         names = list(plus)
+        repeated: dict[int, int] = {}  # line of the formula kept -> how many of this template's expansions repeat it
         for values in itertools.product(*(space.constants(plus[n]) for n in names)):
             formula = substitute(item.formula, dict(zip(names, values)))
+            if names:
+                line = seen.setdefault(format_formula(formula), item.line)
+                if line != item.line:
+                    repeated[line] = repeated.get(line, 0) + 1
+                    continue
             unseen = [a for a in atoms(formula) if isinstance(a.args[0], Const) and not space.contains(a)]
             fixed = item.weight is not None and item.weight != 0.0
             if unseen:
                 left_out.append(Expanded(formula, item.weight, fixed, index))
                 warnings.append(
-                    f"line {item.line}: {format_formula(formula)} uses {format_formula(unseen[0])}, which the "
+                    f"line {item.line}: {show(formula, class_names)} uses {show(unseen[0], class_names)}, which the "
                     "training split never shows; its weight stays 0"
                 )
                 continue
             expanded.append(Expanded(formula, item.weight, fixed, index))
+        warnings += [f"line {item.line}: {count} expansion(s) of this template repeat the formula(s) of line {line}: "
+                     f"each is learned once, as line {line} gives it" for line, count in repeated.items()]
     return expanded, left_out, warnings
 
 

@@ -112,3 +112,25 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(case, tmp_path, shared_
     assert not fresh.exists() or list(fresh.iterdir()) == []
     assert [p.name for p in existing.iterdir()] == [artifacts.FRAMES]
     assert (existing / artifacts.FRAMES).read_bytes() == before
+
+
+@pytest.mark.parametrize(("labels", "classes", "line"), [
+    ("names", "grasp,approach,lift,release",
+     "classes in label order (as --classes lists them): grasp, approach, lift, release"),
+    ("names", None, "classes in label order (label names sorted alphabetically; give --classes to choose the order): "
+                    "approach, grasp, lift, release"),
+    ("indices", None, "classes in label order (numeric labels: label k is class k): 0, 1, 2, 3"),
+])
+def test_collect_prints_the_classes_in_label_order_and_how_they_were_ordered(tmp_path, own_data_glitch, labels,
+                                                                             classes, line):
+    recordings = pl.read_csv(own_data_glitch["csv"])
+    if labels == "indices":
+        order = {"approach": 0, "grasp": 1, "lift": 2, "release": 3}
+        recordings = recordings.with_columns(pl.col("phase").replace_strict(order, return_dtype=pl.Int64))
+    source = tmp_path / "recordings.csv"
+    recordings.write_csv(source)
+    args = ["--env", "table", "--source", str(source), "--episode-column", "trial", "--time-column", "t",
+            "--label-column", "phase", "-w", str(tmp_path / "work")] + (["--classes", classes] if classes else [])
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert line in " ".join(result.output.split())

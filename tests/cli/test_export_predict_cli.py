@@ -55,3 +55,12 @@ def test_bad_usage_is_one_line_and_exit_2(workdir, args, needle):
     done = runner.invoke(app, args if args[0] != "export" else [*args, "-w", str(workdir)])
     assert done.exit_code == 2, done.output
     assert done.stderr.strip().count("\n") == 0 and needle in done.stderr
+
+
+def test_predict_cli_counts_the_restarts_in_its_summary(own_data_glitch, tmp_path):
+    done = CliRunner().invoke(app, ["predict", str(own_data_glitch["model"]), "--source", str(own_data_glitch["csv"]),
+                                    "-o", str(tmp_path / "o.parquet"), "--episode-column", "trial",
+                                    "--time-column", "t", "--label-column", "phase"])
+    assert done.exit_code == 0, done.output
+    text = " ".join(done.output.split())
+    assert f"episode 11 frame {own_data_glitch['frame']}" in text and "1 chain restart)" in text

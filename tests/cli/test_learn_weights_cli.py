@@ -26,7 +26,8 @@ def test_learn_weights_prints_the_strongest_formulas(tmp_path: Path, shared_data
     assert runner.invoke(app, ["formulas", "-w", str(tmp_path)]).exit_code == 0
     result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
     assert result.exit_code == 0, result.output
-    assert 'Has("grippers_closed_closed",p) => Topic("C4",p)' in result.output
+    assert 'Has("grippers_closed_closed",p) => Topic("S5",p)' in result.output
+    assert "│ S5 " in result.output  # the class column too, as the frames name it
     weights = pl.read_parquet(tmp_path / "weights.parquet")
     assert weights.height == 119 and (tmp_path / "learned.mln").exists()
 
@@ -46,7 +47,7 @@ def test_bad_engine_and_class_never_in_training(tmp_path: Path, shared_data: Pat
     result = runner.invoke(app, ["learn-weights", "--engine", "alchemy", "-w", str(tmp_path)])
     assert result.exit_code == 2 and result.stderr.strip() == "error: unknown --engine 'alchemy': choose one of native, pracmln"
     result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
-    assert result.exit_code == 0 and "class C6 never occurs in the training split" in result.output
+    assert result.exit_code == 0 and "class S7 never occurs in the training split" in result.output
 
 
 def test_missing_formulas_names_the_stage(tmp_path: Path, shared_data: Path) -> None:
@@ -73,7 +74,7 @@ def test_temporal_formulas_learn_by_cll_and_show_transitions(tmp_path: Path, sha
     assert runner.invoke(app, ["formulas", "--spec", str(TEMPORAL_SPEC), "-w", str(tmp_path)]).exit_code == 0
     result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
     assert result.exit_code == 0, result.output
-    assert "temporal formulas" in result.output and 'Next(p,q) => Topic("C' in result.output
+    assert "temporal formulas" in result.output and 'Next(p,q) => Topic("S' in result.output
     assert f"(native, cll, l2 {cll.DEFAULT_L2:g})" in " ".join(result.output.split())
     weights = pl.read_parquet(tmp_path / "weights.parquet")
     assert weights["temporal"].sum() == 49

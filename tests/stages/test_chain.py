@@ -273,3 +273,39 @@ def test_bad_factors_are_refused() -> None:
         ChainFactors(np.zeros((2, 3)), np.zeros((1, 2, 2)), np.array([-1, 0]))
     empty = ChainFactors(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64))
     assert filtered(empty).shape == (0, 3) and viterbi(empty).shape == (0,) and log_partition(empty) == 0.0
+
+
+def test_chains_whose_block_products_underflow_decode_as_the_filter_does(own_data_glitch) -> None:
+    """The own-data MLN over its twelve trials read as one chain, its frame factors sharpened threefold (a surer
+    model): probabilities of the states the order's hard rules keep reachable fall below e^-745 within a block,
+    though the filter, normalising every frame, keeps them; decoding goes on and agrees with it frame by frame."""
+    from dataclasses import replace
+
+    import polars as pl
+
+    from stages import artifacts
+    from stages.binarize import binarize
+    from stages.mln import chain
+    from stages.recognizer import Recognizer
+
+    recognizer = Recognizer.load(own_data_glitch["model"])
+    features = pl.read_csv(own_data_glitch["csv"]).select(recognizer.features).to_numpy()
+    n = len(features)
+    keys = {"episode": np.zeros(n, dtype=np.int64), "frame": np.arange(n), "label": np.zeros(n), "split": np.full(n, "test")}
+    frames = artifacts.frames_table(keys, {name: features[:, i] for i, name in enumerate(recognizer.features)})
+    evidence = binarize(frames, recognizer.spec).select(recognizer.columns).to_numpy().astype(bool)
+    factors = recognizer.mln.chain(evidence, chain.chain_starts(keys["episode"]))
+    factors = replace(factors, unary=3 * factors.unary)
+    live = chain.Filter(factors.n_classes)
+    online, restarted = [], []
+    for t, (unary, link) in enumerate(zip(factors.unary, factors.link)):
+        online.append(live.step(unary, None if link < 0 else factors.pairwise[link]))
+        restarted += [t] * live.restarted
+    decoded = chain.decode(factors, "filter")
+    assert np.abs(np.exp(online) - decoded.probabilities).max() < 1e-9 and decoded.restarts.tolist() == restarted
+    assert np.array_equal(np.exp(chain.filtered(factors)), decoded.probabilities)
+    offline = chain.decode(factors, "viterbi")
+    assert np.isfinite(chain.log_partition(factors))
+    assert np.allclose(offline.probabilities.sum(axis=1), 1.0) and np.array_equal(offline.restarts, decoded.restarts)
+    assert np.isfinite(chain.path_score(replace(factors, link=np.where(np.isin(np.arange(n), decoded.restarts), -1,
+                                                                             factors.link)), offline.path))

@@ -103,7 +103,8 @@ def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tm
     result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter",)))
     assert any("no temporal formula" in note and "uniform transitions" in note for note in result.notes)
     table = pl.read_parquet(result.path)
-    scores = recognizer.mln_class_scores(tmp_path, pl.read_parquet(tmp_path / artifacts.FRAMES), 7)[0]
+    frames, meta = artifacts.read_table(tmp_path / artifacts.FRAMES, "frames")
+    scores = recognizer.mln_class_scores(tmp_path, frames, meta["classes"])[0]  # weights name the classes so
     expected = np.exp(classifier.class_log_probs(scores, "exact", "desk"))
     np.testing.assert_allclose(table.select(artifacts.prob_columns("mln+filter", 7)).to_numpy(), expected, atol=1e-5)
 
@@ -127,3 +128,12 @@ def test_decoding_needs_the_mln_and_known_names(tmp_path, desk_stream_workdir):
     assert conflate.parse_decode("none, viterbi") == ("none", "viterbi")
     with pytest.raises(BadInput, match="--network-weight"):
         conflate.parse_network_weight("heavy")
+
+
+def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_with_a_note(tmp_path, own_data_glitch):
+    shutil.copytree(own_data_glitch["workdir"], tmp_path, dirs_exist_ok=True)
+    result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter", "viterbi")))
+    for name in ("mln+filter", "mln+viterbi"):
+        assert [n for n in result.notes if n.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
+            f"{name}: the chain restarted at 1 frame(s) that no allowed transition reaches (a missed episode boundary, "
+            f"or evidence that breaks a hard rule): episode 11 frame {own_data_glitch['frame']}"]

@@ -26,7 +26,7 @@ def test_default_spec_keeps_the_template(workdir: Path) -> None:
     assert [f.weight for f in mln.formulas] == [0.0]
     assert "Has(+w,p) => Topic(+c,p)" in written.path.read_text()
     assert "grippers_closed_closed" in written.words and "grippers_opening_opening" not in written.words
-    assert written.classes == tuple(f"C{k}" for k in range(7))
+    assert written.classes == tuple(f"S{k + 1}" for k in range(7))  # as the frames name them
 
 
 def test_handwritten_example_is_accepted(workdir: Path, repo_root: Path) -> None:
@@ -39,8 +39,28 @@ def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) ->
     path.write_text('0.0 Has("grippers_closed_closed",p) => Topic("S5",p)\n'
                     '1.0 Has("left_gripper_open",p) => Topic("C0",p)\n')
     written = stage.run(workdir, stage.FormulasOptions(spec=path)).path.read_text()
-    assert 'Has("grippers_closed_closed",p) => Topic("C4",p)' in written
-    assert 'Has("left_gripper_open",p) => Topic("C0",p)' in written
+    assert 'Has("grippers_closed_closed",p) => Topic("S5",p)' in written  # names survive, the paper's C<k> too:
+    assert 'Has("left_gripper_open",p) => Topic("S1",p)' in written  # written as the frames name the class
+    assert "// label order (the paper's C0 .. C6): S1, S2, S3, S4, S5, S6, S7\n" in written
+
+
+def test_a_misspelt_class_gets_the_nearest_names(workdir: Path, tmp_path: Path) -> None:
+    path = tmp_path / "typo.mln"
+    path.write_text('0.0 Has(+w, p) => Topic(+c, p)\n1.0 Has("left_gripper_open", p) => Topic("S55", p)\n')
+    with pytest.raises(BadInput) as error:
+        stage.run(workdir, stage.FormulasOptions(spec=path))
+    assert str(error.value) == (f"{path}:2:36: unknown class 'S55' in Topic(\"S55\",p): did you mean S5? the classes "
+                                "are S1, S2, S3, S4, S5, S6, S7 (or C0 .. C6 in that order)")
+
+
+@pytest.mark.parametrize("second", ['2.0 Has("left_gripper_open", p) => Topic("S1", p)',
+                                    '0.0 Has("left_gripper_open",p)  =>  Topic(C0, p)'])
+def test_a_formula_written_twice_is_refused_naming_both_lines(workdir: Path, tmp_path: Path, second: str) -> None:
+    path = tmp_path / "twice.mln"
+    path.write_text(f'1.0 Has("left_gripper_open", p) => Topic("S1", p)\n// again\n{second}\n')
+    with pytest.raises(BadInput, match=r'twice.mln:3:1: Has\("left_gripper_open",p\) => Topic\("S1",p\) is written '
+                                       "twice, here and on line 1"):
+        stage.run(workdir, stage.FormulasOptions(spec=path))
 
 
 @pytest.mark.parametrize(
@@ -48,7 +68,7 @@ def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) ->
     [
         ('0.0 Has("left_gripper_closed",p) => Topc("C4",p)\n', "spec.mln:1:37: unknown predicate Topc"),
         ('\n0.0 Has("left_gripper_clsed",p) => Topic("C4",p)\n', "spec.mln:2:5: unknown constant 'left_gripper_clsed'"),
-        ('0.0 Has("left_gripper_closed",p) => Topic("C9",p)\n', "unknown constant 'C9'"),
+        ('0.0 Has("left_gripper_closed",p) => Topic("C9",p)\n', "unknown class 'C9'"),
         ('0.0 Has("left_gripper_closed",p) => Topic("C4",q)\n', "one frame variable"),
         ('0.0 Has("left_gripper_closed",p) ^^ Topic("C4",p)\n', "spec.mln:1:35:"),
     ],
@@ -85,7 +105,7 @@ def test_temporal_forms_are_accepted(workdir: Path, tmp_path: Path, spec: str) -
     ("spec", "message"),
     [
         ('0.0 Topc("C0", p) ^ Next(p, q) => Topic("C1", q)\n', "spec.mln:1:5: unknown predicate Topc"),
-        ('0.0 Topic("S9", p) ^ Next(p, q) => Topic("S1", q)\n', "spec.mln:1:5: unknown constant 'S9'"),
+        ('0.0 Topic("S9", p) ^ Next(p, q) => Topic("S1", q)\n', "spec.mln:1:5: unknown class 'S9'"),
         ('Has(word, page)\nTopic(class, page)\n0.0 Topic("C0", p) ^ Next(p, q) => Topic("C1", q)\n',
          "spec.mln:3:22: unknown predicate Next (declared: Has, Topic); declare Next(page, page)"),
         ('0.0 Topic("C0", p) ^ Next(p, "C1") => Topic("C1", q)\n',

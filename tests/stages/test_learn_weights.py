@@ -264,3 +264,25 @@ def test_lbfgs_reaches_the_bfgs_optimum(shared_data: Path) -> None:
     assert values["l-bfgs"] == pytest.approx(values["bfgs"], abs=1e-3)
     odds = {name: objective.when_true @ w - objective.when_false @ w for name, w in found.items()}
     assert np.abs(expit(odds["l-bfgs"]) - expit(odds["bfgs"])).max() < 1e-4
+
+
+def test_weights_learned_mln_and_warnings_name_the_classes_as_the_frames_do(shared_data: Path) -> None:
+    table, _ = desk_predicates(shared_data, train_limit=100)  # the first 100 frames show S1 to S3
+    names = [f"S{k + 1}" for k in range(7)]
+    mln = parse_mln(DECLARED + '1.5 Has("left_gripper_open",p) => Topic(C0,p)\n0.0 Has(+w,p) => Topic(+c,p)\n')
+    named, paper = stage.learn(table, 7, mln, class_names=names), stage.learn(table, 7, mln)
+    assert named.weights["weight"].to_list() == paper.weights["weight"].to_list()  # names change no number
+    assert named.weights["class"].to_list() == [None if c is None else names[int(c[1:])] for c in paper.weights["class"]]
+    assert named.weights["formula"][0] == 'Has("left_gripper_open",p) => Topic("S1",p)'
+    assert 'Topic("S1",p)' in named.learned_mln and '"C0"' not in named.learned_mln
+    assert any("class S7 never occurs" in w for w in named.warnings)
+
+
+def test_a_template_expansion_also_written_out_is_learned_once_with_the_written_weight(desk: pl.DataFrame) -> None:
+    mln = parse_mln(DECLARED + '0.0 Has(+w,p) => Topic(+c,p)\n1.5 Has("left_gripper_open",p) => Topic("C0",p)\n')
+    learned = stage.learn(desk, 7, mln)
+    same = learned.weights.filter(pl.col("formula") == 'Has("left_gripper_open",p) => Topic("C0",p)')
+    assert same.height == 1 and same["weight"][0] == 1.5 and same["fixed"][0] and same["template"][0] == 1
+    assert learned.weights.height == stage.learn(desk, 7, PAPER).weights.height
+    assert ("line 3: 1 expansion(s) of this template repeat the formula(s) of line 4: each is learned once, as line 4 "
+            "gives it") in learned.warnings

@@ -70,3 +70,56 @@ def test_viterbi_decodes_a_filter_model_offline_and_refuses_an_undecoded_one(des
     assert offline.metrics["edit"] >= online.metrics["edit"] - 5
     with pytest.raises(BadInput, match="exported without decoding"):
         predict.run(predict.PredictOptions(model=combined, source=source, output=tmp_path / "x.parquet", decode="viterbi"))
+
+
+# --- a frame that no allowed transition reaches ----------------------------------------------------------
+
+
+def streamed(model: Path, frames: pl.DataFrame, episodes: list | None = None) -> list:
+    """Recognizer.step over the frames, reset wherever ``episodes`` changes (the live loop)."""
+    from stages.recognizer import Recognizer
+
+    recognizer = Recognizer.load(model)
+    out, previous = [], None
+    for index, row in enumerate(frames.select(recognizer.features).iter_rows(named=True)):
+        if episodes is not None and episodes[index] != previous:
+            recognizer.reset()
+            previous = episodes[index]
+        out.append(recognizer.step(row))
+    return out
+
+
+def assert_same_as_stream(table: pl.DataFrame, steps: list) -> None:
+    assert table["class"].to_list() == [s.name for s in steps]
+    probabilities = table.select(pl.col("^p_.*$")).to_numpy()
+    assert np.abs(probabilities - np.array([s.probabilities for s in steps])).max() < 1e-6  # float32 column
+
+
+def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_as_the_stream_does(own_data_glitch, tmp_path):
+    csv, model, frame = own_data_glitch["csv"], own_data_glitch["model"], own_data_glitch["frame"]
+    from stages.table_import import TableColumns
+
+    columns = TableColumns(label="phase", episode="trial", time="t")
+    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet", columns=columns))
+    assert result.restarts == [("11", frame)]
+    frames = pl.read_csv(csv)
+    steps = streamed(model, frames, frames["trial"].to_list())
+    assert_same_as_stream(result.table, steps)
+    assert [i for i, s in enumerate(steps) if s.restarted] == [frames["trial"].to_list().index(11) + frame]
+    _, meta = artifacts.read_table(result.path, "predicted")
+    assert meta["restarts"] == [["11", frame]]
+    viterbi = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "v.parquet",
+                                                 columns=columns, decode="viterbi"))
+    assert viterbi.restarts == [("11", frame)]
+
+
+def test_merged_episodes_are_decoded_as_the_stream_decodes_them(own_data_glitch, tmp_path):
+    """Read without its column options, the twelve trials are one episode: where the order's hard rules leave a
+    frame no class, the chain restarts (as the live filter does) and predict names it."""
+    csv, model = own_data_glitch["csv"], own_data_glitch["model"]
+    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet"))
+    assert result.episodes == 1 and len(result.restarts) >= 1 and {e for e, _ in result.restarts} == {"0"}
+    steps = streamed(model, pl.read_csv(csv))
+    assert_same_as_stream(result.table, steps)
+    assert [f for _, f in result.restarts] == [i for i, s in enumerate(steps) if s.restarted]
+
