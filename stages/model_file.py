@@ -347,11 +347,11 @@ def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFr
     wrong = [f"{c} ({weights.schema.get(c)})" for c, kind in WEIGHT_COLUMNS.items() if weights.schema.get(c) != kind]
     if wrong:
         raise BadInput(f"{where}: {WEIGHTS} lacks or mistypes the columns {', '.join(wrong)}: {AGAIN}")
-    classes = {class_constant(k) for k in range(len(manifest["classes"]))}
+    classes = {*manifest["classes"], *(class_constant(k) for k in range(len(manifest["classes"])))}
     foreign = weights.filter(pl.col("class").is_not_null() & ~pl.col("class").is_in(sorted(classes)))
     if foreign.height:
-        raise BadInput(f"{where}: {WEIGHTS} has a formula of class {foreign['class'][0]}, but the manifest declares "
-                       f"{len(classes)} classes (C0..C{len(classes) - 1}): {AGAIN}")
+        raise BadInput(f"{where}: {WEIGHTS} has a formula of class {foreign['class'][0]!r}, which is not one of the "
+                       f"manifest's {len(manifest['classes'])} classes: {AGAIN}")
     bad = weights.filter(pl.col("formula").is_null() | pl.col("hard").is_null()
                          | (~pl.col("hard") & (pl.col("weight").is_null() | ~pl.col("weight").is_finite())))
     if bad.height:

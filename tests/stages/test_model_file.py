@@ -316,11 +316,11 @@ def test_classes_and_weights_that_disagree_are_refused(exported, tmp_path):
     manifest = manifest_of(exported["mln"])
     manifest["classes"] = manifest["classes"][:6]
     refused(write(tmp_path / "classes.mlnseq", resealed(exported["mln"], manifest)),
-            "weights.parquet has a formula of class C6, but the manifest declares 6 classes")
+            "weights.parquet has a formula of class 'S7 align and place', which is not one of the manifest's 6 classes")
     weights = pl.read_parquet(io.BytesIO(members(exported["mln"])[WEIGHTS]))
-    weights = weights.with_columns(pl.col("formula").str.replace("C2", "C9"))
+    weights = weights.with_columns(pl.col("formula").str.replace("S3 lift peg", "S9 lift pole", literal=True))
     refused(write(tmp_path / "formula.mlnseq", resealed(exported["mln"], weights_parquet=parquet(weights))),
-            "uses C9, which is not a class")
+            "S9 lift pole")
     manifest = manifest_of(exported["mln"])
     manifest["predicates"] = manifest["predicates"][1:]
     refused(write(tmp_path / "predicates.mlnseq", resealed(exported["mln"], manifest)), "binarize.toml makes predicate columns")
