@@ -97,11 +97,9 @@ def assert_same_as_stream(table: pl.DataFrame, steps: list) -> None:
 
 def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_as_the_stream_does(own_data_glitch, tmp_path):
     csv, model, frame = own_data_glitch["csv"], own_data_glitch["model"], own_data_glitch["frame"]
-    from stages.table_import import TableColumns
-
-    columns = TableColumns(label="phase", episode="trial", time="t")
-    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet", columns=columns))
-    assert result.restarts == [("11", frame)]
+    columns = dict(label_column="phase", episode_column="trial", time_column="t")
+    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet", **columns))
+    assert result.restarts == [(11, frame)]
     frames = pl.read_csv(csv)
     steps = streamed(model, frames, frames["trial"].to_list())
     assert_same_as_stream(result.table, steps)
@@ -109,16 +107,19 @@ def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_as_the_stream_does(o
     _, meta = artifacts.read_table(result.path, "predicted")
     assert meta["restarts"] == [["11", frame]]
     viterbi = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "v.parquet",
-                                                 columns=columns, decode="viterbi"))
-    assert viterbi.restarts == [("11", frame)]
+                                                 **columns, decode="viterbi"))
+    assert viterbi.restarts == [(11, frame)]
 
 
 def test_merged_episodes_are_decoded_as_the_stream_decodes_them(own_data_glitch, tmp_path):
-    """Read without its column options, the twelve trials are one episode: where the order's hard rules leave a
-    frame no class, the chain restarts (as the live filter does) and predict names it."""
-    csv, model = own_data_glitch["csv"], own_data_glitch["model"]
-    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet"))
-    assert result.episodes == 1 and len(result.restarts) >= 1 and {e for e, _ in result.restarts} == {"0"}
+    """New recordings without the trial column are one episode: where the order's hard rules leave a frame no
+    class, the chain restarts (as the live filter does) and predict names it."""
+    model = own_data_glitch["model"]
+    csv = tmp_path / "merged.csv"
+    pl.read_csv(own_data_glitch["csv"]).drop("trial").with_columns(run=pl.lit(0), t=pl.int_range(pl.len())).write_csv(csv)
+    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet",
+                                                episode_column="run"))
+    assert result.episodes == 1 and len(result.restarts) >= 1 and {e for e, _ in result.restarts} == {0}
     steps = streamed(model, pl.read_csv(csv))
     assert_same_as_stream(result.table, steps)
     assert [f for _, f in result.restarts] == [i for i, s in enumerate(steps) if s.restarted]
