@@ -94,8 +94,9 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 	@$(if $(HAVE_DESK),,echo "DESK Taurus files not found in $(DESK_DIR): the DESK half was skipped (set DESK_DIR=...)")
 
 MLN_SOURCES := $(wildcard stages/mln/*.py)
-TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
-RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/inference.py stages/sequences.py $(MLN_SOURCES)
+NETWORK_SOURCES := $(wildcard stages/networks/*.py)
+TRAIN_SOURCES := stages/train.py $(NETWORK_SOURCES) stages/sequences.py
+RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py $(NETWORK_SOURCES) stages/sequences.py $(MLN_SOURCES)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)

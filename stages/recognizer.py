@@ -3,7 +3,7 @@ networks, fusion (eq. 16) and decoding.
 
 `conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
 frame at a time) and the Python API all call this module; `train` fits and saves what it loads. The
-networks run in numpy (stages/inference.py); torch is imported only to read and write the workdir's
+networks run in numpy (stages/networks/network.py); torch is imported only to read and write the workdir's
 checkpoints, so a model file is recognised without it.
 """
 
@@ -23,13 +23,13 @@ import polars as pl
 
 from stages import artifacts, sequences
 from stages.errors import BadInput, MissingArtifact, StaleArtifact
-from stages.inference import Network, StreamingNetwork
+from stages.networks.network import Network, StreamingNetwork
 from stages.mln import chain
 
 if TYPE_CHECKING:
     from stages.binarize import PredicateSpec
     from stages.mln.factors import MLNFactors
-    from stages.models import SequenceClassifier
+    from stages.networks.classifier import SequenceClassifier
 
 NETWORKS = ("lstm", "priorlayer")
 METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")
