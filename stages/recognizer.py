@@ -27,7 +27,7 @@ from stages.networks.network import Network, StreamingNetwork
 from stages.mln import chain
 
 if TYPE_CHECKING:
-    from stages.binarize import PredicateSpec
+    from stages.predicate_spec import PredicateSpec
     from stages.mln.factors import MLNFactors
     from stages.networks.classifier import SequenceClassifier
 
@@ -464,7 +464,8 @@ class Recognizer:
     """
 
     def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
-        from stages.binarize import StreamingBinarizer, parse_spec
+        from stages.predicate_rules import StreamingBinarizer
+        from stages.predicate_spec import parse_spec
         from stages.mln.factors import MLNFactors, parse_weights
 
         self.manifest = manifest = json.loads(entries[MANIFEST])
@@ -581,8 +582,6 @@ class Recognizer:
         """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline)."""
-        from stages.binarize import binarize
-
         decode = self.decode if decode is None else decode
         if decode != self.decode and decode != "none" and self.mln is None:
             raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
@@ -593,13 +592,12 @@ class Recognizer:
         starts = chain.chain_starts(episodes)
         p_mln = prior = evidence = None
         if self.spec is not None:
+            from stages import predicate_rules
             from stages.mln import classifier
 
-            keys = {"episode": episodes, "frame": np.concatenate([np.arange(s.stop - s.start) for s in spans]),
-                    "label": np.zeros(len(features)), "split": np.full(len(features), "test")}
-            frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
-            predicates = binarize(frames, self.spec)
-            evidence = predicates.select(self.columns).to_numpy().astype(bool)
+            # binarized as frames.parquet holds them: float32
+            evidence = predicate_rules.features_evidence(self.spec, self.features, features.astype(np.float32), starts)
+            predicates = pl.DataFrame({column: evidence[:, i] for i, column in enumerate(self.columns)})
             p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, len(self.classes)))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":
