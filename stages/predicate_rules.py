@@ -142,11 +142,9 @@ def features_evidence(spec: PredicateSpec, names: Sequence[str], features: np.nd
 # ---- one frame at a time --------------------------------------------------------------------------
 
 
-def code(predicate: Bins | Change | Gripper, rule: tuple[tuple[Test, ...], int] | None, value: float,
-         delta: float) -> int:
-    """:func:`codes` for one frame, on plain floats, with the predicate's ``tests`` computed once (``rule``)."""
-    if rule is None:
-        return bisect.bisect_right(predicate.edges, value)
+def code(rule: tuple[tuple[Test, ...], int], value: float, delta: float) -> int:
+    """:func:`codes` of a change or gripper predicate for one frame, on plain floats, from its ``tests`` (``rule``;
+    a bins predicate's code is ``bisect.bisect_right(edges, value)``, as ``np.searchsorted(side="right")``)."""
     checks, otherwise = rule
     for on_delta, above, bound, found in checks:
         x = delta if on_delta else value
@@ -171,11 +169,18 @@ class StreamingBinarizer:
             return np.zeros(1)
 
         channels_of(spec, check)
-        self._sizes = {p.name: len(p.values) for p in spec.predicates}
-        self._offsets = np.cumsum([0] + [len(p.values) for p in spec.predicates])[:-1].tolist()
-        self._rules = [None if isinstance(p, (Bins, Pair)) else tests(p) for p in spec.predicates]
-        self._scales = [1.0 if isinstance(p, Pair) else previous_scale(p) for p in spec.predicates]
-        self._width = sum(self._sizes.values())
+        self._width = sum(len(p.values) for p in spec.predicates)
+        self._plan: list[tuple[Any, ...]] = []  # per predicate, what its code needs, worked out once
+        offset, sizes = 0, {}
+        for p in spec.predicates:
+            if isinstance(p, Pair):
+                self._plan.append((p.name, offset, None, p.first, p.second, sizes[p.second]))
+            elif isinstance(p, Bins):
+                self._plan.append((p.name, offset, p.channel, p.edges, None, 0.0))
+            else:
+                self._plan.append((p.name, offset, p.channel, None, tests(p), previous_scale(p)))
+            sizes[p.name] = len(p.values)
+            offset += len(p.values)
         self._previous: dict[str, float] | None = None
 
     def reset(self) -> None:
@@ -192,14 +197,15 @@ class StreamingBinarizer:
         previous = self._previous
         evidence = np.zeros(self._width, dtype=bool)
         found: dict[str, int] = {}
-        for predicate, offset, rule, scale in zip(self.spec.predicates, self._offsets, self._rules, self._scales):
-            if isinstance(predicate, Pair):
-                value = pair_code(found[predicate.first], found[predicate.second], self._sizes[predicate.second])
+        for name, offset, channel, edges, rule, scale in self._plan:
+            if channel is None:  # a pair: edges and rule hold its parts' names, scale the second's size
+                value = pair_code(found[edges], found[rule], scale)
+            elif rule is None:
+                value = bisect.bisect_right(edges, channels[channel])
             else:
-                value = channels[predicate.channel]
-                delta = 0.0 if previous is None else change(value, previous[predicate.channel], scale)
-                value = code(predicate, rule, value, delta)
-            found[predicate.name] = value
+                x = channels[channel]
+                value = code(rule, x, 0.0 if previous is None else change(x, previous[channel], scale))
+            found[name] = value
             evidence[offset + value] = True
         self._previous = channels
         return evidence
