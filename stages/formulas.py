@@ -13,8 +13,9 @@ from pathlib import Path
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.mln.grounding import class_constant, check_mln, default_declarations, name_classes
-from stages.mln.syntax import MLN, format_weighted, parse_mln
+from stages.mln.formula_spec import formulas_for, read_spec
+from stages.mln.grounding import class_constant
+from stages.mln.syntax import MLN, format_weighted
 
 DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
 
@@ -40,20 +41,6 @@ class WrittenFormulas:
     classes: tuple[str, ...]
 
 
-def read_spec(path: Path) -> MLN:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadInput(f"cannot read {path}: {error}") from error
-    mln = parse_mln(text, str(path))
-    if not mln.predicates:  # formulas only: the paper's two predicates (and Next if used)
-        defaults = parse_mln(default_declarations(mln))
-        mln.predicates, mln.mutex = defaults.predicates, defaults.mutex
-    if not mln.formulas:
-        raise BadInput(f"{path} holds no formula: add e.g. `0.0 Has(+w, p) => Topic(+c, p)`")
-    return mln
-
-
 def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...]) -> str:
     """formulas.mln: provenance, the training constants as comments, declarations, formulas."""
     lines = [
@@ -66,12 +53,6 @@ def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...
         *(format_weighted(item) for item in mln.formulas),
     ]
     return "\n".join(lines) + "\n"
-
-
-def formulas_for(mln: MLN, spec: Path, columns: list[str], class_names: list[str]) -> None:
-    """Write class names as their ``C<k>``, then check the spec against the predicate columns and classes."""
-    name_classes(mln, class_names)
-    check_mln(mln, str(spec), set(columns), {class_constant(k) for k in range(len(class_names))})
 
 
 def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:

@@ -20,9 +20,9 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput, MlnseqError
-from stages.formulas import formulas_for, read_spec
 from stages.mln import bpll, cll, pracmln_compat
 from stages.mln.chain import chain_starts
+from stages.mln.formula_spec import formulas_for, read_spec
 from stages.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
     space_of, truth,
@@ -228,25 +228,6 @@ def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engi
     lines += [format_weighted(WeightedFormula(e.formula, None if e.weight is None else float(w)))
               for e, w in zip(formulas, weights)]
     return "\n".join(lines) + "\n"
-
-
-def strongest(weights: pl.DataFrame, per_class: int = 3) -> pl.DataFrame:
-    """The ``per_class`` largest weights of each class among the per-frame formulas (hard formulas first)."""
-    per_frame = weights.filter(~pl.col("temporal")) if "temporal" in weights.columns else weights
-    return (
-        per_frame.filter(pl.col("class").is_not_null())
-        .sort(["class", "hard", "weight"], descending=[False, True, True])
-        .group_by("class", maintain_order=True).head(per_class)
-    )
-
-
-def strongest_temporal(weights: pl.DataFrame, count: int = 5) -> pl.DataFrame:
-    """The hard temporal formulas, then the ``count`` temporal formulas of largest |weight|."""
-    if "temporal" not in weights.columns:
-        return weights.clear()
-    temporal = weights.filter(pl.col("temporal"))
-    return pl.concat([temporal.filter(pl.col("hard")),
-                      temporal.filter(~pl.col("hard")).sort(pl.col("weight").abs(), descending=True).head(count)])
 
 
 def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:

@@ -275,7 +275,7 @@ def combined_gain(by_method: dict[str, dict[str, Any]]) -> float | None:
 
 def weights_table(run: Run, dataset: str, per_class: int = 3) -> list[list[str]]:
     """Table II style: the strongest learned formulas of each class."""
-    from stages.learn_weights import strongest  # the MLN engine (scipy): needed when the report runs only
+    from stages.mln.weights_table import strongest
 
     classes = run.datasets[dataset]["classes"]
     rows = []
