@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts
-from stages.errors import BadInput, MlnseqError
+from stages.errors import BadInput, MlnseqError, check_choice
 from stages.mln import bpll, cll, pracmln_compat
 from stages.mln.chain import chain_starts
 from stages.mln.formula_spec import formulas_for, read_spec
@@ -42,10 +42,9 @@ class LearnWeightsOptions:
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
 
     def validate(self) -> None:
-        if self.engine not in ENGINES:
-            raise BadInput(f"unknown --engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
-        if self.objective is not None and self.objective not in OBJECTIVES:
-            raise BadInput(f"unknown --objective {self.objective!r}: choose one of {', '.join(OBJECTIVES)}")
+        check_choice("engine", self.engine, ENGINES)
+        if self.objective is not None:
+            check_choice("objective", self.objective, OBJECTIVES)
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
             raise BadInput(f"--l2 must be a number >= 0, got {self.l2}")
 
@@ -213,8 +212,7 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
             "template": [e.template for e in every],
             "temporal": [is_temporal(e.formula) for e in every],
         },
-        schema={"formula": pl.String, "class": pl.String, "weight": pl.Float64, "fixed": pl.Boolean,
-                "hard": pl.Boolean, "template": pl.Int32, "temporal": pl.Boolean},
+        schema=artifacts.WEIGHTS_SCHEMA,
     )
     return Learned(table, render_learned(mln, every, values, engine, objective, l2), warnings, objective, l2)
 

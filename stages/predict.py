@@ -16,7 +16,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, metrics
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.recognizer import DECODES, Recognizer
 from stages.table_import import TableColumns, import_table
 
@@ -32,17 +32,13 @@ class PredictOptions:
     columns: TableColumns = field(default_factory=TableColumns)  # label, episode, time (features: the model's)
 
     def validate(self) -> None:
-        if self.decode is not None and self.decode not in DECODES:
-            raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
+        if self.decode is not None:
+            check_choice("decode", self.decode, DECODES)
         if self.columns.features:
             raise BadInput("predict reads the model's own features; leave out --features")
 
     def output_path(self) -> Path:
         return Path(self.output) if self.output is not None else Path(f"{Path(self.source).stem}.predictions.parquet")
-
-
-def probability_column(name: str) -> str:
-    return f"p_{name}"
 
 
 @dataclass(frozen=True)
@@ -61,7 +57,7 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
     keys = frames.select("episode", "frame", *(["label"] if (frames["label"] >= 0).all() else []))
     return keys.with_columns(
         pl.Series("class", np.array(model.classes)[predicted], dtype=pl.String),
-        *(pl.Series(probability_column(name), probabilities[:, k], dtype=pl.Float32)
+        *(pl.Series(artifacts.class_probability_column(name), probabilities[:, k], dtype=pl.Float32)
           for k, name in enumerate(model.classes)),
     ), predicted
 

@@ -22,7 +22,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, networks, sequences
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.recognizer import NETWORKS, PRIORS, FrameData, mln_class_scores, prior_input, save_checkpoint
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run
@@ -59,8 +59,7 @@ class TrainOptions:
         choices = {"method": METHODS, "mode": sequences.MODES, "cell": networks.CELLS, "prior": PRIORS,
                    "select": SELECTS, "device": DEVICES}
         for name, allowed in choices.items():
-            if getattr(self, name) not in allowed:
-                raise BadInput(f"unknown --{name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
+            check_choice(name, getattr(self, name), allowed)
         if not 0 < self.train_fraction <= 1:
             raise BadInput(f"--train-fraction must be in (0, 1], got {self.train_fraction}")
         if not 0 < self.val_fraction < 1:

@@ -78,4 +78,4 @@ def test_a_tcn_stream_equals_predict_frame_by_frame(tcn_workdir, recording, tmp_
     assert [a["class"] for a in answers] == expected["class"].to_list()
     classes = list(answers[0]["probabilities"])
     got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
-    np.testing.assert_allclose(got, expected.select(f"p_{c}" for c in classes).to_numpy(), atol=1e-5)
+    np.testing.assert_allclose(got, expected.select(artifacts.class_probability_column(c) for c in classes).to_numpy(), atol=1e-5)
