@@ -78,6 +78,10 @@ SEED_DIRS := $(call seed_dirs,fetch,$(MODES),$(SEEDS)) $(call seed_dirs,fetch-ri
   $(if $(HAVE_DESK),$(call seed_dirs,desk,$(MODES),$(SEEDS))) \
   $(foreach d,$(SEQUENTIAL),$(call seed_dirs,$(d)-temporal,$(TEMPORAL_MODES),$(SEEDS)) \
     $(call seed_dirs,$(d)-order,$(ABLATION_MODES),$(SEEDS)) $(call seed_dirs,$(d)-fixed-weight,$(ABLATION_MODES),$(SEEDS)))
+# The causal TCN (stages/networks/tcn.py) per paper dataset D, stream mode: D-tcn links D's frames, predicates
+# and weights, and its lstm and priorlayer models are TCNs (--cell tcn), undecoded. TCN_DATASETS= leaves it out.
+TCN_DATASETS ?= $(SEQUENTIAL:%=%-tcn)
+SEED_DIRS += $(foreach d,$(TCN_DATASETS),$(call seed_dirs,$(d),stream,$(SEEDS)))
 
 # The stages run in processes forked from scripts/stage_server.py, which has imported torch and the data
 # libraries once (`make report` alone runs each stage as a process of its own; the results are the same).
@@ -94,8 +98,9 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 	@$(if $(HAVE_DESK),,echo "DESK Taurus files not found in $(DESK_DIR): the DESK half was skipped (set DESK_DIR=...)")
 
 MLN_SOURCES := $(wildcard stages/mln/*.py)
-TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
-RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/inference.py stages/sequences.py $(MLN_SOURCES)
+NETWORK_SOURCES := $(wildcard stages/networks/*.py)
+TRAIN_SOURCES := stages/train.py $(NETWORK_SOURCES) stages/sequences.py
+RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py $(NETWORK_SOURCES) stages/sequences.py $(MLN_SOURCES)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
@@ -136,6 +141,7 @@ $(foreach d,$(SEQUENTIAL),\
   $(eval $(call linked_files,$(d)-fixed-weight,$(d)-temporal,frames.parquet predicates.parquet weights.parquet)) \
   $(eval $(call linked_network,$(d)-temporal,$(d),lstm)) $(eval $(call linked_network,$(d)-order,$(d),lstm)) \
   $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)))
+$(foreach d,$(TCN_DATASETS),$(eval $(call linked_files,$(d),$(d:%-tcn=%),frames.parquet predicates.parquet weights.parquet)))
 
 .SECONDEXPANSION:
 .SECONDARY:  # keep every artifact the chain makes
@@ -162,7 +168,7 @@ dataset_dir = $(RUNS)/$(call stem_word,1)
 mode_of = $(call stem_word,2)
 train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
   --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
-  $(if $(filter stream,$(mode_of)),--select last)
+  $(if $(filter stream,$(mode_of)),--select last) $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn)
 # The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
 # only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
 networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from stages import collect, sequences, train
-from stages.models import ModelConfig, SequenceClassifier
+from stages.networks.classifier import SequenceClassifier
+from stages.networks.recurrent import Config as ModelConfig
 
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
 REPEATS = 3

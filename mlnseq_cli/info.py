@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
-from stages import model_file, recognizer
+from stages import model_file, networks, recognizer
 
 
 def info(
@@ -39,7 +39,7 @@ def info(
     network = manifest.get("network")
     if network:
         model_config = network["model"]
-        rows.append(("network", f"{network['name']}: {model_config['cell']} of {model_config['hidden_size']}, "
+        rows.append(("network", f"{network['name']}: {networks.describe(model_config)}, "
                                 f"{network['mode']} mode, seed {network['seed']}, epoch {network['kept_epoch']}"
                                 + (f", PriorLayer input {network['prior']}" if network.get("prior") else "")))
     if model_file.WEIGHTS in entries:

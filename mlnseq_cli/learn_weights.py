@@ -26,6 +26,7 @@ def learn_weights(
 ) -> None:
     """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln."""
     from stages import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
+    from stages.mln.weights_table import strongest, strongest_temporal
 
     options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2)
     with reported_errors():
@@ -36,11 +37,11 @@ def learn_weights(
     table = Table(title="strongest formulas per class")
     for column in ("class", "weight", "formula"):
         table.add_column(column, justify="right" if column == "weight" else "left")
-    for row in stage.strongest(learned.weights).iter_rows(named=True):
+    for row in strongest(learned.weights).iter_rows(named=True):
         weight = "hard" if row["hard"] else f"{row['weight']:.3f}" + (" (fixed)" if row["fixed"] else "")
         table.add_row(row["class"], weight, row["formula"])
     console.print(table)
-    transitions = stage.strongest_temporal(learned.weights)
+    transitions = strongest_temporal(learned.weights)
     if transitions.height:
         table = Table(title="temporal formulas: hard, then the strongest")
         table.add_column("weight", justify="right")

@@ -1,4 +1,4 @@
-"""`mlnseq train`: fit the LSTM (or GRU) classifier, alone or with the MLN PriorLayer."""
+"""`mlnseq train`: fit a network (LSTM, GRU or causal TCN), alone or with the MLN PriorLayer."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
+from stages import networks
 from stages import train as stage
 
 Defaults = stage.TrainOptions
@@ -23,19 +24,20 @@ def train(
     seed: Annotated[int, typer.Option(help="Seed of initial weights and batch order.")] = Defaults.seed,
     epochs: Annotated[int, typer.Option(help="Passes over the training sequences.")] = Defaults.epochs,
     mode: Annotated[str, typer.Option(help="segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.")] = Defaults.mode,
-    cell: Annotated[str, typer.Option(help="Recurrent cell: lstm or gru.")] = Defaults.cell,
+    cell: Annotated[str, typer.Option(help=f"Network type: {', '.join(networks.CELLS)} (tcn: a causal temporal convolutional network).")] = Defaults.cell,
     prior: Annotated[str, typer.Option(help="priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).")] = Defaults.prior,
     select: Annotated[str, typer.Option(help="none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, keep the best epoch on it.")] = Defaults.select,
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
     train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, 0 < F <= 1.")] = Defaults.train_fraction,
     batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
     window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
+    smoothing: Annotated[float, typer.Option(help="tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.")] = Defaults.smoothing,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch, split, accuracy, loss)."""
     options = stage.TrainOptions(
         method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, device=device,
-        train_fraction=train_fraction, batch_size=batch_size, window=window,
+        train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing,
     )
     with reported_errors():
         options.validate()

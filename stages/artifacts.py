@@ -81,6 +81,22 @@ def pred_column(method: str) -> str:
     return f"{method}_pred"
 
 
+def class_probability_column(class_name: str) -> str:
+    """A `predict` output table: the probability of one class, by its name."""
+    return f"p_{class_name}"
+
+
+# weights.parquet: one row per expanded formula (class: the head's class, None for a formula without one;
+# hard: no weight, a constraint; template: the index of the formula it was expanded from)
+WEIGHTS_SCHEMA: dict[str, pl.DataType] = {
+    "formula": pl.String(), "class": pl.String(), "weight": pl.Float64(), "fixed": pl.Boolean(),
+    "hard": pl.Boolean(), "template": pl.Int32(), "temporal": pl.Boolean(),
+}
+# metrics.parquet: one row per (method, metric, item); item names the class, fraction or confusion cell
+METRICS_SCHEMA: dict[str, pl.DataType] = {"method": pl.String(), "metric": pl.String(), "item": pl.String(),
+                                          "value": pl.Float64()}
+
+
 def producer_of(path: Path) -> str:
     """The stage command that writes this artifact."""
     name = path.name

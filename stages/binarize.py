@@ -1,122 +1,25 @@
 """binarize: turn ``frames.parquet`` into ``predicates.parquet``, one boolean column per ground predicate.
 
-A spec (TOML, see ``stages/specs/*.binarize.toml``) declares derived channels and predicates. Channels:
-
-- ``[[channel]] kind = "distance"``: Euclidean distance between two 3-D points (``from``, ``to``: three
-  columns each), optionally rounded to ``decimals``.
-
-Predicates (paper section IV), each a one-hot group of columns named ``<predicate>_<value>``:
-
-- ``bins`` (C1): static thresholds on a channel; ``edges`` ascending, ``values`` one name per bin;
-  bin i holds ``edges[i-1] <= x < edges[i]`` (a threshold is one edge, two values).
-- ``change`` (C2, eq. 9): x minus the previous x against a dead band ``threshold``:
-  increase (> threshold), decrease (< -threshold), else static.
-- ``gripper``: open (x > ``open_above``), else closed (x < ``closed_below``), else opening / closing by a
-  change beyond ``threshold``, else static. ``previous_scale`` multiplies the previous value before that
-  change test (default 1; the DESK spec sets 100, see ``stages/specs/desk.binarize.toml``).
-- ``pair``: the conjunction of two earlier predicates (``of``), one value per combination, first-major.
-
-The previous frame is the row before in the same episode, ordered by frame. The first frame of an
-episode has none: its change is 0 (static). The codes published with the paper compare the first two
-frames of each file with themselves instead; mlnseq differs from them only on those two frames.
+The spec (its language and parser: stages/predicate_spec.py) declares derived channels and predicates;
+stages/predicate_rules.py holds the rules that give each frame its codes. The core, :func:`binarize`,
+checks the frames against the spec and evaluates it over them; :func:`run` reads and writes the files.
 """
 
 from __future__ import annotations
 
-import bisect
-import importlib.resources
-import re
-import tomllib
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import polars as pl
 
-from stages import artifacts
+from stages import artifacts, predicate_rules
 from stages.errors import BadInput
+from stages.predicate_spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
 
-NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
-VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
-
-
-def default_spec_path(source: str) -> Path:
-    """The built-in spec of a frames source, shipped in the package: ``stages/specs/<source>.binarize.toml``."""
-    return Path(importlib.resources.files("stages") / "specs" / f"{source}.binarize.toml")
-
-
-@dataclass(frozen=True)
-class Distance:
-    """A derived channel: the Euclidean distance between the points ``start`` and ``end``."""
-
-    name: str
-    start: tuple[str, str, str]
-    end: tuple[str, str, str]
-    decimals: int | None = None
-    lines: dict[str, int] = field(default_factory=dict, compare=False)
-
-
-@dataclass(frozen=True)
-class Bins:
-    name: str
-    channel: str
-    edges: tuple[float, ...]
-    values: tuple[str, ...]
-    lines: dict[str, int] = field(default_factory=dict, compare=False)
-
-
-@dataclass(frozen=True)
-class Change:
-    name: str
-    channel: str
-    threshold: float
-    lines: dict[str, int] = field(default_factory=dict, compare=False)
-    values: ClassVar[tuple[str, ...]] = ("static", "increase", "decrease")
-
-
-@dataclass(frozen=True)
-class Gripper:
-    name: str
-    channel: str
-    open_above: float
-    closed_below: float
-    threshold: float
-    previous_scale: float = 1.0
-    lines: dict[str, int] = field(default_factory=dict, compare=False)
-    values: ClassVar[tuple[str, ...]] = ("open", "closed", "opening", "closing", "static")
-
-
-@dataclass(frozen=True)
-class Pair:
-    name: str
-    first: str
-    second: str
-    values: tuple[str, ...]
-    lines: dict[str, int] = field(default_factory=dict, compare=False)
-
-
-Predicate = Bins | Change | Gripper | Pair
-
-
-@dataclass(frozen=True)
-class PredicateSpec:
-    """A parsed spec: derived channels, then predicates in column order; ``text`` as read."""
-
-    path: Path
-    text: str
-    channels: tuple[Distance, ...]
-    predicates: tuple[Predicate, ...]
-    hints: dict[str, str] = field(default_factory=dict, compare=False)  # entry name -> what to do if a column is absent
-
-    def columns(self) -> dict[str, list[str]]:
-        """Each predicate's column names, in order."""
-        return {p.name: [f"{p.name}_{v}" for v in p.values] for p in self.predicates}
-
-    def where(self, entry: Distance | Predicate, key: str) -> str:
-        """``file:line`` of one key of an entry, for error messages."""
-        return f"{self.path}:{entry.lines.get(key, entry.lines.get('', 1))}"
+__all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
+           "parse_spec", "run", "true_shares"]
 
 
 @dataclass(frozen=True)
@@ -138,283 +41,6 @@ class Binarized:
     meta: dict[str, Any]
 
 
-# ---- spec loading ---------------------------------------------------------------------------------
-
-KIND_KEYS = {
-    "bins": {"channel", "edges", "values"},
-    "change": {"channel", "threshold"},
-    "gripper": {"channel", "open_above", "closed_below", "threshold", "previous_scale"},
-    "pair": {"of"},
-}
-CHANNEL_KEYS = {"distance": {"from", "to", "decimals"}}
-
-
-def _key_lines(text: str, section: str, index: int) -> dict[str, int]:
-    """Line numbers of the keys of the ``index``-th ``[[section]]`` table ('' is its header line)."""
-    lines: dict[str, int] = {}
-    seen = -1
-    inside = False
-    for number, line in enumerate(text.splitlines(), start=1):
-        array = re.match(r"\s*\[\[\s*([A-Za-z0-9_\-]+)\s*\]\]", line)
-        if array or re.match(r"\s*\[\s*[A-Za-z0-9_\-.\"]+\s*\]\s*(#.*)?$", line):
-            inside = False
-            if array and array.group(1) == section:
-                seen += 1
-                inside = seen == index
-                if inside:
-                    lines[""] = number
-            continue
-        key = re.match(r"\s*\"?([A-Za-z0-9_\-]+)\"?\s*=", line)
-        if inside and key and key.group(1) not in lines:
-            lines[key.group(1)] = number
-    return lines
-
-
-class _Entry:
-    """One ``[[section]]`` table being checked, with the lines of its keys for error messages."""
-
-    def __init__(self, path: Path, text: str, section: str, index: int, table: Any):
-        self.path = path
-        self.lines = _key_lines(text, section, index)
-        name = table.get("name") if isinstance(table, dict) else None
-        self.label = f"[[{section}]] {name!r}" if isinstance(name, str) else f"[[{section}]] #{index + 1}"
-        if not isinstance(table, dict):
-            raise self.error("", "must be a table")
-        self.table = table
-
-    def error(self, key: str, message: str) -> BadInput:
-        line = self.lines.get(key, self.lines.get("", 1))
-        where = f"key '{key}' of " if key else ""
-        return BadInput(f"{self.path}:{line}: {where}{self.label}: {message}")
-
-    def require(self, key: str) -> Any:
-        if key not in self.table:
-            raise self.error("", f"missing key '{key}'")
-        return self.table[key]
-
-    def name(self, taken: set[str]) -> str:
-        value = self.require("name")
-        if not isinstance(value, str) or not NAME.match(value):
-            raise self.error("name", f"must be a lowercase identifier [a-z][a-z0-9_]*, got {value!r}")
-        if value in taken:
-            raise self.error("name", f"{value!r} is defined twice")
-        return value
-
-    def number(self, key: str, default: float | None = None, *, positive: bool = False) -> float:
-        value = self.require(key) if default is None or key in self.table else default
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-            raise self.error(key, f"must be a finite number, got {value!r}")
-        if value < 0 or (positive and value == 0):
-            raise self.error(key, f"must be {'above' if positive else 'at least'} 0, got {value!r}")
-        return float(value)
-
-    def text(self, key: str) -> str:
-        value = self.require(key)
-        if not isinstance(value, str) or not value:
-            raise self.error(key, f"must be a column name (a string), got {value!r}")
-        return value
-
-    def strings(self, key: str, length: int | None = None) -> tuple[str, ...]:
-        value = self.require(key)
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise self.error(key, f"must be a list of strings, got {value!r}")
-        if length is not None and len(value) != length:
-            raise self.error(key, f"must list {length} names, got {len(value)}")
-        return tuple(value)
-
-    def check_keys(self, allowed: set[str]) -> None:
-        for key in self.table:
-            if key not in allowed | {"name", "kind"}:
-                raise self.error(key, f"unknown key; allowed: {', '.join(sorted(allowed | {'name', 'kind'}))}")
-
-
-def _channel(entry: _Entry, taken: set[str]) -> Distance:
-    name = entry.name(taken)
-    kind = entry.require("kind")
-    if not isinstance(kind, str) or kind not in CHANNEL_KEYS:
-        raise entry.error("kind", f"unknown channel kind {kind!r}; known: {', '.join(CHANNEL_KEYS)}")
-    entry.check_keys(CHANNEL_KEYS[kind] | {"hint"})
-    decimals = entry.table.get("decimals")
-    if decimals is not None and (isinstance(decimals, bool) or not isinstance(decimals, int) or decimals < 0):
-        raise entry.error("decimals", f"must be a whole number of at least 0, got {decimals!r}")
-    return Distance(name, entry.strings("from", 3), entry.strings("to", 3), decimals, entry.lines)
-
-
-def _predicate(entry: _Entry, defined: dict[str, Predicate]) -> Predicate:
-    name = entry.name(set(defined))
-    kind = entry.require("kind")
-    if not isinstance(kind, str) or kind not in KIND_KEYS:
-        raise entry.error("kind", f"unknown predicate kind {kind!r}; known: {', '.join(KIND_KEYS)}")
-    entry.check_keys(KIND_KEYS[kind] | {"hint"})
-    if kind == "bins":
-        edges = entry.require("edges")
-        if (not isinstance(edges, list) or not edges
-                or any(isinstance(e, bool) or not isinstance(e, (int, float)) or not np.isfinite(e) for e in edges)):
-            raise entry.error("edges", f"must be a non-empty list of finite numbers, got {edges!r}")
-        if any(b <= a for a, b in zip(edges, edges[1:])):
-            raise entry.error("edges", f"must be strictly ascending, got {edges}")
-        values = entry.strings("values", len(edges) + 1)
-        if not all(VALUE.match(v) for v in values) or len(set(values)) != len(values):
-            raise entry.error("values", f"must be distinct lowercase names [a-z0-9][a-z0-9_]*, got {list(values)}")
-        return Bins(name, entry.text("channel"), tuple(float(e) for e in edges), values, entry.lines)
-    if kind == "change":
-        return Change(name, entry.text("channel"), entry.number("threshold"), entry.lines)
-    if kind == "gripper":
-        open_above, closed_below = entry.number("open_above"), entry.number("closed_below")
-        if closed_below > open_above:
-            raise entry.error("closed_below", f"must not exceed open_above ({open_above:g}), got {closed_below:g}")
-        return Gripper(
-            name, entry.text("channel"), open_above, closed_below, entry.number("threshold"),
-            entry.number("previous_scale", 1.0, positive=True), entry.lines,
-        )
-    first, second = entry.strings("of", 2)
-    for part in (first, second):
-        if part not in defined:
-            raise entry.error("of", f"{part!r} is not a predicate defined above it")
-    if first == second:
-        raise entry.error("of", f"names {first!r} twice; a pair joins two different predicates")
-    values = tuple(f"{a}_{b}" for a in defined[first].values for b in defined[second].values)
-    return Pair(name, first, second, values, entry.lines)
-
-
-def _top_line(text: str, key: str) -> int:
-    """The line where a top-level key or table first appears (1 if not found)."""
-    pattern = re.compile(rf"\s*\[*\s*\"?{re.escape(key)}\"?\s*[\]=.]")
-    return next((n for n, line in enumerate(text.splitlines(), 1) if pattern.match(line)), 1)
-
-
-def parse_spec(text: str, path: Path) -> PredicateSpec:
-    """Parse and check a spec's text; every error names the file, line and key."""
-    try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        found = re.search(r"at line (\d+)", str(error))
-        raise BadInput(f"{path}:{found.group(1) if found else 1}: invalid TOML: {error}") from None
-    for key, value in document.items():
-        if key not in ("channel", "predicate"):
-            raise BadInput(f"{path}:{_top_line(text, key)}: unknown key '{key}': a spec holds "
-                           "[[channel]] and [[predicate]] tables")
-        if not isinstance(value, list):
-            raise BadInput(f"{path}:{_top_line(text, key)}: key '{key}' must be written as [[{key}]] tables")
-    if not document.get("predicate"):
-        raise BadInput(f"{path}:1: missing key 'predicate': the spec declares no [[predicate]] table")
-
-    channels: list[Distance] = []
-    hints: dict[str, str] = {}
-    for index, table in enumerate(document.get("channel", [])):
-        entry = _Entry(path, text, "channel", index, table)
-        channels.append(_channel(entry, {c.name for c in channels}))
-        if "hint" in table:
-            hints[channels[-1].name] = str(table["hint"])
-    defined: dict[str, Predicate] = {}
-    for index, table in enumerate(document["predicate"]):
-        entry = _Entry(path, text, "predicate", index, table)
-        predicate = _predicate(entry, defined)
-        defined[predicate.name] = predicate
-        if "hint" in table:
-            hints[predicate.name] = str(table["hint"])
-
-    spec = PredicateSpec(Path(path), text, tuple(channels), tuple(defined.values()), hints)
-    seen: dict[str, str] = {}
-    for predicate in spec.predicates:
-        for column in spec.columns()[predicate.name]:
-            if column in seen or column in artifacts.KEY_COLUMNS:
-                raise BadInput(
-                    f"{spec.where(predicate, 'name')}: key 'name' of [[predicate]] {predicate.name!r}: "
-                    f"its column {column!r} is also a column of {seen.get(column, 'the keys')!r}; rename one"
-                )
-            seen[column] = predicate.name
-    return spec
-
-
-def load_spec(path: Path) -> PredicateSpec:
-    """Read and parse a spec file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"spec {path} not found: pass --spec FILE") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadInput(f"cannot read spec {path}: {error}") from error
-    return parse_spec(text, path)
-
-
-# ---- binarization ---------------------------------------------------------------------------------
-
-
-def _delta(channel: np.ndarray, previous: np.ndarray, first: np.ndarray, previous_scale: float = 1.0) -> np.ndarray:
-    """x minus (scale x) the previous frame's x; 0 on an episode's first frame, which has none."""
-    delta = channel - previous_scale * previous
-    delta[first] = 0.0
-    return delta
-
-
-def _codes(predicate: Predicate, channel: np.ndarray | None, previous: np.ndarray | None, first: np.ndarray,
-           earlier: dict[str, tuple[Predicate, np.ndarray]]) -> np.ndarray:
-    """The index into ``predicate.values`` of every frame."""
-    if isinstance(predicate, Bins):
-        return np.searchsorted(np.asarray(predicate.edges), channel, side="right")
-    if isinstance(predicate, Change):
-        delta = _delta(channel, previous, first)
-        return np.select([delta > predicate.threshold, delta < -predicate.threshold], [1, 2], 0)
-    if isinstance(predicate, Gripper):
-        delta = _delta(channel, previous, first, predicate.previous_scale)
-        return np.select(
-            [channel > predicate.open_above, channel < predicate.closed_below,
-             delta > predicate.threshold, delta < -predicate.threshold],
-            [0, 1, 2, 3], 4,
-        )
-    second, second_codes = earlier[predicate.second]
-    return earlier[predicate.first][1] * len(second.values) + second_codes
-
-
-Channels = dict[str, np.ndarray]
-RawChannel = Callable[[Distance | Predicate, str, str], np.ndarray]  # (entry, channel name, key) -> float64 values
-
-
-def _channels(spec: PredicateSpec, raw: RawChannel) -> Channels:
-    """Every channel a predicate reads: the frames' own columns (through ``raw``) and the derived distances."""
-    channels: Channels = {}
-
-    def value(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
-        if name not in channels:
-            channels[name] = raw(entry, name, key)
-        return channels[name]
-
-    for derived in spec.channels:
-        start = np.column_stack([value(derived, c, "from") for c in derived.start])
-        end = np.column_stack([value(derived, c, "to") for c in derived.end])
-        distance = np.sqrt(((end - start) ** 2).sum(axis=1))
-        channels[derived.name] = distance if derived.decimals is None else np.round(distance, derived.decimals)
-    for predicate in spec.predicates:
-        if not isinstance(predicate, Pair):
-            value(predicate, predicate.channel, "channel")
-    return channels
-
-
-def _evidence(spec: PredicateSpec, channels: Channels, previous: Channels, first: np.ndarray) -> np.ndarray:
-    """[frames, columns] bool: one column per predicate value, in the spec's column order."""
-    earlier: dict[str, tuple[Predicate, np.ndarray]] = {}
-    columns = []
-    for predicate in spec.predicates:
-        channel = None if isinstance(predicate, Pair) else channels[predicate.channel]
-        before = None if isinstance(predicate, Pair) else previous[predicate.channel]
-        codes = _codes(predicate, channel, before, first, earlier)
-        earlier[predicate.name] = (predicate, codes)
-        columns += [codes == index for index in range(len(predicate.values))]
-    return np.column_stack(columns)
-
-
-def _missing_channel(spec: PredicateSpec, entry: Distance | Predicate, name: str, key: str, where: str,
-                     known: list[str]) -> BadInput:
-    hint = spec.hints.get(entry.name)
-    section = "channel" if isinstance(entry, Distance) else "predicate"
-    return BadInput(
-        f"{spec.where(entry, key)}: key '{key}' of [[{section}]] {entry.name!r}: channel {name!r} is not in "
-        f"{where} nor a [[channel]] above; " + (hint if hint else f"known channels: {', '.join(known)}")
-    )
-
-
 def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
     """The predicates table of ``frames``: its keys, then one boolean column per ground predicate value."""
     if frames.height == 0:
@@ -431,7 +57,7 @@ def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
     def raw(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
         if name not in frames.columns or name in artifacts.KEY_COLUMNS:
             known = artifacts.feature_columns(frames) + [c.name for c in spec.channels]
-            raise _missing_channel(spec, entry, name, key, "frames.parquet", known)
+            raise predicate_rules.missing_channel(spec, entry, name, key, "frames.parquet", known)
         values = frames[name].cast(pl.Float64).to_numpy()
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
@@ -440,78 +66,10 @@ def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
                            f"frame {row['frame']}; repair the frames and rerun `mlnseq collect`")
         return values
 
-    channels = _channels(spec, raw)
-    previous = {name: np.concatenate([values[:1], values[:-1]]) for name, values in channels.items()}
-    evidence = _evidence(spec, channels, previous, first)
+    evidence = predicate_rules.evidence(spec, predicate_rules.channels_of(spec, raw), first)
     names = [column for columns in spec.columns().values() for column in columns]
     return frames.select(artifacts.KEY_COLUMNS).with_columns(
         pl.Series(name, evidence[:, i], dtype=pl.Boolean) for i, name in enumerate(names))
-
-
-def _code(predicate: Bins | Change | Gripper, value: float, delta: float) -> int:
-    """:func:`_codes` for one frame, on plain floats (a live stream calls it every frame)."""
-    if isinstance(predicate, Bins):
-        return bisect.bisect_right(predicate.edges, value)
-    if isinstance(predicate, Change):
-        return 1 if delta > predicate.threshold else 2 if delta < -predicate.threshold else 0
-    if isinstance(predicate, Gripper):
-        if value > predicate.open_above:
-            return 0
-        if value < predicate.closed_below:
-            return 1
-        return 2 if delta > predicate.threshold else 3 if delta < -predicate.threshold else 4
-    raise TypeError(f"no per-frame code for {predicate!r}")
-
-
-class StreamingBinarizer:
-    """Binarize one frame at a time, as :func:`binarize` does over a whole episode: the change and gripper
-    predicates compare with the previous frame, which the first frame of an episode does not have."""
-
-    def __init__(self, spec: PredicateSpec, features: Sequence[str]):
-        self.spec = spec
-        index = {name: i for i, name in enumerate(features)}
-        self._raw: dict[str, int] = {}  # each feature the spec reads -> its position in a frame
-
-        def check(entry: Distance | Predicate, name: str, key: str) -> np.ndarray:
-            if name not in index:
-                raise _missing_channel(spec, entry, name, key, "the model's features", list(features))
-            self._raw[name] = index[name]
-            return np.zeros(1)
-
-        _channels(spec, check)
-        self._sizes = {p.name: len(p.values) for p in spec.predicates}
-        self._offsets = np.cumsum([0] + [len(p.values) for p in spec.predicates])[:-1].tolist()
-        self._width = sum(self._sizes.values())
-        self._previous: dict[str, float] | None = None
-
-    def reset(self) -> None:
-        """The next frame starts an episode."""
-        self._previous = None
-
-    def step(self, features: np.ndarray) -> np.ndarray:
-        """The predicate values [columns] (bool) of the next frame, given its raw features [F]."""
-        channels = {name: float(features[i]) for name, i in self._raw.items()}
-        for derived in self.spec.channels:
-            start = np.array([channels[c] for c in derived.start])
-            end = np.array([channels[c] for c in derived.end])
-            distance = np.sqrt(((end - start) ** 2).sum())
-            channels[derived.name] = float(distance if derived.decimals is None else np.round(distance, derived.decimals))
-        previous = self._previous
-        evidence = np.zeros(self._width, dtype=bool)
-        codes: dict[str, int] = {}
-        for predicate, offset in zip(self.spec.predicates, self._offsets):
-            if isinstance(predicate, Pair):
-                code = codes[predicate.first] * self._sizes[predicate.second] + codes[predicate.second]
-            else:
-                value, delta = channels[predicate.channel], 0.0
-                if previous is not None:
-                    scale = predicate.previous_scale if isinstance(predicate, Gripper) else 1.0
-                    delta = value - scale * previous[predicate.channel]
-                code = _code(predicate, value, delta)
-            codes[predicate.name] = code
-            evidence[offset + code] = True
-        self._previous = channels
-        return evidence
 
 
 def true_shares(predicates: pl.DataFrame, columns: dict[str, list[str]]) -> list[tuple[str, str, float]]:

@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, fetch_demos, sources
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.sources import RECORDING_ENVS, SourceOptions
 from stages.table_import import TableColumns, collect_frames, reading_record
 
@@ -67,8 +67,7 @@ class CollectOptions:
     cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
 
     def validate(self) -> None:
-        if self.env not in ENVS:
-            raise BadInput(f"unknown --env {self.env!r}: choose one of {', '.join(ENVS)}")
+        check_choice("env", self.env, ENVS)
         if self.episodes < 1:
             raise BadInput(f"--episodes must be at least 1, got {self.episodes}")
         if self.train_frames is not None and self.train_frames < 0:

@@ -21,7 +21,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, recognizer
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.recognizer import DECODES, MLN_MODES
 
 
@@ -34,12 +34,9 @@ class ConflateOptions:
     network_weight: float | None = None  # decoded methods' network factor: None = chosen on validation
 
     def validate(self) -> None:
-        if self.mln_mode not in MLN_MODES:
-            raise BadInput(f"unknown --mln-mode {self.mln_mode!r}: choose one of {', '.join(MLN_MODES)}")
+        check_choice("mln-mode", self.mln_mode, MLN_MODES)
         for kind in self.decode:
-            if kind not in DECODES:
-                raise BadInput(f"unknown --decode {kind!r}: choose from {', '.join(DECODES)}, all, "
-                               "or a comma list such as none,viterbi")
+            check_choice("decode", kind, DECODES, "all, or a comma list such as none,viterbi")
         if self.network_weight is not None and not self.network_weight > 0:
             raise BadInput(f"--network-weight must be positive (or auto), got {self.network_weight}")
 

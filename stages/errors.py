@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
+
 
 class MlnseqError(Exception):
     """A run that could not complete (exit 1)."""
@@ -23,5 +26,11 @@ class StaleArtifact(BadInput):
     """An input artifact no longer matches the inputs it was made from: says which stage to rerun."""
 
 
-class StageNotAvailable(BadInput):
-    """A stage command that a later version fills."""
+
+def check_choice(option: str, value: Any, allowed: Iterable[Any], more: str = "") -> None:
+    """Refuse a value of ``--option`` that is not one of ``allowed``: "unknown --option 'x': choose one of a, b"
+    (then ``more``, the other forms the option takes, if any)."""
+    allowed = tuple(allowed)
+    if value not in allowed:
+        raise BadInput(f"unknown --{option} {value!r}: choose one of {', '.join(map(str, allowed))}"
+                       + (f", {more}" if more else ""))

@@ -78,8 +78,7 @@ def metrics_table(results: dict[str, dict[str, Any]], classes: list[str], fracti
         for i, row in enumerate(result["confusion"]):
             for j, count in enumerate(row):
                 rows.append((method, "confusion", f"{classes[i]} -> {classes[j]}", float(count)))
-    return pl.DataFrame(rows, schema={"method": pl.String, "metric": pl.String, "item": pl.String,
-                                      "value": pl.Float64}, orient="row")
+    return pl.DataFrame(rows, schema=artifacts.METRICS_SCHEMA, orient="row")
 
 
 @dataclass(frozen=True)

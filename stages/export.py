@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from stages import artifacts, model_file, recognizer
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.recognizer import DECODES, MLN_MODES
 
 
@@ -29,12 +29,9 @@ class ExportOptions:
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
 
     def validate(self) -> None:
-        if self.method not in recognizer.METHODS:
-            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(recognizer.METHODS)}")
-        if self.decode not in DECODES:
-            raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
-        if self.mln_mode not in MLN_MODES:
-            raise BadInput(f"unknown --mln-mode {self.mln_mode!r}: choose one of {', '.join(MLN_MODES)}")
+        check_choice("method", self.method, recognizer.METHODS)
+        check_choice("decode", self.decode, DECODES)
+        check_choice("mln-mode", self.mln_mode, MLN_MODES)
 
     def output_path(self, workdir: Path) -> Path:
         if self.output is not None:

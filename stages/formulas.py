@@ -8,17 +8,14 @@ typo fails now with its line and column rather than at learning.
 from __future__ import annotations
 
 import importlib.resources
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from stages import artifacts
 from stages.errors import BadInput
-from dataclasses import replace
-
-from stages.mln.grounding import (
-    check_class_names, check_mln, class_aliases, default_declarations, duplicates, name_classes, shown,
-)
-from stages.mln.syntax import MLN, format_weighted, parse_mln
+from stages.mln.formula_spec import formulas_for, read_spec
+from stages.mln.grounding import shown
+from stages.mln.syntax import MLN, format_weighted
 
 DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
 
@@ -44,20 +41,6 @@ class WrittenFormulas:
     classes: tuple[str, ...]  # the classes the training split shows, as the frames name them
 
 
-def read_spec(path: Path) -> MLN:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadInput(f"cannot read {path}: {error}") from error
-    mln = parse_mln(text, str(path))
-    if not mln.predicates:  # formulas only: the paper's two predicates (and Next if used)
-        defaults = parse_mln(default_declarations(mln))
-        mln.predicates, mln.mutex = defaults.predicates, defaults.mutex
-    if not mln.formulas:
-        raise BadInput(f"{path} holds no formula: add e.g. `0.0 Has(+w, p) => Topic(+c, p)`")
-    return mln
-
-
 def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...], class_names: list[str]) -> str:
     """formulas.mln: provenance, the training constants as comments, declarations, formulas (classes as the
     frames name them)."""
@@ -73,15 +56,6 @@ def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...
         *(format_weighted(replace(item, formula=shown(item.formula, class_names))) for item in mln.formulas),
     ]
     return "\n".join(lines) + "\n"
-
-
-def formulas_for(mln: MLN, spec: Path, columns: list[str], class_names: list[str]) -> None:
-    """Check the spec against the predicate columns and the classes (as the frames name them, or the paper's
-    ``C<k>``), then write each class as its ``C<k>``; a formula written twice is refused."""
-    check_class_names(class_names, str(spec))
-    check_mln(mln, str(spec), set(columns), set(class_aliases(class_names)), class_names)
-    name_classes(mln, class_names)
-    duplicates(mln, str(spec), class_names)
 
 
 def run(workdir: Path, options: FormulasOptions) -> WrittenFormulas:

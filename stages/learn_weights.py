@@ -20,10 +20,10 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts
-from stages.errors import BadInput, MlnseqError
-from stages.formulas import formulas_for, read_spec
+from stages.errors import BadInput, MlnseqError, check_choice
 from stages.mln import bpll, cll, pracmln_compat
 from stages.mln.chain import chain_starts
+from stages.mln.formula_spec import formulas_for, read_spec
 from stages.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
     show, shown, space_of, truth,
@@ -43,10 +43,9 @@ class LearnWeightsOptions:
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
 
     def validate(self) -> None:
-        if self.engine not in ENGINES:
-            raise BadInput(f"unknown --engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
-        if self.objective is not None and self.objective not in OBJECTIVES:
-            raise BadInput(f"unknown --objective {self.objective!r}: choose one of {', '.join(OBJECTIVES)}")
+        check_choice("engine", self.engine, ENGINES)
+        if self.objective is not None:
+            check_choice("objective", self.objective, OBJECTIVES)
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
             raise BadInput(f"--l2 must be a number >= 0, got {self.l2}")
 
@@ -221,8 +220,7 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
             "template": [e.template for e in every],
             "temporal": [is_temporal(e.formula) for e in every],
         },
-        schema={"formula": pl.String, "class": pl.String, "weight": pl.Float64, "fixed": pl.Boolean,
-                "hard": pl.Boolean, "template": pl.Int32, "temporal": pl.Boolean},
+        schema=artifacts.WEIGHTS_SCHEMA,
     )
     return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings, objective, l2)
 
@@ -236,28 +234,6 @@ def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engi
     lines += [format_weighted(WeightedFormula(shown(e.formula, class_names), None if e.weight is None else float(w)))
               for e, w in zip(formulas, weights)]
     return "\n".join(lines) + "\n"
-
-
-def strongest(weights: pl.DataFrame, per_class: int = 3) -> pl.DataFrame:
-    """The ``per_class`` largest weights of each class among the per-frame formulas (hard formulas first); classes
-    in the order they first appear."""
-    per_frame = weights.filter(~pl.col("temporal")) if "temporal" in weights.columns else weights
-    per_frame = per_frame.filter(pl.col("class").is_not_null())
-    order = {name: i for i, name in enumerate(dict.fromkeys(per_frame["class"].to_list()))}
-    return (
-        per_frame.with_columns(pl.col("class").replace_strict(order, return_dtype=pl.Int64).alias("_order"))
-        .sort(["_order", "hard", "weight"], descending=[False, True, True]).drop("_order")
-        .group_by("class", maintain_order=True).head(per_class)
-    )
-
-
-def strongest_temporal(weights: pl.DataFrame, count: int = 5) -> pl.DataFrame:
-    """The hard temporal formulas, then the ``count`` temporal formulas of largest |weight|."""
-    if "temporal" not in weights.columns:
-        return weights.clear()
-    temporal = weights.filter(pl.col("temporal"))
-    return pl.concat([temporal.filter(pl.col("hard")),
-                      temporal.filter(~pl.col("hard")).sort(pl.col("weight").abs(), descending=True).head(count)])
 
 
 def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:

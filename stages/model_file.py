@@ -1,7 +1,6 @@
 """The model file (``.mlnseq``): a zip of ``manifest.json``, the predicate spec ``binarize.toml``, the MLN's
 ``weights.parquet`` and the network's ``network.npz``; how it is written, and read without trusting it:
-every member bounded before it is read and checked against what the manifest declares (docs/model-file.md).
-"""
+every member bounded before it is read and checked against what the manifest declares (docs/model-file.md)."""
 
 from __future__ import annotations
 
@@ -21,10 +20,11 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.inference import Network
+from stages import networks
+from stages.networks.network import Network
 
 if TYPE_CHECKING:
-    from stages.binarize import PredicateSpec
+    from stages.predicate_spec import PredicateSpec
 
 MODEL_FORMAT = 2  # 2: the manifest declares its members' sizes and digests and the number of formulas
 MODEL_SUFFIX = ".mlnseq"
@@ -39,8 +39,7 @@ FORMULA_BYTES = 1 * KIB  # one formula's row of weights.parquet (DESK's: 27 byte
 ARRAY_OVERHEAD = 1 * KIB  # one array's npy header and zip entry in network.npz
 ITEM_BYTES = 8  # float64, the widest dtype an array may have
 ARRAY_DTYPES = (np.dtype("<f8"), np.dtype("<f4"))
-GATES = {"lstm": 4, "gru": 3}  # the recurrent cells a network may have, and their gates
-NETWORK_CONFIG = ("cell", "hidden_size", "n_classes", "n_features", "prior_layer")
+NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
 WEIGHT_COLUMNS = {"formula": pl.String, "class": pl.String, "weight": pl.Float64, "hard": pl.Boolean}
 READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError, IndexError,
                NotImplementedError, RuntimeError, struct.error, OverflowError, RecursionError)
@@ -102,14 +101,20 @@ def parse_manifest(data: bytes, where: Any) -> dict[str, Any]:
     if network is not None:
         _check_fields(network, NETWORK_FIELDS, where, f"{MANIFEST} network")
         config = network["model"]
-        if config["cell"] not in GATES:
+        if config["cell"] not in networks.CELLS:
             raise BadInput(f"{where}: its network's cell {config['cell']!r} is not one this mlnseq runs "
-                           f"({', '.join(GATES)}): {AGAIN}")
-        sizes = {"hidden_size": None, "n_features": len(manifest["features"]), "n_classes": len(manifest["classes"])}
+                           f"({', '.join(networks.CELLS)}): {AGAIN}")
+        if sorted(config) != sorted(networks.config_fields(config["cell"])):
+            raise BadInput(f"{where}: {MANIFEST} network 'model' is not an object of a {config['cell']}'s keys: {AGAIN}")
+        sizes = {"hidden_size": None, "n_features": len(manifest["features"]), "n_classes": len(manifest["classes"]),
+                 **{key: None for key in ("kernel_size", "levels") if key in config}}
         for key, expected in sizes.items():
-            if not (_count(config[key]) and config[key] > 0) or (expected is not None and config[key] != expected):
+            if not (_count(config[key]) and 0 < config[key] <= max(NETWORK_SIZE_LIMIT, expected or 0)) \
+                    or (expected is not None and config[key] != expected):
                 raise BadInput(f"{where}: its network's {key} is {config[key]!r}, but the manifest declares "
-                               f"{expected if expected is not None else 'a positive count'}: {AGAIN}")
+                               f"{expected if expected is not None else f'a count up to {NETWORK_SIZE_LIMIT}'}: {AGAIN}")
+        if "levels" in config and (config["kernel_size"] - 1) * 2 ** min(config["levels"], 64) > RECEPTIVE_FIELD_LIMIT:
+            raise BadInput(f"{where}: its network's receptive field is over {RECEPTIVE_FIELD_LIMIT:,} frames: {AGAIN}")
         if not isinstance(config["prior_layer"], bool) or config["prior_layer"] != (network["prior"] is not None):
             raise BadInput(f"{where}: its network's prior_layer ({config['prior_layer']!r}) and PriorLayer input "
                            f"({network['prior']!r}) disagree: {AGAIN}")
@@ -160,19 +165,14 @@ MANIFEST_FIELDS = {
 NETWORK_FIELDS = {
     "name": TEXT, "mode": TEXT, "prior": (lambda v: v is None or isinstance(v, str), "null or a name"),
     "seed": (_integer, "an integer"), "kept_epoch": (_integer, "an integer"),
-    "model": (lambda v: isinstance(v, dict) and sorted(v) == sorted(NETWORK_CONFIG), f"an object of {', '.join(NETWORK_CONFIG)}"),
+    "model": (lambda v: isinstance(v, dict) and isinstance(v.get("cell"), str), "an object naming its cell"),
 }
 
 
 def network_shapes(config: dict[str, Any]) -> dict[str, tuple[int, ...]]:
-    """The arrays of network.npz and their shapes, from the network's configuration (one recurrent layer)."""
-    gates, hidden = GATES[config["cell"]] * config["hidden_size"], config["hidden_size"]
-    features, classes = config["n_features"], config["n_classes"]
-    shapes = {"rnn.weight_ih_l0": (gates, features), "rnn.weight_hh_l0": (gates, hidden), "rnn.bias_ih_l0": (gates,),
-              "rnn.bias_hh_l0": (gates,), "h2c.weight": (classes, hidden), "h2c.bias": (classes,)}
-    if config["prior_layer"]:
-        shapes |= {"prior.weight": (classes, 2 * classes), "prior.bias": (classes,)}
-    return shapes | {"mean": (features,), "std": (features,)}
+    """The arrays of network.npz and their shapes, from the network's configuration (its type's state dict and
+    the standardisation)."""
+    return networks.state_shapes(config) | {"mean": (config["n_features"],), "std": (config["n_features"],)}
 
 
 def member_limits(manifest: dict[str, Any], where: Any) -> dict[str, int]:
@@ -308,7 +308,7 @@ def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
 
 def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpec:
     """The predicate spec, whose columns must be the manifest's predicates."""
-    from stages.binarize import parse_spec
+    from stages.predicate_spec import parse_spec
 
     try:
         text = data.decode()

@@ -18,7 +18,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, metrics, sources
-from stages.errors import BadInput
+from stages.errors import BadInput, check_choice
 from stages.recognizer import DECODES, Recognizer
 from stages.sources import RECORDING_ENVS, SourceOptions, intervals
 from stages.table_import import TableColumns, prediction_frames
@@ -42,10 +42,10 @@ class PredictOptions:
     rerun: Path | None = None  # also write a Rerun recording
 
     def validate(self) -> None:
-        if self.decode is not None and self.decode not in DECODES:
-            raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
-        if self.env is not None and self.env not in RECORDING_ENVS:
-            raise BadInput(f"unknown --env {self.env!r}: choose one of {', '.join(RECORDING_ENVS)}")
+        if self.decode is not None:
+            check_choice("decode", self.decode, DECODES)
+        if self.env is not None:
+            check_choice("env", self.env, RECORDING_ENVS)
         if not self.force:
             for path in (self.output_path(), self.intervals, self.rerun):
                 if path is not None and Path(path).exists():
@@ -53,10 +53,6 @@ class PredictOptions:
 
     def output_path(self) -> Path:
         return Path(self.output) if self.output is not None else Path(f"{Path(self.source).stem}.predictions.parquet")
-
-
-def probability_column(name: str) -> str:
-    return f"p_{name}"
 
 
 @dataclass(frozen=True)
@@ -78,7 +74,7 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
     keys = frames.select("episode", "frame", *(["label"] if (frames["label"] >= 0).all() else []))
     return keys.with_columns(
         pl.Series("class", np.array(model.classes)[predicted], dtype=pl.String),
-        *(pl.Series(probability_column(name), probabilities[:, k], dtype=pl.Float32)
+        *(pl.Series(artifacts.class_probability_column(name), probabilities[:, k], dtype=pl.Float32)
           for k, name in enumerate(model.classes)),
     ), predicted
 

@@ -3,7 +3,7 @@ networks, fusion (eq. 16) and decoding.
 
 `conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
 frame at a time) and the Python API all call this module; `train` fits and saves what it loads. The
-networks run in numpy (stages/inference.py); torch is imported only to read and write the workdir's
+networks run in numpy (stages/networks/network.py); torch is imported only to read and write the workdir's
 checkpoints, so a model file is recognised without it.
 """
 
@@ -20,14 +20,14 @@ import polars as pl
 
 from stages import artifacts, model_file, sequences
 from stages.errors import BadInput, MissingArtifact, StaleArtifact
-from stages.inference import Network, StreamingNetwork
 from stages.model_file import NETWORK, SPEC, WEIGHTS
+from stages.networks.network import Network, StreamingNetwork
 from stages.mln import chain
 
 if TYPE_CHECKING:
-    from stages.binarize import PredicateSpec
+    from stages.predicate_spec import PredicateSpec
     from stages.mln.factors import MLNFactors
-    from stages.models import SequenceClassifier
+    from stages.networks.classifier import SequenceClassifier
 
 NETWORKS = ("lstm", "priorlayer")
 METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")
@@ -413,7 +413,7 @@ class Recognizer:
     """
 
     def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
-        from stages.binarize import StreamingBinarizer
+        from stages.predicate_rules import StreamingBinarizer
         from stages.mln.factors import MLNFactors, parse_weights
 
         model = model_file.parse_model(entries, where)
@@ -540,8 +540,6 @@ class Recognizer:
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
         ``restarts`` then lists (episode, frame within it) of each."""
-        from stages.binarize import binarize
-
         decode = self.decode if decode is None else decode
         if decode != self.decode and decode != "none" and self.mln is None:
             raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
@@ -554,13 +552,12 @@ class Recognizer:
         starts = chain.chain_starts(episodes)
         p_mln = prior = evidence = None
         if self.spec is not None:
+            from stages import predicate_rules
             from stages.mln import classifier
 
-            keys = {"episode": episodes, "frame": frame_of,
-                    "label": np.zeros(len(features)), "split": np.full(len(features), "test")}
-            frames = artifacts.frames_table(keys, {n: features[:, i] for i, n in enumerate(self.features)})
-            predicates = binarize(frames, self.spec)
-            evidence = predicates.select(self.columns).to_numpy().astype(bool)
+            # binarized as frames.parquet holds them: float32
+            evidence = predicate_rules.features_evidence(self.spec, self.features, features.astype(np.float32), starts)
+            predicates = pl.DataFrame({column: evidence[:, i] for i, column in enumerate(self.columns)})
             p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, self.classes))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":

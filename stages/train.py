@@ -1,4 +1,4 @@
-"""train: fit the LSTM (or GRU) classifier, alone or with the MLN PriorLayer, on the training split.
+"""train: fit a network (LSTM, GRU or causal TCN: stages/networks/), alone or with the MLN PriorLayer, on the training split.
 
 The core (:func:`fit`) works on arrays; :func:`run` reads ``frames.parquet`` (and, for PriorLayer,
 ``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log.
@@ -21,19 +21,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, sequences
-from stages.errors import BadInput
+from stages import artifacts, networks, sequences
+from stages.errors import BadInput, check_choice
 from stages.recognizer import NETWORKS, PRIORS, FrameData, mln_class_scores, prior_input, save_checkpoint
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run
     import torch
 
-    from stages.models import ModelConfig, SequenceClassifier
+    from stages.networks.classifier import SequenceClassifier
 
 METHODS = NETWORKS
 SELECTS = ("none", "last", "val_accuracy")
 DEVICES = ("auto", "cpu", "cuda")
-INFERENCE_BATCH = 256
 
 
 @dataclass(frozen=True)
@@ -44,7 +43,7 @@ class TrainOptions:
     seed: int = 0
     epochs: int = 100
     mode: str = "segment"
-    cell: str = "lstm"
+    cell: str = "lstm"  # the network type: a name in stages.networks.TYPES
     prior: str = "paper"  # c2c input of PriorLayer: paper (clamped MLN sums) | logprob (MLN log-probs)
     select: str = "none"
     device: str = "auto"
@@ -54,15 +53,13 @@ class TrainOptions:
     hidden_size: int = 32
     learning_rate: float = 0.1
     val_fraction: float = 0.2
+    smoothing: float = 0.0  # tcn: weight of MS-TCN's smoothing loss
 
     def validate(self) -> None:
-        from stages.models import CELLS
-
-        choices = {"method": METHODS, "mode": sequences.MODES, "cell": CELLS, "prior": PRIORS,
+        choices = {"method": METHODS, "mode": sequences.MODES, "cell": networks.CELLS, "prior": PRIORS,
                    "select": SELECTS, "device": DEVICES}
         for name, allowed in choices.items():
-            if getattr(self, name) not in allowed:
-                raise BadInput(f"unknown --{name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
+            check_choice(name, getattr(self, name), allowed)
         if not 0 < self.train_fraction <= 1:
             raise BadInput(f"--train-fraction must be in (0, 1], got {self.train_fraction}")
         if not 0 < self.val_fraction < 1:
@@ -70,6 +67,8 @@ class TrainOptions:
         for name in ("epochs", "batch_size", "window", "hidden_size"):
             if getattr(self, name) < 1:
                 raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if self.smoothing < 0:
+            raise BadInput(f"--smoothing must be at least 0, got {self.smoothing}")
         if not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
         if self.device == "cuda":
@@ -137,14 +136,14 @@ def predict_log_probs(
     device: torch.device,
 ) -> np.ndarray:
     """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence): the per-epoch
-    evaluation of training (recognition runs the trained network through stages/inference.py)."""
+    evaluation of training (recognition runs the trained network through stages/networks/network.py)."""
     import torch
 
     model.eval()
     out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
     ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
-    for i in range(0, len(ordered), INFERENCE_BATCH):
-        batch = ordered[i : i + INFERENCE_BATCH]
+    for i in range(0, len(ordered), networks.INFERENCE_BATCH):
+        batch = ordered[i : i + networks.INFERENCE_BATCH]
         x = torch.from_numpy(sequences.pad(batch, features)).to(device)
         p = None if prior is None else torch.from_numpy(sequences.pad(batch, prior)).to(device)
         with torch.inference_mode():
@@ -187,12 +186,12 @@ Progress = Callable[[EpochDone], None]
 
 
 def fit(
-    data: FrameData, config: ModelConfig, options: TrainOptions, device: torch.device, progress: Progress | None = None
+    data: FrameData, config: Any, options: TrainOptions, device: torch.device, progress: Progress | None = None
 ) -> Trained:
     """Train a network on the training split of ``data``; log train/val/test accuracy each epoch."""
     import torch
 
-    from stages.models import SequenceClassifier
+    from stages.networks.classifier import SequenceClassifier
 
     torch.manual_seed(options.seed)
     rng = np.random.default_rng(options.seed)
@@ -240,6 +239,9 @@ def fit(
             ).view(y.shape)
             # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
             loss = (frame_loss.sum(1) / n_all[index]).mean()
+            extra = model.auxiliary_loss(log_probs, y != -100)
+            if extra is not None:
+                loss = loss + extra
             for parameter in parameters:
                 parameter.grad = None
             loss.backward()
@@ -283,8 +285,6 @@ class TrainResult:
 
 def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) -> TrainResult:
     """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
-    from stages.models import ModelConfig
-
     options.validate()
     workdir = Path(workdir)
     set_threads()
@@ -298,9 +298,9 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
         prior = prior_input(scores, options.prior, meta.get("source", ""))
         inputs += mln_inputs
     data = FrameData.from_frames(frames, prior)
-    config = ModelConfig(
-        n_features=data.features.shape[1], n_classes=n_classes, hidden_size=options.hidden_size,
-        cell=options.cell, prior_layer=options.method == "priorlayer",
+    config = networks.make_config(
+        options.cell, n_features=data.features.shape[1], n_classes=n_classes, hidden_size=options.hidden_size,
+        prior_layer=options.method == "priorlayer", smoothing=options.smoothing,
     )
     device = resolve_device(options.device)
     trained = fit(data, config, options, device, progress)

@@ -14,6 +14,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+import torch
 
 from stages import artifacts, recognizer
 from stages.report import loading
@@ -70,7 +71,10 @@ def test_the_report_has_every_section_and_figure(reduced):
         assert (reports / name).read_bytes()[:4] == b"\x89PNG", name
     assert "**Not run:**" not in text
     assert set(loading.load_run(reduced["root"] / "runs").datasets) == {
-        "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5", *SEQUENTIAL_FOLDERS}
+        "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5", *SEQUENTIAL_FOLDERS,
+        "fetch-tcn", "desk-tcn"}
+    for dataset in ("fetch", "desk"):  # the causal TCN's stream rows beside the LSTM's
+        assert f"| {dataset}-tcn | LSTM + PriorLayer |" in text
     for dataset in ("fetch", "desk"):
         assert f"- {dataset}: deploy **" in text and f"- {dataset}, chosen on validation (" in text
 
@@ -98,6 +102,12 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert "conflation+filter" in paper["methods"] and paper["validation_frame_accuracy"]
         assert artifacts.read_metadata(runs / dataset / "segment" / "seed-0" / artifacts.PREDICTIONS)["methods"] == [
             "lstm", "mln", "priorlayer", "conflation", "combined"]
+        tcn = runs / f"{dataset}-tcn"
+        assert (tcn / "weights.parquet").resolve() == (runs / dataset / "weights.parquet").resolve()
+        assert not (tcn / "segment").exists()
+        for method in ("lstm", "priorlayer"):
+            assert torch.load(tcn / "stream/seed-0/models" / f"{method}.pt", weights_only=True)["config"]["model"][
+                "cell"] == "tcn"
 
 
 def test_every_stage_prints_one_timed_summary(reduced):

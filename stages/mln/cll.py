@@ -8,7 +8,7 @@ log-potentials, temporal ones pairwise log-potentials, both linear in the weight
     CLL(w) - l2/2 |w|^2,   CLL(w) = sum over chains of log p(y_chain | evidence_chain; w)
 
 is concave; its gradient is the observed minus the expected formula counts, the expectations coming
-from forward-backward marginals (``stages.mln.chain``), and it is maximised with (L-)BFGS from zero
+from forward-backward marginals (``stages.mln.chain_moments``), and it is maximised with (L-)BFGS from zero
 weights (see ``learn``). Without the penalty an optimum may lie at infinity (a transition never seen in training gets
 weight -> -inf), hence ``l2`` (a Gaussian prior of variance 1/l2 on each learned weight).
 
@@ -37,7 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, optimize, sparse
 
-from stages.mln import chain
+from stages.mln import chain, chain_moments
+from stages.mln.chain_scan import Repeats
 from stages.mln.blas import one_thread
 from stages.mln.bpll import DENSE_LIMIT
 from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
@@ -120,7 +121,7 @@ class Objective:
             minlength=data.n_pairs * n_classes ** 2)
         per_formula = np.argsort(np.concatenate([np.flatnonzero(~temporal), np.flatnonzero(temporal)]))
         self.counts = sparse.block_diag([self.unary_counts, self.pairwise_counts]).tocsc()[:, per_formula][:, self.learned]
-        self.repeats = chain.Repeats.of(data.row, data.link)
+        self.repeats = Repeats.of(data.row, data.link)
         self.evaluations = 0
 
     def factors(self, weights: np.ndarray) -> chain.ChainFactors:
@@ -143,7 +144,7 @@ class Objective:
         """(-(CLL - l2/2 |w|^2), its gradient) over the learned weights, both per training frame."""
         self.evaluations += 1
         weights = self.full(learned)
-        expectations = chain.expectations(self.factors(weights), self.repeats)
+        expectations = chain_moments.expectations(self.factors(weights), self.repeats)
         finite = np.where(np.isinf(weights), 0.0, weights)
         expected = np.zeros(len(weights))
         expected[~self.temporal] = self.unary_counts.T @ np.asarray(self.frames_of_row @ expectations.unary).reshape(-1)
@@ -155,8 +156,8 @@ class Objective:
 
     def hessian(self, learned: np.ndarray) -> np.ndarray:
         """[L, L] the Hessian of -(CLL - l2/2 |w|^2) per frame over the learned weights at ``learned``: the covariance
-        of the formula counts under the chains' distribution (``chain.count_covariance``), plus l2."""
-        covariance = chain.count_covariance(self.factors(self.full(learned)), self.data.row, self.data.n_rows,
+        of the formula counts under the chains' distribution (``chain_moments.count_covariance``), plus l2."""
+        covariance = chain_moments.count_covariance(self.factors(self.full(learned)), self.data.row, self.data.n_rows,
                                             self.repeats)
         counts = self.counts.toarray()
         return (counts.T @ covariance @ counts + self.l2 * np.eye(len(learned))) / len(self.data.labels)

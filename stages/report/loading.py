@@ -27,6 +27,7 @@ VARIANTS = {
     "-fixed-weight": "network factor weight fixed at 1",  # D-temporal decoded with --network-weight 1
 }
 TEMPORAL = "-temporal"
+TCN = "-tcn"  # D-tcn: D's inputs, its networks causal TCNs (--cell tcn), stream mode
 TIMINGS = "timings.tsv"  # written by scripts/timed_stage.sh: started, seconds, stage, arguments
 SEED_DIR = re.compile(r"seed-(\d+)")
 

@@ -94,7 +94,8 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
 
     out.append("## Stream mode: no segment boundaries at test\n")
     out.append("Networks trained on fixed windows and run over whole episodes (`--mode stream`); segment "
-               "accuracy (%), frame accuracy (%), segmental edit score and F1@{10,25,50} (Lea et al.), mean ± std.\n")
+               "accuracy (%), frame accuracy (%), segmental edit score and F1@{10,25,50} (Lea et al.), mean ± std. "
+               "`D-tcn`: the same with a causal TCN in place of the LSTM (`train --cell tcn`).\n")
     out.append(markdown_table(["dataset", "method", "segment acc.", "frame acc.", "edit", "F1@10", "F1@25", "F1@50"],
                               stream_table(run)))
 

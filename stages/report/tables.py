@@ -9,7 +9,7 @@ import numpy as np
 import polars as pl
 
 from stages.recognizer import DECODES, METHODS, decoded_name
-from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TEMPORAL, VARIANTS, Run, present
+from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TCN, TEMPORAL, VARIANTS, Run, present
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
 PAPER_TABLE_III = {
@@ -233,7 +233,7 @@ def stream_table(run: Run) -> list[list[str]]:
     columns = ("segment_accuracy", "frame_accuracy", "edit", "f1@10", "f1@25", "f1@50")
     stats = {c: method_stats(run, c, mode="stream") for c in columns}
     return [[dataset, METHOD_NAMES[method], *(fmt(*lookup(stats[c], dataset=dataset, method=method)) for c in columns)]
-            for dataset in present(run, PAPER_DATASETS) for method in METHODS
+            for dataset in present(run, (*PAPER_DATASETS, *(d + TCN for d in PAPER_DATASETS))) for method in METHODS
             if lookup(stats["segment_accuracy"], dataset=dataset, method=method)[0] is not None]
 
 
@@ -275,7 +275,7 @@ def combined_gain(by_method: dict[str, dict[str, Any]]) -> float | None:
 
 def weights_table(run: Run, dataset: str, per_class: int = 3) -> list[list[str]]:
     """Table II style: the strongest learned formulas of each class."""
-    from stages.learn_weights import strongest  # the MLN engine (scipy): needed when the report runs only
+    from stages.mln.weights_table import strongest
 
     classes = run.datasets[dataset]["classes"]
     rows = []

@@ -16,7 +16,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import export, predict
+from stages import artifacts, export, predict
 from stages import stream as stage
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
@@ -52,7 +52,7 @@ def test_a_csv_stream_equals_predict_frame_by_frame(model, recording, tmp_path):
     assert [a["frame"] for a in answers] == list(range(FRAMES)) and {a["episode"] for a in answers} == {0}
     classes = list(answers[0]["probabilities"])
     got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
-    np.testing.assert_allclose(got, expected.select(f"p_{c}" for c in classes).to_numpy(), atol=1e-5)
+    np.testing.assert_allclose(got, expected.select(artifacts.class_probability_column(c) for c in classes).to_numpy(), atol=1e-5)
     assert "keys the model does not use are ignored: frame, label" in done.stderr
 
 

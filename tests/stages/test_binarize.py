@@ -12,6 +12,7 @@ from stages import artifacts, collect
 from stages.fetch_demos import OBSERVATION_FEATURES
 from stages import binarize as stage
 from stages.errors import BadInput
+from stages.predicate_rules import StreamingBinarizer
 
 DESK_GRIPPER_CODE = {"static": 0, "open": 1, "closed": 2, "opening": 3, "closing": 4}
 DESK_ARM_CODE = {"static": 0, "increase": 1, "decrease": 2}
@@ -204,7 +205,7 @@ def test_distance_channel_rebuilds_the_arm_distance_code_from_the_kinematics(sha
 def streamed(frames: pl.DataFrame, spec: stage.PredicateSpec) -> np.ndarray:
     """Every frame through a StreamingBinarizer, reset at each episode's first frame."""
     features = artifacts.feature_columns(frames)
-    binarizer = stage.StreamingBinarizer(spec, features)
+    binarizer = StreamingBinarizer(spec, features)
     values = frames.select(features).to_numpy().astype(np.float64)
     episodes = frames["episode"].to_numpy()
     rows = []
@@ -233,4 +234,4 @@ def test_streaming_binarizer_matches_the_batch_one_on_real_frames(desk_frames, s
 def test_streaming_binarizer_names_a_channel_the_model_lacks():
     spec = stage.load_spec(stage.default_spec_path("desk"))
     with pytest.raises(BadInput, match="channel 'right_gripper' is not in the model's features"):
-        stage.StreamingBinarizer(spec, ["arm_distance", "left_gripper"])
+        StreamingBinarizer(spec, ["arm_distance", "left_gripper"])

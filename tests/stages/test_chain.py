@@ -9,9 +9,10 @@ import pytest
 from scipy.special import logsumexp
 
 from stages.mln.chain import (
-    ChainFactors, Filter, Repeats, chain_starts, count_covariance, expectations, filtered, log_partition, path_score,
-    smoothed, viterbi,
+    ChainFactors, Filter, chain_starts, filtered, log_partition, path_score, smoothed, viterbi,
 )
+from stages.mln.chain_moments import count_covariance, expectations
+from stages.mln.chain_scan import Repeats
 
 
 def random_factors(rng: np.random.Generator, frames: int, classes: int, rows: int = 2, forbid: float = 0.0,

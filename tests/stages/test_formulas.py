@@ -9,7 +9,7 @@ import pytest
 from stages import formulas as stage
 from stages.errors import BadInput
 from stages.mln.published_codes import desk_predicates, write_predicates
-from stages.mln.syntax import parse_mln
+from stages.mln.syntax import format_weighted, parse_mln
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,12 @@ def test_default_spec_keeps_the_template(workdir: Path) -> None:
 
 def test_handwritten_example_is_accepted(workdir: Path, repo_root: Path) -> None:
     written = stage.run(workdir, stage.FormulasOptions(spec=repo_root / "examples" / "desk_handwritten.mln"))
-    assert len(written.mln.formulas) == 3
+    formulas = [format_weighted(f) for f in parse_mln(written.path.read_text(), "formulas.mln").formulas]
+    assert formulas == [  # the template, a formula to learn (weight 0) and an expert's fixed one, as written
+        "0.000000    Has(+w,p) => Topic(+c,p)",
+        '0.000000    Has("left_gripper_closed",p) ^ Has("right_gripper_closed",p) => Topic("C4",p)',
+        '1.500000    Has("left_gripper_open",p) ^ Has("right_gripper_open",p) => Topic("C0",p)',
+    ]
 
 
 def test_a_class_may_be_named_as_in_the_frames(workdir: Path, tmp_path: Path) -> None:
@@ -84,21 +89,25 @@ def test_bad_specs_are_refused(workdir: Path, tmp_path: Path, spec: str, message
 
 
 @pytest.mark.parametrize(
-    "spec",
+    ("spec", "expected"),
     [
-        "0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n",
-        'Topic("S1", p) ^ Next(p, q) => Topic("S1", q) v Topic("S2", q).\n',
-        '0.0 Topic(c1, p) ^ Next(p, q) ^ Has("left_gripper_closing", q) => Topic(c2, q)\n',
-        '0.0 Next(p, q) => (Topic("C0", p) <=> Topic("C0", q))\n',
-        '0.0 !Next(p, q) v !Topic("S3", q) v Topic("S3", p)\n',
+        ("0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n", "0.000000    Topic(+c1,p) ^ Next(p,q) => Topic(+c2,q)"),
+        ('Topic("S1", p) ^ Next(p, q) => Topic("S1", q) v Topic("S2", q).\n',
+         'Topic("C0",p) ^ Next(p,q) => (Topic("C0",q) v Topic("C1",q)).'),  # the frames' class names as C<k>
+        ('0.0 Topic(c1, p) ^ Next(p, q) ^ Has("left_gripper_closing", q) => Topic(c2, q)\n',
+         '0.000000    Topic(c1,p) ^ Next(p,q) ^ Has("left_gripper_closing",q) => Topic(c2,q)'),
+        ('0.0 Next(p, q) => (Topic("C0", p) <=> Topic("C0", q))\n',
+         '0.000000    Next(p,q) => (Topic("C0",p) <=> Topic("C0",q))'),
+        ('0.0 !Next(p, q) v !Topic("S3", q) v Topic("S3", p)\n', '0.000000    !Next(p,q) v !Topic("C2",q) v Topic("C2",p)'),
     ],
 )
-def test_temporal_forms_are_accepted(workdir: Path, tmp_path: Path, spec: str) -> None:
+def test_temporal_forms_are_accepted(workdir: Path, tmp_path: Path, spec: str, expected: str) -> None:
     path = tmp_path / "temporal.mln"
     path.write_text(spec)  # no declarations: Has, Topic and (used here) Next are declared for it
     written = stage.run(workdir, stage.FormulasOptions(spec=path))
     mln = parse_mln(written.path.read_text(), "formulas.mln")
-    assert mln.predicates["Next"] == ("page", "page") and len(mln.formulas) == 1
+    assert mln.predicates["Next"] == ("page", "page")
+    assert [format_weighted(f) for f in mln.formulas] == [expected]
 
 
 @pytest.mark.parametrize(

@@ -1,15 +1,18 @@
-"""The networks: shapes, causality under padding, PriorLayer input."""
+"""The torch networks of every registered type: shapes, causality under padding, PriorLayer input; the registry."""
 
 import pytest
 import torch
 
-from stages.models import ModelConfig, SequenceClassifier
+from stages import networks
+from stages.errors import BadInput
+from stages.networks.classifier import SequenceClassifier
+from stages.networks.recurrent import Config as ModelConfig
 
 
-@pytest.mark.parametrize("cell", ["lstm", "gru"])
+@pytest.mark.parametrize("cell", networks.CELLS)
 def test_padding_after_a_sequence_does_not_change_its_outputs(cell):
     torch.manual_seed(0)
-    model = SequenceClassifier(ModelConfig(n_features=3, n_classes=4, cell=cell)).eval()
+    model = SequenceClassifier(networks.make_config(cell, n_features=3, n_classes=4)).eval()
     x = torch.randn(1, 7, 3)
     padded = torch.cat([x, torch.zeros(1, 5, 3)], dim=1)
     alone, _ = model(x)
@@ -28,3 +31,52 @@ def test_prior_layer_reads_the_mln_input_and_requires_it():
     assert not torch.allclose(a, b)
     with pytest.raises(ValueError):
         model(x)
+
+
+def test_the_checkpoint_dict_of_a_recurrent_network_is_the_one_older_checkpoints_hold():
+    config = networks.make_config("gru", n_features=3, n_classes=4, hidden_size=8, prior_layer=True)
+    saved = {"n_features": 3, "n_classes": 4, "hidden_size": 8, "cell": "gru", "prior_layer": True}
+    assert config.to_dict() == saved
+    assert networks.config_of(saved) == config
+    assert networks.describe(saved) == "gru of 8"
+
+
+def test_an_option_of_another_network_type_is_refused():
+    with pytest.raises(BadInput, match="--smoothing 0.15: the lstm network has no such option .*tcn"):
+        networks.make_config("lstm", n_features=3, n_classes=4, smoothing=0.15)
+    with pytest.raises(BadInput, match="unknown network type 'rnn': choose one of lstm, gru, tcn"):
+        networks.module_of("rnn")
+
+
+def test_the_tcn_sees_exactly_its_receptive_field():
+    from stages.networks.tcn import receptive_field
+
+    torch.manual_seed(0)
+    config = networks.make_config("tcn", n_features=3, n_classes=4, kernel_size=3, levels=3)
+    field = receptive_field(3, 3)
+    assert field == 15
+    model = SequenceClassifier(config).eval()
+    x = torch.randn(1, 40, 3)
+    changed = x.clone()
+    changed[0, 10] += 5.0
+    moved = (model(x)[0] - model(changed)[0]).abs().amax(-1)[0] > 1e-6
+    assert moved.nonzero().flatten().tolist() == list(range(10, 10 + field))  # frames 10 .. 10 + r - 1 only
+
+
+def test_the_smoothing_loss_penalises_changes_between_real_frames_only():
+    torch.manual_seed(0)
+    smooth = SequenceClassifier(networks.make_config("tcn", n_features=3, n_classes=4, smoothing=0.15))
+    assert SequenceClassifier(networks.make_config("tcn", n_features=3, n_classes=4)).auxiliary_loss(
+        torch.zeros(1, 3, 4), torch.ones(1, 3, dtype=torch.bool)) is None
+    steady = torch.log_softmax(torch.zeros(1, 4, 4), -1)
+    jump = steady.clone()
+    jump[0, 2:] = torch.log_softmax(torch.tensor([9.0, 0.0, 0.0, 0.0]), -1)
+    valid = torch.ones(1, 4, dtype=torch.bool)
+    assert float(smooth.auxiliary_loss(steady, valid)) == 0.0
+    # one change of 3 between frames 1 and 2 (class 0: log 1/4 -> about 0): 0.15 * (its squared change, truncated
+    # at 16, averaged over the 4 classes) / 3 pairs
+    delta = (jump[0, 2] - steady[0, 1]).pow(2).clamp(max=16).mean()
+    torch.testing.assert_close(smooth.auxiliary_loss(jump, valid), 0.15 * delta / 3)
+    padded = valid.clone()
+    padded[0, 2:] = False  # the jump falls on padding: nothing to smooth
+    assert float(smooth.auxiliary_loss(jump, padded)) == 0.0

@@ -1,0 +1,184 @@
+"""The moments of the chains' distribution that only the CLL learner uses (stages/mln/cll.py): the marginals its
+gradient needs and the exact covariance of the formula counts (its Newton metric)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.mln.chain_factors import ChainFactors
+from stages.mln.chain_scan import Repeats, _forward, _kinds, _smoothed
+
+@dataclass(frozen=True)
+class Expectations:
+    log_z: float
+    unary: np.ndarray  # [T, C] p(y_t = k | its chain)
+    pairwise: np.ndarray  # [P, C, C] summed over the frames t each row links: p(y_{t-1} = j, y_t = k | chain)
+
+
+def expectations(factors: ChainFactors, repeats: Repeats | None = None) -> Expectations:
+    """log Z and the marginals that the gradient of the conditional log-likelihood needs (``repeats``: where the
+    factors' steps repeat, to compute each distinct product once)."""
+    n_frames, n_classes, n_rows = len(factors.link), factors.n_classes, len(factors.pairwise)
+    if n_frames == 0:
+        return Expectations(0.0, np.zeros((0, n_classes)), np.zeros((n_rows, n_classes, n_classes)))
+    forward = _forward(factors, repeats=repeats)
+    gamma, beta, overlap = _smoothed(forward)
+    steps = forward.steps
+    # p(y_{t-1} = j, y_t = k) = alpha_{t-1}(j) M_t(j, k) beta_t(k) / n_t, M_t = transitions[link] * emissions[t],
+    # with n_t = sum_k (alpha_{t-1} M_t)(k) beta_t(k) = moved_t * (alpha_t . beta_t)
+    weighted = forward.entering / (forward.moved * overlap)[:, None]
+    following = steps.emissions * beta
+    totals = np.zeros((n_rows, n_classes, n_classes))
+    main, others = _kinds(steps.index)
+    for row, members in [(main, steps.index == main), *others]:
+        if row < n_rows:
+            totals[row] = steps.transitions[row] * (weighted[members].T @ following[members])
+    return Expectations(forward.log_z, gamma, totals)
+
+
+def count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int, repeats: Repeats | None = None) -> np.ndarray:
+    """[D, D], D = n_rows * C + P * C * C: the covariance, under the chains' distribution, of their counts: frames of
+    each row (``row[t]`` in [0, n_rows)) with each class, then linked pairs of each pairwise row with each class
+    pair. It is the Hessian of log Z when frames of one row share their unary log-potentials (the CLL learner's
+    Newton metric). Exact: same-frame terms per kind of frame, cross-frame terms by a recursion over the chain
+    (``_cross_covariance``). ``repeats``: as for ``expectations``."""
+    forward = _forward(factors, repeats=repeats)
+    factors = forward.factors  # with chain starts at dead ends, as the marginals have them
+    gamma, beta, _ = _smoothed(forward)
+    linked = factors.link >= 0
+    reach = forward.steps.matrices() * beta[:, None, :]
+    total = reach.sum(axis=2, keepdims=True)
+    after = np.divide(reach, total, out=np.zeros_like(reach), where=total > 0)  # p(y_t = j | y_{t-1} = i, chain)
+    after[~linked] = 0.0
+    pairs = np.zeros_like(after)  # p(y_{t-1} = i, y_t = j | chain)
+    pairs[1:] = gamma[:-1, :, None] * after[1:]
+    counts = _Counts(np.asarray(row, dtype=np.int64), factors.link, n_rows, factors.n_classes, len(factors.pairwise))
+    cross = _cross_covariance(gamma, pairs, after, counts)
+    return _same_frame_covariance(gamma, pairs, counts) + cross + cross.T
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """Where each frame's counts sit among the D counts of ``count_covariance``."""
+
+    row: np.ndarray  # [T]
+    link: np.ndarray  # [T], -1: no pair counts
+    n_rows: int
+    n_classes: int
+    n_pairwise: int
+
+    @property
+    def size(self) -> int:
+        return self.n_rows * self.n_classes + self.n_pairwise * self.n_classes ** 2
+
+    def unary(self, row: np.ndarray) -> np.ndarray:
+        """[..., C] the counts (row, class) of frames of ``row``."""
+        return np.asarray(row)[..., None] * self.n_classes + np.arange(self.n_classes)
+
+    def pair(self, link: np.ndarray) -> np.ndarray:
+        """[..., C * C] the counts (pairwise row, class before, class after) of frames linked by ``link`` (>= 0)."""
+        return self.n_rows * self.n_classes + np.asarray(link)[..., None] * self.n_classes ** 2 + np.arange(self.n_classes ** 2)
+
+
+def _same_frame_covariance(gamma: np.ndarray, pairs: np.ndarray, counts: _Counts) -> np.ndarray:
+    """sum_t Cov(counts of frame t): per kind of frame (row, pairwise row), the covariance of the frame's local counts
+    (its class, and its class pair if linked) summed over the frames of that kind."""
+    n_classes = counts.n_classes
+    covariance = np.zeros((counts.size, counts.size))
+    kinds, kind = np.unique(np.stack([counts.row, counts.link], axis=1), axis=0, return_inverse=True)
+    kind = kind.reshape(-1)
+    for index, (row, link) in enumerate(kinds.tolist()):
+        members = kind == index
+        local = gamma[members] if link < 0 else np.concatenate(
+            [gamma[members], pairs[members].reshape(-1, n_classes ** 2)], axis=1)
+        mean = local.sum(axis=0)
+        block = np.diag(mean) - local.T @ local
+        if link >= 0:  # a pair (i, k) also counts class k
+            pair_of = n_classes + np.arange(n_classes ** 2)
+            block[pair_of % n_classes, pair_of] += mean[pair_of]
+            block[pair_of, pair_of % n_classes] += mean[pair_of]
+        at = counts.unary(row) if link < 0 else np.concatenate([counts.unary(row), counts.pair(link)])
+        covariance[np.ix_(at, at)] += block
+    return covariance
+
+
+def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, counts: _Counts) -> np.ndarray:
+    """X = sum over frames s < t of one chain of Cov(counts of s, counts of t) (rows: s's counts), by the backward
+    recursion for K_s[k] = E[counts of the frames after s | y_s = k] - their mean:
+        K_{t-1}[i] = sum_j after_t[i, j] (counts of (i, j) at t + K_t[j]) - mean counts of t,
+        X = sum_s psi_s^T K_s,  psi_s[k] = gamma_s(k) e(s's count of k) + sum_i pairs_s(i, k) e(s's count of (i, k)).
+    Blocks of frames run side by side, one numpy call per position in a block, each from K = 0 at its end; with
+    S_s = p(y at the block's end | y_s), the true K_s = K_s(local) + S_s K(block's end), so X adds
+    sum_b (sum_{s in b} psi_s^T S_s) K(end of b), and one loop over the blocks finds those K from what each block
+    passes on (its K before its first frame, and its S there)."""
+    n_frames, n_classes = gamma.shape
+    size, n_unary = counts.size, counts.n_rows * counts.n_classes
+    length = max(1, 4 * math.isqrt(n_frames))
+    n_blocks = -(-n_frames // length)
+    pad = n_blocks * length - n_frames
+
+    def by_position(values: np.ndarray, fill: float = 0) -> np.ndarray:
+        """[T, ...] -> [L, B, ...]: frame b * L + i at [i, b]; padding frames after the end (nothing, linked to nothing)."""
+        values = np.concatenate([values, np.full((pad, *values.shape[1:]), fill, dtype=values.dtype)])
+        return np.ascontiguousarray(values.reshape(n_blocks, length, *values.shape[1:]).swapaxes(0, 1))
+
+    after, pairs, gamma = by_position(after), by_position(pairs), by_position(gamma)
+    link = by_position(counts.link, -1)
+    gamma_linked = gamma * (link >= 0)[..., None]
+    unary_columns = counts.unary(by_position(counts.row))  # [L, B, C]
+    pair_columns = counts.pair(np.maximum(link, 0)).reshape(length, n_blocks, n_classes, n_classes)
+    one_link = counts.n_pairwise == 1  # then every linked frame has the same pair counts: slices, not indices
+    blocks, classes = np.arange(n_blocks)[:, None], np.arange(n_classes)
+    # flat positions in a [B, C, D] state: (b, i, (row, j)) and (b, i, (link, i, j)), for [L, B, C(i), C(j)]
+    state_rows = ((blocks * n_classes + classes) * size)[None, :, :, None]
+    unary_at = state_rows + unary_columns[:, :, None, :]
+    pair_at = state_rows + pair_columns
+    step_at = np.concatenate([unary_at, pair_at], axis=3).reshape(length, -1)
+    step_add = np.concatenate([after - gamma_linked[:, :, None, :], after], axis=3).reshape(length, -1)
+
+    def step(state: np.ndarray, i: int) -> np.ndarray:
+        """K before the frames at position i from K at them: sum_j after (counts + K) - mean counts."""
+        moved = after[i] @ state
+        np.add.at(moved.reshape(-1), step_at[i], step_add[i])
+        mean = pairs[i].reshape(n_blocks, 1, -1)
+        if one_link:
+            moved[:, :, n_unary:] -= mean
+        else:
+            moved[blocks[:, :, None], classes[:, None], pair_columns[i].reshape(n_blocks, 1, -1)] -= mean
+        return moved
+
+    from scipy import sparse  # learning only: recognising a chain needs numpy alone
+
+    width = n_blocks * n_classes  # frames' unary counts at one position, weighted by gamma: a sparse [n_unary, B * C]
+    gathered = sparse.csc_matrix((gamma.reshape(-1), (unary_columns.reshape(-1), np.arange(length * width))),
+                                 shape=(n_unary, length * width))
+    local_unary = np.zeros((n_unary, size))
+    local_pair = np.zeros((counts.n_pairwise, n_classes, n_classes, size))
+    to_end = np.zeros((n_blocks, size, n_classes))  # sum_{s in b} psi_s^T S_s
+    to_end_at = (((blocks * size + unary_columns) * n_classes)[..., None] + classes).reshape(length, -1)  # (b, (row, k), m)
+    state = np.zeros((n_blocks, n_classes, size))
+    through = np.broadcast_to(np.eye(n_classes), (n_blocks, n_classes, n_classes)).copy()
+    for i in reversed(range(length)):
+        local_unary += gathered[:, i * width:(i + 1) * width] @ state.reshape(width, size)
+        np.add.at(to_end.reshape(-1), to_end_at[i], (gamma[i][:, :, None] * through).reshape(-1))
+        weighted = pairs[i][:, :, :, None] * through[:, None, :, :]  # [b, i, k, m]
+        for pairwise, members in [(0, slice(None))] if one_link else _kinds_present(link[i]):
+            local_pair[pairwise] += np.matmul(pairs[i][members].transpose(2, 1, 0),
+                                              state[members].transpose(1, 0, 2)).transpose(1, 0, 2)
+            rows = slice(n_unary, None) if one_link else pair_columns[i][members].reshape(-1, n_classes ** 2)
+            to_end[blocks[members] if not one_link else slice(None), rows] += weighted[members].reshape(-1, n_classes ** 2, n_classes)
+        state = step(state, i)
+        through = after[i] @ through
+    at_end = np.zeros((n_blocks, n_classes, size))  # the true K at each block's last frame
+    for block in reversed(range(1, n_blocks)):
+        at_end[block - 1] = state[block] + through[block] @ at_end[block]
+    local = np.concatenate([local_unary, local_pair.reshape(-1, size)])
+    return local + to_end.transpose(1, 0, 2).reshape(size, -1) @ at_end.reshape(-1, size)
+
+
+def _kinds_present(link: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(pairwise row, positions) of each pairwise row that ``link`` uses."""
+    return [(row, np.flatnonzero(link == row)) for row in np.unique(link[link >= 0]).tolist()]

@@ -1,0 +1,47 @@
+"""The torch network that training fits: a type's body -> h2c -> (PriorLayer) -> log-softmax.
+
+The body comes from the registry (stages/networks/); h2c and the PriorLayer are the shared head
+(paper: h2c' = W1·h2c + W2·c2c, one linear layer over [h2c, c2c] as the authors wrote it), run in
+numpy by stages/networks/prior_layer.py. Imported by training only: recognition never loads torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import nn
+
+from stages import networks
+
+
+class SequenceClassifier(nn.Module):
+    """Body -> h2c -> (PriorLayer) -> log-softmax, one class distribution per frame."""
+
+    def __init__(self, config: Any):
+        super().__init__()
+        self.config = config
+        self.kind = networks.module_of(config.cell)
+        self.add_module(self.kind.BODY, self.kind.torch_body(config))
+        self.h2c = nn.Linear(config.hidden_size, config.n_classes)
+        self.prior = nn.Linear(2 * config.n_classes, config.n_classes) if config.prior_layer else None
+
+    def forward(
+        self, features: torch.Tensor, prior: torch.Tensor | None = None, state: Any = None
+    ) -> tuple[torch.Tensor, Any]:
+        """features [B, T, F], prior [B, T, C] -> class log-probabilities [B, T, C] and the last state.
+
+        Every body is causal, so padding appended after a sequence never changes its outputs.
+        """
+        hidden, state = getattr(self, self.kind.BODY)(features, state)
+        scores = self.h2c(hidden)  # h2c: hidden state -> class scores
+        if self.prior is not None:
+            if prior is None:
+                raise ValueError("a PriorLayer model needs the MLN class input of every frame")
+            scores = self.prior(torch.cat([scores, prior], dim=-1))
+        return torch.log_softmax(scores, dim=-1), state
+
+    def auxiliary_loss(self, log_probs: torch.Tensor, valid: torch.Tensor) -> torch.Tensor | None:
+        """A type's training loss beside the NLL (the TCN's smoothing), or None; ``valid`` [B, T] marks real frames."""
+        extra = getattr(self.kind, "auxiliary_loss", None)
+        return None if extra is None else extra(self.config, log_probs, valid)
