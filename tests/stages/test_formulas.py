@@ -34,8 +34,8 @@ def test_handwritten_example_is_accepted(workdir: Path, repo_root: Path) -> None
     formulas = [format_weighted(f) for f in parse_mln(written.path.read_text(), "formulas.mln").formulas]
     assert formulas == [  # the template, a formula to learn (weight 0) and an expert's fixed one, as written
         "0.000000    Has(+w,p) => Topic(+c,p)",
-        '0.000000    Has("left_gripper_closed",p) ^ Has("right_gripper_closed",p) => Topic("C4",p)',
-        '1.500000    Has("left_gripper_open",p) ^ Has("right_gripper_open",p) => Topic("C0",p)',
+        '0.000000    Has("left_gripper_closed",p) ^ Has("right_gripper_closed",p) => Topic("S5",p)',
+        '1.500000    Has("left_gripper_open",p) ^ Has("right_gripper_open",p) => Topic("S1",p)',
     ]
 
 
@@ -93,12 +93,12 @@ def test_bad_specs_are_refused(workdir: Path, tmp_path: Path, spec: str, message
     [
         ("0.0 Topic(+c1, p) ^ Next(p, q) => Topic(+c2, q)\n", "0.000000    Topic(+c1,p) ^ Next(p,q) => Topic(+c2,q)"),
         ('Topic("S1", p) ^ Next(p, q) => Topic("S1", q) v Topic("S2", q).\n',
-         'Topic("C0",p) ^ Next(p,q) => (Topic("C0",q) v Topic("C1",q)).'),  # the frames' class names as C<k>
+         'Topic("S1",p) ^ Next(p,q) => (Topic("S1",q) v Topic("S2",q)).'),  # the frames' class names
         ('0.0 Topic(c1, p) ^ Next(p, q) ^ Has("left_gripper_closing", q) => Topic(c2, q)\n',
          '0.000000    Topic(c1,p) ^ Next(p,q) ^ Has("left_gripper_closing",q) => Topic(c2,q)'),
         ('0.0 Next(p, q) => (Topic("C0", p) <=> Topic("C0", q))\n',
-         '0.000000    Next(p,q) => (Topic("C0",p) <=> Topic("C0",q))'),
-        ('0.0 !Next(p, q) v !Topic("S3", q) v Topic("S3", p)\n', '0.000000    !Next(p,q) v !Topic("C2",q) v Topic("C2",p)'),
+         '0.000000    Next(p,q) => (Topic("S1",p) <=> Topic("S1",q))'),  # the paper's C<k> as the frames name it
+        ('0.0 !Next(p, q) v !Topic("S3", q) v Topic("S3", p)\n', '0.000000    !Next(p,q) v !Topic("S3",q) v Topic("S3",p)'),
     ],
 )
 def test_temporal_forms_are_accepted(workdir: Path, tmp_path: Path, spec: str, expected: str) -> None:
