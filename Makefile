@@ -95,7 +95,8 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 
 MLN_SOURCES := $(wildcard stages/mln/*.py)
 TRAIN_SOURCES := stages/train.py stages/models.py stages/sequences.py
-RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/inference.py stages/sequences.py $(MLN_SOURCES)
+RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/methods.py stages/checkpoints.py stages/network_weight.py \
+  stages/notes.py stages/workdir_inputs.py stages/inference.py stages/sequences.py $(MLN_SOURCES)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)

@@ -24,7 +24,7 @@ def conflate(
     with reported_errors():
         result = stage.run(workdir, options)
     for note in result.notes:
-        console.print(f"[yellow]note[/]: {escape(note)}")
+        console.print(f"[yellow]note[/]: {escape(note.text)}")
     for name, choice in result.choices.items():
         if choice.accuracy is not None:
             console.print(f"{name}: network factor weight {choice.weight:g} (validation frame accuracy {choice.accuracy:.1%})")

@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, reported_errors
-from stages import recognizer
+from stages import methods, recognizer
 
 
 def info(
@@ -29,7 +29,7 @@ def info(
     weight = manifest.get("network_weight")
     accuracy = manifest.get("validation_frame_accuracy")
     rows = [
-        ("method", recognizer.decoded_name(manifest["method"], manifest["decode"])),
+        ("method", methods.decoded_name(manifest["method"], manifest["decode"])),
         ("network factor weight", "–" if weight is None else f"{weight:g}"
          + ("" if accuracy is None else f" (validation frame accuracy {accuracy:.1%})")),
         ("classes", ", ".join(manifest["classes"])),

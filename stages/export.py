@@ -13,9 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stages import artifacts, recognizer
+from stages import artifacts, network_weight, recognizer
+from stages.checkpoints import load_checkpoint
 from stages.errors import BadInput
-from stages.recognizer import DECODES, MLN_MODES
+from stages.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
+from stages.notes import Note
 
 
 @dataclass(frozen=True)
@@ -28,8 +30,8 @@ class ExportOptions:
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
 
     def validate(self) -> None:
-        if self.method not in recognizer.METHODS:
-            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(recognizer.METHODS)}")
+        if self.method not in METHODS:
+            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(METHODS)}")
         if self.decode not in DECODES:
             raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
         if self.mln_mode not in MLN_MODES:
@@ -38,7 +40,7 @@ class ExportOptions:
     def output_path(self, workdir: Path) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{recognizer.MODEL_SUFFIX}"
+        return Path(workdir) / f"{decoded_name(self.method, self.decode)}{recognizer.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -55,10 +57,10 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     frames_meta = artifacts.read_metadata(frames_path, "frames")
     inputs = [frames_path]
     notes: list[str] = []
-    network_name = recognizer.network_of(options.method)
+    network_name = network_of(options.method)
     checkpoint = network = None
     if network_name is not None:
-        checkpoint = recognizer.load_checkpoint(workdir, network_name, frames_meta)
+        checkpoint = load_checkpoint(workdir, network_name, frames_meta)
         inputs.append(artifacts.checkpoint_path(workdir, network_name))
         config = checkpoint.config
         network = {"name": network_name, "mode": config["mode"], "prior": config.get("prior"),
@@ -70,7 +72,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 
     spec_text = weights = None
     columns: list[str] = []
-    if recognizer.needs_mln(options.method, options.decode):
+    if needs_mln(options.method, options.decode):
         predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
         predicates_meta = artifacts.read_metadata(predicates_path, "predicates")
         weights, _ = artifacts.read_table(weights_path, "weights")
@@ -80,9 +82,8 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 
     choice = None
     if options.decode != "none" and network_name is not None:
-        predicted = recognizer.predict_workdir(workdir, options.mln_mode, (options.decode,), (options.method,))
-        choice = predicted.choices[recognizer.decoded_name(options.method, options.decode)]
-        notes += [n for n in predicted.notes if "validation part" in n or "uniform transitions" in n]
+        choice, said = weight_choice(workdir, options)
+        notes += [n.text for n in said]
 
     manifest = {
         "mlnseq_version": artifacts.package_version(),
@@ -91,6 +92,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "decode": options.decode,
         "mln_mode": options.mln_mode,
         "network_weight": None if choice is None else choice.weight,
+        "network_weight_how": None if choice is None else choice.how,
         "validation_frame_accuracy": None if choice is None else choice.accuracy,
         "classes": list(frames_meta["classes"]),
         "features": list(frames_meta["features"]),
@@ -103,3 +105,20 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     entries = recognizer.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
     return Exported(recognizer.write_model(options.output_path(workdir), entries), manifest)
+
+
+def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:
+    """The network factor's weight of the one decoded network method exported, as conflate chooses it, and
+    the notes that bear on it."""
+    from stages.mln.factors import MLNFactors
+    from stages.workdir_inputs import read_workdir
+
+    network = network_of(options.method)
+    inputs = read_workdir(workdir, (network,))
+    run_, mln_inputs = inputs.networks[network], inputs.mln
+    mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, len(inputs.classes))
+    unvalidated = [] if run_.checkpoint.config.get("val_spans") else [network]
+    notes = network_weight.decoding_notes(mln.temporal, unvalidated)
+    choice = network_weight.choose(options.method, options.decode, mln, mln_inputs.evidence, inputs.data.episodes,
+                                   run_.parts, run_.log_probs, inputs.data.labels)
+    return choice, notes

@@ -17,7 +17,8 @@ import polars as pl
 
 from stages import artifacts, metrics
 from stages.errors import BadInput
-from stages.recognizer import DECODES, Recognizer
+from stages.methods import DECODES
+from stages.recognizer import Recognizer
 from stages.table_import import TableColumns, import_table
 
 

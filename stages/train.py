@@ -23,7 +23,10 @@ import polars as pl
 
 from stages import artifacts, sequences
 from stages.errors import BadInput
-from stages.recognizer import NETWORKS, PRIORS, FrameData, mln_class_scores, prior_input, save_checkpoint
+from stages.checkpoints import save_checkpoint
+from stages.methods import NETWORKS, PRIORS
+from stages.recognizer import prior_input
+from stages.workdir_inputs import FrameData, mln_class_scores
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run
     import torch

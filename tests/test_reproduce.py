@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from stages import artifacts, recognizer
+from stages import artifacts, methods
 from stages.report import loading
 
 pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
@@ -92,7 +92,7 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert (fixed / "models" / "lstm.pt").resolve() == (stream / "lstm.pt").resolve()
         meta = artifacts.read_metadata(fixed / artifacts.PREDICTIONS)
         assert meta["network_weight_option"] == 1.0 and meta["network_weights"] == {}
-        assert meta["methods"] == [recognizer.decoded_name(m, d) for d in recognizer.DECODES
+        assert meta["methods"] == [methods.decoded_name(m, d) for d in methods.DECODES
                                    for m in ("lstm", "mln", "conflation")]
         paper = artifacts.read_metadata(runs / dataset / "stream" / "seed-0" / artifacts.PREDICTIONS)
         assert "conflation+filter" in paper["methods"] and paper["validation_frame_accuracy"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from stages.recognizer import METHODS
+from stages.methods import METHODS
 from stages.report.loading import NETWORKS, PAPER_DATASETS, RICH, Run, present
 from stages.report.tables import (
     METHOD_NAMES, PAPER_TABLE_III, combined_gain, deploy_choices, fmt, lookup, method_name, method_stats,

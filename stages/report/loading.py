@@ -15,7 +15,7 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.recognizer import NETWORKS
+from stages.methods import NETWORKS
 
 PAPER_DATASETS = ("fetch", "desk")
 RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages.recognizer import DECODES, METHODS, decoded_name
+from stages.methods import DECODES, METHODS, decoded_name
 from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TEMPORAL, VARIANTS, Run, present
 
 # Table III of the paper: segment accuracy (%) at half of each segment.

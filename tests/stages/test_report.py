@@ -8,7 +8,7 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from stages import artifacts, conflate, recognizer, report, train
+from stages import artifacts, conflate, methods, report, train
 from stages import eval as evaluation
 from stages.errors import BadInput
 from stages.report import claims, loading, tables
@@ -73,10 +73,10 @@ def test_load_run_reads_every_seed_workdir(loaded, desk_stream_workdir):
 
 def test_table_iii_puts_the_paper_beside_the_measured_value(loaded):
     rows = tables.table_iii(loaded)
-    assert [r[1] for r in rows] == [tables.METHOD_NAMES[m] for m in recognizer.METHODS]
+    assert [r[1] for r in rows] == [tables.METHOD_NAMES[m] for m in methods.METHODS]
     measured = loaded.metrics.filter((pl.col("mode") == "segment") & (pl.col("method") == "mln")
                                      & (pl.col("metric") == "segment_accuracy"))["value"][0]
-    mln = rows[recognizer.METHODS.index("mln")]
+    mln = rows[methods.METHODS.index("mln")]
     assert mln[2] == "49" and mln[3] == f"{100 * measured:.1f}"
 
 
@@ -88,7 +88,7 @@ def test_confusion_counts_every_test_segment(loaded):
 def test_claims_are_computed_from_the_numbers():
     metrics = pl.DataFrame({
         "dataset": ["fetch"] * 5, "mode": ["segment"] * 5, "seed": [0] * 5,
-        "method": list(recognizer.METHODS), "metric": ["segment_accuracy"] * 5, "item": ["0.5"] * 5,
+        "method": list(methods.METHODS), "metric": ["segment_accuracy"] * 5, "item": ["0.5"] * 5,
         "value": [0.70, 0.50, 0.65, 0.72, 0.71],  # lstm, mln, priorlayer, conflation, combined
     })
     run = loading.Run(metrics, pl.DataFrame(schema={"dataset": pl.String, "mode": pl.String, "seed": pl.Int64,
@@ -118,7 +118,7 @@ def test_wall_seconds_spans_first_start_to_last_end(loaded):
 def test_decoded_rows_come_from_the_temporal_folder(loaded):
     rows = tables.decoded_table(loaded)
     assert {(r[0], r[1]) for r in rows} == {("desk", "stream")}
-    assert [r[2] for r in rows][:len(recognizer.METHODS)] == [tables.METHOD_NAMES[m] for m in recognizer.METHODS]
+    assert [r[2] for r in rows][:len(methods.METHODS)] == [tables.METHOD_NAMES[m] for m in methods.METHODS]
     viterbi = next(r for r in rows if r[2] == "LSTM + Conflation + Viterbi (offline)")
     frame = loaded.metrics.filter((pl.col("dataset") == "desk-temporal") & (pl.col("method") == "conflation+viterbi")
                                   & (pl.col("metric") == "frame_accuracy"))["value"][0]
