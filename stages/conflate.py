@@ -28,6 +28,7 @@ from stages import artifacts, network_weight
 from stages.errors import BadInput, MissingArtifact
 from stages.methods import DECODES, METHODS, MLN_MODES, NETWORKS, decoded_name, network_of
 from stages.mln import chain
+from stages.cross_validation import CrossValidated, cross_validate, test_weight
 from stages.network_weight import WeightChoice
 from stages.notes import Note
 from stages.recognizer import chain_of, decode_chain, fuse
@@ -97,6 +98,7 @@ class WorkdirPredictions:
     choices: dict[str, WeightChoice] = field(default_factory=dict)  # decoded network methods -> network weight
     validation: dict[str, float] = field(default_factory=dict)  # method -> frame accuracy on the validation part
     notes: list[Note] = field(default_factory=list)
+    cross_validated: CrossValidated | None = None  # with fold networks: every method's cross-validated figures
 
 
 def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("none",),
@@ -134,6 +136,8 @@ def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("non
         if mln_inputs is None:
             raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
         _decode(inputs, decoding, available, network_weight_option, result)
+    if inputs.folds is not None:
+        result.cross_validated = cross_validate(inputs, mln_mode, decodes, available, network_weight_option)
     if validation.any():
         result.validation.update({name: float((predicted[validation] == data.labels[validation]).mean())
                                   for name, predicted in result.predicted.items()})
@@ -146,9 +150,11 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
 
     data, mln_inputs, runs = inputs.data, inputs.mln, inputs.networks
     mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, len(inputs.classes))
-    unvalidated = sorted(n for n, r in runs.items() if not r.checkpoint.config.get("val_spans"))
+    folded = set() if inputs.folds is None else set(inputs.folds.log_probs)
+    unvalidated = sorted(n for n, r in runs.items() if not r.checkpoint.config.get("val_spans") and n not in folded)
     result.notes += network_weight.decoding_notes(mln.temporal, unvalidated if network_weight_option is None else [])
     split_parts = np.where(data.splits == "test", "test", "train")
+    learned: dict[str, float] = {}  # method -> its network factor's weight learned on out-of-fold predictions
     for kind in decoding:
         for method in available:
             network, name = network_of(method), decoded_name(method, kind)
@@ -156,6 +162,11 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
             weight = 1.0
             if network is not None and network_weight_option is not None:
                 weight = network_weight_option
+            elif network in folded:
+                if method not in learned:
+                    learned[method] = test_weight(method, inputs, mln)
+                result.choices[name] = WeightChoice(learned[method], None, {}, "learned")
+                weight = learned[method]
             elif network is not None:
                 choice = network_weight.choose(method, kind, mln, mln_inputs.evidence, data.episodes, rows,
                                                runs[network].log_probs, data.labels)
@@ -190,6 +201,12 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
         "network_weights": {m: c.record() for m, c in predicted.choices.items()},
         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
         "notes": [n.text for n in predicted.notes], "note_codes": [n.code for n in predicted.notes],
+        "cross_validation": None,
     }
+    cv = predicted.cross_validated
+    if cv is not None:
+        meta["cross_validation"] = {"folds": inputs.folds.folds.record(),
+                                    "figures": {m: cv.figures[m] for m in methods if m in cv.figures},
+                                    "fold_network_weights": cv.fold_weights}
     path = artifacts.write_table(table, workdir / artifacts.PREDICTIONS, "predictions", meta, inputs=inputs.inputs)
     return ConflateResult(path, methods, predicted.notes, predicted.choices)

@@ -13,7 +13,8 @@ import polars as pl
 
 from stages import artifacts, sequences
 from stages.checkpoints import Checkpoint, load_checkpoint
-from stages.errors import StaleArtifact
+from stages.errors import BadInput, StaleArtifact
+from stages.folds import Folds
 from stages.notes import MISSING_INPUT, Note
 
 
@@ -74,6 +75,7 @@ class MLNInputs:
     scores: np.ndarray  # [n, C] summed per-frame formula weights
     columns: list[str]  # predicate columns, in evidence order
     evidence: np.ndarray  # bool [n, W]
+    predicates: pl.DataFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,16 @@ class NetworkRun:
     log_probs: np.ndarray  # [n, C]
 
 
+@dataclass(frozen=True)
+class FoldInputs:
+    """Cross-validation: the folds, each network's out-of-fold log-probabilities (training rows; 0 on test) and
+    each fold's MLN (weights learned without it)."""
+
+    folds: Folds
+    log_probs: dict[str, np.ndarray]  # network -> [n, C]
+    mln: list[MLNInputs]  # per fold; empty without weights.parquet
+
+
 @dataclass
 class WorkdirInputs:
     keys: pl.DataFrame
@@ -94,6 +106,7 @@ class WorkdirInputs:
     networks: dict[str, NetworkRun]
     inputs: list[Path]
     notes: list[Note] = field(default_factory=list)
+    folds: FoldInputs | None = None
 
     @property
     def classes(self) -> list[str]:
@@ -120,7 +133,7 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
         result.inputs += mln_inputs
         columns = artifacts.feature_columns(predicates)
         result.mln = MLNInputs(weights, classifier.class_scores(predicates, weights, len(result.classes)), columns,
-                               predicates.select(columns).to_numpy().astype(bool))
+                               predicates.select(columns).to_numpy().astype(bool), predicates)
     else:
         result.notes.append(Note(MISSING_INPUT, f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined "
                                                 "left out (run `mlnseq learn-weights`)"))
@@ -138,4 +151,45 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
         parts = parts_of(checkpoint.config, data.splits)
         spans = sequences.sequences(checkpoint.mode, data.episodes, parts, data.labels)
         result.networks[network] = NetworkRun(checkpoint, parts, checkpoint.network.log_probs(spans, data.features, prior))
+    result.folds = read_folds(workdir, result)
     return result
+
+
+def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
+    """The out-of-fold predictions of the networks trained with folds, and each fold's MLN; None when no network
+    was. Networks with other folds than each other, or an out-of-fold file that is not its checkpoint's, are refused."""
+    from stages import folds as folding
+    from stages.mln import classifier
+
+    folded = {n: r for n, r in inputs.networks.items() if r.checkpoint.config.get("folds")}
+    if not folded:
+        return None
+    records = {n: r.checkpoint.config["folds"] for n, r in folded.items()}
+    if len({str(r) for r in records.values()}) > 1:
+        raise BadInput(f"the networks were trained with different folds ({records}); retrain them with the same "
+                       "`train --folds K`")
+    first = next(iter(records.values()))
+    folds = folding.assign(inputs.data.episodes, inputs.data.splits, first["k"])
+    log_probs = {}
+    train = folds.fold >= 0
+    for network, run_ in folded.items():
+        folding.same(records[network], folds, str(artifacts.checkpoint_path(workdir, network)),
+                     f"`mlnseq train --method {network} --folds {first['k']}`")
+        path = artifacts.out_of_fold_path(workdir, network)
+        remedy = f"rerun `mlnseq train --method {network} --folds {first['k']}`"
+        if not path.exists():
+            raise BadInput(f"{path} not found, though {network} was trained with folds; {remedy}")
+        table, meta = artifacts.read_table(path, "out_of_fold")
+        if meta.get("options") != run_.checkpoint.config["options"] or table.height != int(train.sum()):
+            raise StaleArtifact(f"{path} is not the out-of-fold predictions of models/{network}.pt; {remedy}")
+        values = np.zeros_like(run_.log_probs)
+        values[train] = table.select(artifacts.log_prob_columns(values.shape[1])).to_numpy()
+        log_probs[network] = values
+        inputs.inputs.append(path)
+    mln = []
+    if inputs.mln is not None:
+        weights, path = folding.fold_weights(workdir, folds)
+        inputs.inputs.append(path)
+        mln = [MLNInputs(w, classifier.class_scores(inputs.mln.predicates, w, len(inputs.classes)), inputs.mln.columns,
+                         inputs.mln.evidence) for w in weights]
+    return FoldInputs(folds, log_probs, mln)
