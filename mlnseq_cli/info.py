@@ -36,6 +36,15 @@ def info(
         ("features", ", ".join(manifest["features"])),
         ("source", manifest.get("source", "")),
     ]
+    chosen = manifest.get("chosen_by_cross_validation")
+    if chosen:
+        figures = chosen["figures"]
+        rows.append(("chosen by", f"{chosen['folds']}-fold cross-validation among "
+                                  f"{', '.join(sorted(chosen['candidates']))}: segment accuracy "
+                                  f"{figures['segment_accuracy']:.1f} %, frame accuracy {figures['frame_accuracy']:.1f} %, "
+                                  f"edit {figures['edit']:.1f}, F1@50 {figures['f1_50']:.1f}"))
+    if manifest.get("network_weight_how") == "learned":
+        rows[1] = ("network factor weight", f"{weight:g} (learned on out-of-fold predictions)")
     network = manifest.get("network")
     if network:
         model_config = network["model"]

@@ -9,7 +9,7 @@ that needs no MLN (lstm, undecoded) carries no spec and no weights.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,9 @@ from stages.checkpoints import load_checkpoint
 from stages.errors import BadInput
 from stages.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
 from stages.notes import Note
+
+
+AUTO = "auto"  # --method auto: the decoded method with the best cross-validated figures in the workdir
 
 
 @dataclass(frozen=True)
@@ -30,8 +33,11 @@ class ExportOptions:
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
 
     def validate(self) -> None:
-        if self.method not in METHODS:
-            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if self.method not in (*METHODS, AUTO):
+            raise BadInput(f"unknown --method {self.method!r}: choose one of {', '.join(METHODS)} or {AUTO}")
+        if self.method == AUTO and self.decode not in ("filter", "viterbi"):
+            raise BadInput(f"--method {AUTO} chooses among decoded methods: add --decode filter (online) or "
+                           "--decode viterbi (offline)")
         if self.decode not in DECODES:
             raise BadInput(f"unknown --decode {self.decode!r}: choose one of {', '.join(DECODES)}")
         if self.mln_mode not in MLN_MODES:
@@ -53,6 +59,10 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
     workdir = Path(workdir)
+    chosen = None
+    if options.method == AUTO:
+        chosen = choose_method(workdir, options.decode)
+        options = replace(options, method=chosen["method"])
     frames_path = workdir / artifacts.FRAMES
     frames_meta = artifacts.read_metadata(frames_path, "frames")
     inputs = [frames_path]
@@ -93,6 +103,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "mln_mode": options.mln_mode,
         "network_weight": None if choice is None else choice.weight,
         "network_weight_how": None if choice is None else choice.how,
+        "chosen_by_cross_validation": chosen,
         "validation_frame_accuracy": None if choice is None else choice.accuracy,
         "classes": list(frames_meta["classes"]),
         "features": list(frames_meta["features"]),
@@ -107,16 +118,43 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     return Exported(recognizer.write_model(options.output_path(workdir), entries), manifest)
 
 
+def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
+    """``--method auto``: among the decoded methods conflate predicted in ``workdir`` with ``decode``, the one with
+    the best cross-validated choice score (cross_validation.choice_score), with its figures and the others'."""
+    from stages.cross_validation import choice_score
+
+    path = workdir / artifacts.PREDICTIONS
+    if not path.exists():
+        raise BadInput(f"--method {AUTO} chooses on the cross-validated figures conflate records: {path} not found; "
+                       f"run `mlnseq train --folds K` and `mlnseq conflate --decode {decode}` first")
+    meta = artifacts.read_metadata(path, "predictions")
+    figures = (meta.get("cross_validation") or {}).get("figures") or {}
+    candidates = {name: f for name, f in figures.items() if name.endswith(f"+{decode}")}
+    if not candidates:
+        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated {decode} figures; train its networks "
+                       f"with folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
+                       f"`mlnseq conflate --decode {decode}`")
+    best = max(candidates, key=lambda name: choice_score(candidates[name], decode))
+    return {"method": best.partition("+")[0], "name": best, "figures": candidates[best],
+            "score": choice_score(candidates[best], decode), "candidates": candidates,
+            "folds": meta["cross_validation"]["folds"]["k"]}
+
+
 def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:
     """The network factor's weight of the one decoded network method exported, as conflate chooses it, and
     the notes that bear on it."""
     from stages.mln.factors import MLNFactors
     from stages.workdir_inputs import read_workdir
 
+    from stages.cross_validation import test_weight
+
     network = network_of(options.method)
     inputs = read_workdir(workdir, (network,))
     run_, mln_inputs = inputs.networks[network], inputs.mln
     mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, len(inputs.classes))
+    if inputs.folds is not None and network in inputs.folds.log_probs:
+        return (network_weight.WeightChoice(test_weight(options.method, inputs, mln), None, {}, "learned"),
+                network_weight.decoding_notes(mln.temporal, []))
     unvalidated = [] if run_.checkpoint.config.get("val_spans") else [network]
     notes = network_weight.decoding_notes(mln.temporal, unvalidated)
     choice = network_weight.choose(options.method, options.decode, mln, mln_inputs.evidence, inputs.data.episodes,

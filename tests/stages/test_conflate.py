@@ -28,7 +28,7 @@ def predicted(tmp_path_factory, desk_mln_workdir):
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, workdir / name)
     train.run(workdir, train.TrainOptions(epochs=3))
-    train.run(workdir, train.TrainOptions(method="priorlayer", epochs=3, mode="stream"))
+    train.run(workdir, train.TrainOptions(method="priorlayer", epochs=3, mode="stream", folds=0))
     result = conflate.run(workdir, conflate.ConflateOptions())
     return workdir, result
 
