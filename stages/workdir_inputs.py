@@ -190,6 +190,9 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
     if inputs.mln is not None:
         weights, path = folding.fold_weights(workdir, folds)
         inputs.inputs.append(path)
-        mln = [MLNInputs(w, classifier.class_scores(inputs.mln.predicates, w, len(inputs.classes)), inputs.mln.columns,
-                         inputs.mln.evidence) for w in weights]
+        training = inputs.mln.predicates.filter(pl.Series(train))
+        for w in weights:  # a fold's MLN scores only training frames (cross-validation never reads test)
+            scores = np.zeros_like(inputs.mln.scores)
+            scores[train] = classifier.class_scores(training, w, len(inputs.classes))
+            mln.append(MLNInputs(w, scores, inputs.mln.columns, inputs.mln.evidence))
     return FoldInputs(folds, log_probs, mln)

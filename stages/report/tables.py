@@ -222,6 +222,11 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     return choices
 
 
+def _number(value: float | None) -> float | None:
+    """A figure for JSON: None where it is absent or not a number."""
+    return None if value is None or np.isnan(value) else float(value)
+
+
 def deploy_table(run: Run) -> list[list[str]]:
     """Per paper dataset and use (online: filter, offline: Viterbi), stream mode: every candidate with its
     cross-validated figures (training split) and its test figures side by side; the choice marked."""
@@ -252,9 +257,9 @@ def summary(run: Run) -> dict[str, Any]:
             if decode in choices:
                 c = choices[decode]
                 entry[use] = {"method": c["method"], "folder": c["folder"], "variant": c["variant"],
-                              "cv": {CV_METRICS[m]: c["cv"][m][0] for m in SEQUENCE_METRICS},
-                              "test": {CV_METRICS[m]: c[m][0] for m in SEQUENCE_METRICS}}
-        entry["lstm"] = {"test": {CV_METRICS[m]: lookup(stats[m], dataset=dataset, method="lstm")[0]
+                              "cv": {CV_METRICS[m]: _number(c["cv"][m][0]) for m in SEQUENCE_METRICS},
+                              "test": {CV_METRICS[m]: _number(c[m][0]) for m in SEQUENCE_METRICS}}
+        entry["lstm"] = {"test": {CV_METRICS[m]: _number(lookup(stats[m], dataset=dataset, method="lstm")[0])
                                   for m in SEQUENCE_METRICS}}
         out[dataset] = entry
     return out
