@@ -41,7 +41,7 @@ class ConflateOptions:
 
     mln_mode: str = "paper"
     decode: tuple[str, ...] = ("none",)  # any of none, filter, viterbi
-    network_weight: float | None = None  # decoded methods' network factor: None = chosen on validation
+    network_weight: float | None = None  # decoded methods' network factor: None = learned (folds) or chosen
 
     def validate(self) -> None:
         if self.mln_mode not in MLN_MODES:

@@ -49,8 +49,8 @@ class LearnWeightsOptions:
             raise BadInput(f"unknown --objective {self.objective!r}: choose one of {', '.join(OBJECTIVES)}")
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
             raise BadInput(f"--l2 must be a number >= 0, got {self.l2}")
-        if self.folds < 0 or self.folds == 1:
-            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2")
+        if self.folds < 0:
+            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2 folds")
 
     def formulas_path(self, workdir: Path) -> Path:
         path = Path(self.formulas)
@@ -264,12 +264,12 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
-    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path))
     folds = None
     if options.folds:
         from stages import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
+    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path))
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}

@@ -74,8 +74,8 @@ class TrainOptions:
         for name in ("epochs", "batch_size", "window", "hidden_size"):
             if getattr(self, name) < 1:
                 raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
-        if self.folds is not None and (self.folds < 0 or self.folds == 1):
-            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2")
+        if self.folds is not None and self.folds < 0:
+            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2 folds")
         if not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
         if self.device == "cuda":

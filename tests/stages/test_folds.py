@@ -129,3 +129,11 @@ def test_a_fold_lacking_a_class_is_a_warning_naming_fold_and_class():
     labels = np.r_[np.zeros(20, int), np.ones(40, int)]  # class a only in fold 0
     assert folds.missing_classes(cut, labels, ["a", "b"]) == [
         "fold 0: its fit part lacks class a; its out-of-fold predictions are written all the same"]
+
+
+def test_train_refuses_a_bad_k_before_training(desk_frames_workdir, tmp_path):
+    shutil.copy(desk_frames_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
+    for k in (1, 71):
+        with pytest.raises(BadInput, match=f"--folds {k}: .* use --folds 70"):
+            train.run(tmp_path, train.TrainOptions(mode="stream", epochs=1, folds=k))
+    assert not (tmp_path / artifacts.MODELS_DIR).exists()
