@@ -46,6 +46,7 @@ MODES ?= segment stream
 TEMPORAL_MODES ?= $(MODES)
 ABLATION_MODES ?= stream
 JOBS ?= 2
+FOLDS ?= 5
 DESK_DIR ?= ../shared/data/desk-taurus
 FETCH_SPEC ?= stages/specs/fetch.binarize.toml
 FETCH_RICH_SPEC ?= examples/fetch-rich.binarize.toml
@@ -67,9 +68,13 @@ HAVE_DESK := $(if $(filter 2,$(words $(wildcard $(DESK_FILES)))),yes)
 #                   mode and seed (linked) and, in stream mode, a PriorLayer trained on its weights: the
 #                   decoded rows
 #   D-order         examples/D.order.mln (temporal.mln plus the order as hard rules); D's LSTM only
+#   D-conjunctive   examples/conjunctive.mln (temporal.mln's transitions written as a conjunction); D's LSTM only
 #   D-fixed-weight  D-temporal's weights and LSTM (linked), decoded with the network factor's weight 1
 # D's own stream workdirs are decoded too (the paper's formulas: uniform transitions). The last three are
 # the ablation, in ABLATION_MODES.
+# Cross-validation (stream mode): D and its variants learn each of FOLDS folds' MLN weights beside their own
+# (learn-weights --folds), and the stream networks are trained with FOLDS fold networks (train --folds):
+# conflate learns the network factor's weight and scores every method on the out-of-fold predictions.
 seed_dirs = $(foreach mode,$(2),$(foreach seed,$(3),$(RUNS)/$(1)/$(mode)/seed-$(seed)))
 FRACTION_DATASETS := $(FRACTIONS:%=fetch-fraction-%)
 SEQUENTIAL := fetch $(if $(HAVE_DESK),desk)
@@ -77,7 +82,8 @@ SEED_DIRS := $(call seed_dirs,fetch,$(MODES),$(SEEDS)) $(call seed_dirs,fetch-ri
   $(foreach d,$(FRACTION_DATASETS),$(call seed_dirs,$(d),segment,$(FRACTION_SEEDS))) \
   $(if $(HAVE_DESK),$(call seed_dirs,desk,$(MODES),$(SEEDS))) \
   $(foreach d,$(SEQUENTIAL),$(call seed_dirs,$(d)-temporal,$(TEMPORAL_MODES),$(SEEDS)) \
-    $(call seed_dirs,$(d)-order,$(ABLATION_MODES),$(SEEDS)) $(call seed_dirs,$(d)-fixed-weight,$(ABLATION_MODES),$(SEEDS)))
+    $(call seed_dirs,$(d)-order,$(ABLATION_MODES),$(SEEDS)) $(call seed_dirs,$(d)-conjunctive,$(ABLATION_MODES),$(SEEDS)) \
+    $(call seed_dirs,$(d)-fixed-weight,$(ABLATION_MODES),$(SEEDS)))
 # The causal TCN (stages/networks/tcn.py) per paper dataset D, stream mode: D-tcn links D's frames, predicates
 # and weights, and its lstm and priorlayer models are TCNs (--cell tcn), undecoded. TCN_DATASETS= leaves it out.
 TCN_DATASETS ?= $(SEQUENTIAL:%=%-tcn)
@@ -99,8 +105,10 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 
 MLN_SOURCES := $(wildcard stages/mln/*.py)
 NETWORK_SOURCES := $(wildcard stages/networks/*.py)
-TRAIN_SOURCES := stages/train.py $(NETWORK_SOURCES) stages/sequences.py
-RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py $(NETWORK_SOURCES) stages/sequences.py $(MLN_SOURCES)
+TRAIN_SOURCES := stages/train.py $(NETWORK_SOURCES) stages/sequences.py stages/folds.py
+RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/methods.py stages/checkpoints.py stages/network_weight.py \
+  stages/notes.py stages/workdir_inputs.py stages/cross_validation.py stages/folds.py $(NETWORK_SOURCES) \
+  stages/sequences.py $(MLN_SOURCES)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
@@ -133,20 +141,27 @@ endef
 # Seed workdirs of FOLDER that run NETWORK of SOURCE's workdir of the same mode and seed (a link).
 define linked_network
 $(RUNS)/$(1)/%/models/$(3).pt: $(RUNS)/$(2)/%/models/$(3).pt | $(RUNS)/$(1)/%/.inputs-linked
-	@mkdir -p $$(@D) && ln -sfn ../../../../$(2)/$$*/models/$(3).pt $$@
+	@mkdir -p $$(@D) && ln -sfn ../../../../$(2)/$$*/models/$(3).oof.parquet $$(@D)/$(3).oof.parquet \
+	  && ln -sfn ../../../../$(2)/$$*/models/$(3).pt $$@
 endef
 $(foreach d,$(SEQUENTIAL),\
   $(eval $(call linked_files,$(d)-temporal,$(d),frames.parquet predicates.parquet)) \
   $(eval $(call linked_files,$(d)-order,$(d),frames.parquet predicates.parquet)) \
-  $(eval $(call linked_files,$(d)-fixed-weight,$(d)-temporal,frames.parquet predicates.parquet weights.parquet)) \
+  $(eval $(call linked_files,$(d)-conjunctive,$(d),frames.parquet predicates.parquet)) \
+  $(eval $(call linked_files,$(d)-fixed-weight,$(d)-temporal,frames.parquet predicates.parquet weights.parquet \
+    weights.folds.parquet)) \
   $(eval $(call linked_network,$(d)-temporal,$(d),lstm)) $(eval $(call linked_network,$(d)-order,$(d),lstm)) \
+  $(eval $(call linked_network,$(d)-conjunctive,$(d),lstm)) \
   $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)))
 $(foreach d,$(TCN_DATASETS),$(eval $(call linked_files,$(d),$(d:%-tcn=%),frames.parquet predicates.parquet weights.parquet)))
 
 .SECONDEXPANSION:
 .SECONDARY:  # keep every artifact the chain makes
 spec_of = $(if $(filter fetch-rich,$(1)),$(FETCH_RICH_SPEC),$(if $(filter desk,$(1)),$(DESK_SPEC),$(FETCH_SPEC)))
-formulas_of = $(if $(filter %-temporal,$(1)),$(TEMPORAL_SPEC),$(if $(filter %-order,$(1)),examples/$(1:%-order=%).order.mln,$(FORMULAS_SPEC)))
+formulas_of = $(if $(filter %-temporal,$(1)),$(TEMPORAL_SPEC),$(if $(filter %-order,$(1)),examples/$(1:%-order=%).order.mln,\
+  $(if $(filter %-conjunctive,$(1)),examples/conjunctive.mln,$(FORMULAS_SPEC))))
+# The dataset folders whose stream workdirs cross-validate: each fold's MLN weights are learned too.
+FOLDED := $(foreach d,$(SEQUENTIAL),$(d) $(d)-temporal $(d)-order $(d)-conjunctive)
 
 $(RUNS)/%/predicates.parquet: $(RUNS)/%/frames.parquet $$(call spec_of,$$*) stages/binarize.py
 	$(STAGE) binarize --spec $(call spec_of,$*) --workdir $(@D)
@@ -156,30 +171,32 @@ $(RUNS)/%/formulas.mln: $(RUNS)/%/predicates.parquet $$(call formulas_of,$$*) st
 
 # pll for the paper's per-frame formulas, cll (exact conditional likelihood) where a formula uses Next.
 $(RUNS)/%/weights.parquet: $(RUNS)/%/formulas.mln stages/learn_weights.py $(MLN_SOURCES)
-	$(STAGE) learn-weights $< --workdir $(@D)
+	$(STAGE) $(strip learn-weights $< $(if $(filter $(FOLDED),$*),--folds $(FOLDS)) --workdir $(@D))
 
-# A seed workdir DATASET/MODE/seed-N links its dataset's frames, predicates and weights. In stream mode
-# the networks hold out a validation part and keep their last epoch (--select last): the part chooses the
-# decoded methods' network factor weight and the method to deploy. (Choosing the epoch there too, with
-# --select val_accuracy, kept epochs as early as the 3rd on a part this small.) Segment mode keeps the paper's protocol
-# (last epoch, no validation part).
+$(RUNS)/%/weights.folds.parquet: $(RUNS)/%/weights.parquet
+	@test -e $@ || { echo "$@ missing: $* learns no fold weights (FOLDED in the Makefile)"; false; }
+
+# A seed workdir DATASET/MODE/seed-N links its dataset's frames, predicates and weights (and fold weights). In
+# stream mode the networks train on the whole training split and FOLDS fold networks beside them (--folds):
+# conflate learns the decoded methods' network factor weight on their out-of-fold predictions and scores every
+# method there, which chooses the method to deploy. Segment mode keeps the paper's protocol (last epoch, no folds).
 stem_word = $(word $(1),$(subst /, ,$*))
 dataset_dir = $(RUNS)/$(call stem_word,1)
 mode_of = $(call stem_word,2)
 train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
   --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
-  $(if $(filter stream,$(mode_of)),--select last) $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn)
+  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn --folds 0,$(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0))
 # The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
 # only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
 networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\
-  $(if $(filter %-order %-fixed-weight,$(call stem_word,1)),,priorlayer))
+  $(if $(filter %-order %-conjunctive %-fixed-weight,$(call stem_word,1)),,priorlayer))
 # Decoded: the sequential folders, and the paper datasets' stream workdirs (their ablation row).
-decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-fixed-weight) \
+decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-conjunctive) $(SEQUENTIAL:%=%-fixed-weight) \
   $(if $(filter stream,$(mode_of)),$(SEQUENTIAL)),$(call stem_word,1))
 conflate_flags = $(if $(decoded),--decode all) $(if $(filter %-fixed-weight,$(call stem_word,1)),--network-weight 1)
 
 $(RUNS)/%/.inputs-linked:
-	@mkdir -p $(@D) && for name in frames predicates weights; do ln -sfn ../../$$name.parquet $(@D)/$$name.parquet; done
+	@mkdir -p $(@D) && for name in frames predicates weights weights.folds; do ln -sfn ../../$$name.parquet $(@D)/$$name.parquet; done
 	@touch $@
 
 $(RUNS)/%/models/lstm.pt: $$(dataset_dir)/frames.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
@@ -190,7 +207,8 @@ $(RUNS)/%/models/priorlayer.pt: $$(dataset_dir)/frames.parquet $$(dataset_dir)/p
 	$(STAGE) $(strip train --method priorlayer $(train_flags) --workdir $(RUNS)/$*)
 
 $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(n).pt) \
-  $$(foreach name,frames predicates weights,$$(dataset_dir)/$$(name).parquet) $(RECOGNIZER_SOURCES)
+  $$(foreach name,frames predicates weights,$$(dataset_dir)/$$(name).parquet) $(RECOGNIZER_SOURCES) \
+  $$(if $$(filter $(FOLDED) $(SEQUENTIAL:%=%-fixed-weight),$$(call stem_word,1)),$$(dataset_dir)/weights.folds.parquet)
 	$(STAGE) $(strip conflate $(conflate_flags) --workdir $(@D))
 
 $(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet stages/eval.py stages/metrics.py

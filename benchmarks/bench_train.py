@@ -2,7 +2,9 @@
 of the same model (the authors' loop: a tensor built from Python lists per segment, one SGD step per
 segment, torch's default threads), on the DESK training split and on a Fetch collection; the ratio is
 reported, not judged (the earlier 20x target is retired: a small LSTM's batch-1 step is already cheap on a
-CPU). Per-frame streaming recognition: bench_recognize.
+CPU). Beside it, cross-validation's cost: `train --mode stream` of one network against the same with
+``--folds 5`` (the network refit on the whole training split plus 5 fold networks, in one process), on
+DESK. Per-frame streaming recognition: bench_recognize.
 
 ``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
 """
@@ -92,10 +94,31 @@ def compare(name: str, data: train.FrameData) -> None:
           f"{base_one / ours_wide:.1f}x)")
 
 
+def fold_training(frames_path: Path, epochs: int = 20) -> None:
+    """`train --mode stream` with no folds against --folds 5, on the same frames, timed side by side."""
+    import shutil
+    import tempfile
+
+    seconds = {}
+    with tempfile.TemporaryDirectory() as folder:
+        shutil.copy(frames_path, Path(folder) / "frames.parquet")
+        for k in (0, 5):
+            started = time.perf_counter()
+            train.run(Path(folder), train.TrainOptions(mode="stream", epochs=epochs, folds=k))
+            seconds[k] = time.perf_counter() - started
+    print(f"desk: stream training, {epochs} epochs: one network {seconds[0]:.1f} s; the network and 5 fold "
+          f"networks (--folds 5) {seconds[5]:.1f} s ({seconds[5] / seconds[0]:.1f}x one network's time)")
+
+
 def main() -> None:
+    import tempfile
+
     desk = collect.collect(collect.CollectOptions(env="desk", source=DESK_SOURCE)).frames
     desk_data = train.FrameData.from_frames(desk)
     compare("desk", desk_data)
+    with tempfile.TemporaryDirectory() as folder:
+        collect.run(Path(folder), collect.CollectOptions(env="desk", source=DESK_SOURCE))
+        fold_training(Path(folder) / "frames.parquet")
     episodes = int(os.environ.get("BENCH_FETCH_EPISODES", "20"))
     try:
         fetch = collect.collect(collect.CollectOptions(env="fetch", episodes=episodes, seed=0,

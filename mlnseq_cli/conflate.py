@@ -17,15 +17,17 @@ def conflate(
     network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight chosen on the validation part)."""
+    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight learned on the out-of-fold predictions of networks trained with --folds, else chosen on the validation part; with fold networks also every method's cross-validated figures on the training split, in the metadata)."""
     with reported_errors():
         options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
                                         network_weight=stage.parse_network_weight(network_weight))
     with reported_errors():
         result = stage.run(workdir, options)
     for note in result.notes:
-        console.print(f"[yellow]note[/]: {escape(note)}")
+        console.print(f"[yellow]note[/]: {escape(note.text)}")
     for name, choice in result.choices.items():
-        if choice.accuracy is not None:
+        if choice.how == "learned":
+            console.print(f"{name}: network factor weight {choice.weight:.3g} (learned on out-of-fold predictions)")
+        elif choice.accuracy is not None:
             console.print(f"{name}: network factor weight {choice.weight:g} (validation frame accuracy {choice.accuracy:.1%})")
     console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)})")

@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
-from stages import model_file, networks, recognizer
+from stages import methods, model_file, networks, recognizer
 
 
 def info(
@@ -29,13 +29,22 @@ def info(
     weight = manifest.get("network_weight")
     accuracy = manifest.get("validation_frame_accuracy")
     rows = [
-        ("method", recognizer.decoded_name(manifest["method"], manifest["decode"])),
+        ("method", methods.decoded_name(manifest["method"], manifest["decode"])),
         ("network factor weight", "–" if weight is None else f"{weight:g}"
          + ("" if accuracy is None else f" (validation frame accuracy {accuracy:.1%})")),
         ("classes", ", ".join(manifest["classes"])),
         ("features", ", ".join(manifest["features"])),
         ("source", manifest.get("source", "")),
     ]
+    chosen = manifest.get("chosen_by_cross_validation")
+    if chosen:
+        figures = chosen["figures"]
+        rows.append(("chosen by", f"{chosen['folds']}-fold cross-validation among "
+                                  f"{', '.join(sorted(chosen['candidates']))}: segment accuracy "
+                                  f"{figures['segment_accuracy']:.1f} %, frame accuracy {figures['frame_accuracy']:.1f} %, "
+                                  f"edit {figures['edit']:.1f}, F1@50 {figures['f1_50']:.1f}"))
+    if manifest.get("network_weight_how") == "learned":
+        rows[1] = ("network factor weight", f"{weight:g} (learned on out-of-fold predictions)")
     network = manifest.get("network")
     if network:
         model_config = network["model"]

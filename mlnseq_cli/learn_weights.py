@@ -22,13 +22,16 @@ def learn_weights(
     l2: Annotated[Optional[float], typer.Option(
         help="L2 penalty (Gaussian prior) on the learned weights; default: 0 for pll, 0.1 for cll.",
         show_default=False)] = None,
+    folds: Annotated[int, typer.Option(
+        help="K >= 2: also learn each of K folds' weights without that fold, for cross-validation "
+             "(the folds of `train --folds K`); 0: none.")] = 0,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln."""
+    """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln (with --folds K also WORKDIR/weights.folds.parquet, each fold's weights learned without it)."""
     from stages import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
     from stages.mln.weights_table import strongest, strongest_temporal
 
-    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2)
+    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2, folds=folds)
     with reported_errors():
         options.validate()
         path, learned = stage.run(workdir, options)

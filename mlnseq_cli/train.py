@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Iterator
-from typing import Annotated
+from typing import Annotated, Optional
 
 import polars as pl
 import typer
@@ -27,6 +27,7 @@ def train(
     cell: Annotated[str, typer.Option(help=f"Network type: {', '.join(networks.CELLS)} (tcn: a causal temporal convolutional network).")] = Defaults.cell,
     prior: Annotated[str, typer.Option(help="priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).")] = Defaults.prior,
     select: Annotated[str, typer.Option(help="none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, keep the best epoch on it.")] = Defaults.select,
+    folds: Annotated[Optional[int], typer.Option(help="Cross-validation: also train K networks, each without one fold of the training split (whole episodes, else contiguous blocks), and write their out-of-fold predictions of every training frame (models/METHOD.oof.parquet), on which conflate learns the network factor's weight and chooses. Default: 5 (or as many as the split allows) in stream mode with --select none, else 0 (none).", show_default=False)] = None,
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
     train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, 0 < F <= 1.")] = Defaults.train_fraction,
     batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
@@ -36,7 +37,7 @@ def train(
 ) -> None:
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch, split, accuracy, loss)."""
     options = stage.TrainOptions(
-        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, device=device,
+        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, folds=folds, device=device,
         train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing,
     )
     with reported_errors():

@@ -34,6 +34,7 @@ FRAMES = "frames.parquet"
 PREDICATES = "predicates.parquet"
 FORMULAS = "formulas.mln"
 WEIGHTS = "weights.parquet"
+FOLD_WEIGHTS = "weights.folds.parquet"  # each fold's MLN weights, learned without that fold (column fold)
 LEARNED_MLN = "learned.mln"
 MODELS_DIR = "models"
 PREDICTIONS = "predictions.parquet"
@@ -45,6 +46,7 @@ PRODUCED_BY = {
     PREDICATES: "binarize",
     FORMULAS: "formulas",
     WEIGHTS: "learn-weights",
+    FOLD_WEIGHTS: "learn-weights --folds K",
     LEARNED_MLN: "learn-weights",
     MODELS_DIR: "train",
     PREDICTIONS: "conflate",
@@ -69,6 +71,17 @@ def checkpoint_path(workdir: Path, method: str) -> Path:
 def train_log_path(workdir: Path, method: str) -> Path:
     """The per-epoch training log (epoch, split, accuracy, loss) of one training method."""
     return workdir / MODELS_DIR / f"{method}.log.parquet"
+
+
+def out_of_fold_path(workdir: Path, method: str) -> Path:
+    """A network's out-of-fold class log-probabilities of every training frame (episode, frame, fold, lp0..):
+    each fold's rows predicted by the fold network trained without it."""
+    return workdir / MODELS_DIR / f"{method}.oof.parquet"
+
+
+def log_prob_columns(n_classes: int) -> list[str]:
+    """The out-of-fold artifact's class log-probability columns."""
+    return [f"lp{k}" for k in range(n_classes)]
 
 
 def prob_columns(method: str, n_classes: int) -> list[str]:

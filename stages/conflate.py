@@ -9,20 +9,30 @@ renormalised to sum to 1 (the argmax is the same either way).
 Methods: lstm, priorlayer (the networks), mln (the MLN classifier alone), conflation (lstm + MLN)
 and combined (priorlayer + MLN); with ``--decode filter`` or ``viterbi`` also METHOD+filter (online
 forward filtering) and METHOD+viterbi (offline: the most probable path, forward-backward marginals).
-A method whose inputs are absent is left out with a note. The work is stages/recognizer.py's.
+A method whose inputs are absent is left out with a note. The core (:func:`predict`) works on the
+workdir's arrays (stages/workdir_inputs.py); fusion and decoding are stages/recognizer.py's, the
+network factor's weight stages/network_weight.py's.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
 
-from stages import artifacts, recognizer
-from stages.errors import BadInput, check_choice
-from stages.recognizer import DECODES, MLN_MODES
+from stages import artifacts, network_weight
+from stages.errors import BadInput, MissingArtifact, check_choice
+from stages.methods import DECODES, METHODS, MLN_MODES, NETWORKS, decoded_name, network_of
+from stages.mln import chain
+from stages.cross_validation import CrossValidated, cross_validate, test_weight
+from stages.network_weight import WeightChoice
+from stages.notes import CHAIN_RESTARTED, Note
+from stages.recognizer import chain_of, decode_chain, fuse, restart_note
+from stages.workdir_inputs import WorkdirInputs, read_workdir
 
 
 @dataclass(frozen=True)
@@ -31,7 +41,7 @@ class ConflateOptions:
 
     mln_mode: str = "paper"
     decode: tuple[str, ...] = ("none",)  # any of none, filter, viterbi
-    network_weight: float | None = None  # decoded methods' network factor: None = chosen on validation
+    network_weight: float | None = None  # decoded methods' network factor: None = learned (folds) or chosen
 
     def validate(self) -> None:
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
@@ -75,33 +85,132 @@ def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray],
     return pl.concat(columns, how="horizontal")
 
 
+@dataclass
+class WorkdirPredictions:
+    """Every method's class probabilities over a workdir's frames, with what was chosen and said."""
+
+    probabilities: dict[str, np.ndarray] = field(default_factory=dict)  # method name (decoded too) -> [n, C]
+    predicted: dict[str, np.ndarray] = field(default_factory=dict)  # method name -> [n] class index
+    modes: dict[str, str] = field(default_factory=dict)  # method name -> segment | stream | frame
+    choices: dict[str, WeightChoice] = field(default_factory=dict)  # decoded network methods -> network weight
+    validation: dict[str, float] = field(default_factory=dict)  # method -> frame accuracy on the validation part
+    notes: list[Note] = field(default_factory=list)
+    cross_validated: CrossValidated | None = None  # with fold networks: every method's cross-validated figures
+    restarts: dict[str, list[tuple[Any, int]]] = field(default_factory=dict)  # decoded method -> (episode, frame)
+
+
+def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("none",),
+            methods: Sequence[str] = METHODS, network_weight_option: float | None = None) -> WorkdirPredictions:
+    """Fuse and decode the workdir's networks and MLN (pure, on the arrays ``inputs`` holds).
+
+    A method whose inputs are absent is left out. A decoded network method's network factor weight is
+    ``network_weight_option`` when given, else chosen on the validation part its network held out in training
+    (never on test); a network trained without one keeps the weight 1, and a note says so.
+    """
+    from stages.mln import classifier
+
+    data, mln_inputs = inputs.data, inputs.mln
+    result = WorkdirPredictions(notes=list(inputs.notes))
+    p_mln = None
+    if mln_inputs is not None:
+        p_mln = np.exp(classifier.class_log_probs(mln_inputs.scores, mln_mode, inputs.source))
+    runs = inputs.networks
+    available = [m for m in methods if (network_of(m) is None or network_of(m) in runs)
+                 and (m in NETWORKS or p_mln is not None)]
+    if not available:
+        raise MissingArtifact("nothing to predict with in this workdir: run `mlnseq learn-weights` "
+                              "and/or `mlnseq train` first")
+    for method in available:
+        network = network_of(method)
+        probabilities = fuse(method, None if network is None else np.exp(runs[network].log_probs), p_mln)
+        result.probabilities[method], result.predicted[method] = probabilities, probabilities.argmax(1)
+        result.modes[method] = "frame" if network is None else runs[network].checkpoint.mode
+
+    validation = np.zeros(len(data.labels), dtype=bool)  # every network holds out the same units, given the same options
+    for run_ in runs.values():
+        validation |= run_.parts == "val"
+    decoding = [d for d in decodes if d != "none"]
+    if decoding:
+        if mln_inputs is None:
+            raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
+        _decode(inputs, decoding, available, network_weight_option, result)
+    if inputs.folds is not None:
+        result.cross_validated = cross_validate(inputs, mln_mode, decodes, available, network_weight_option)
+    if validation.any():
+        result.validation.update({name: float((predicted[validation] == data.labels[validation]).mean())
+                                  for name, predicted in result.predicted.items()})
+    return result
+
+
+def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], network_weight_option: float | None,
+            result: WorkdirPredictions) -> None:
+    from stages.mln.factors import MLNFactors
+
+    data, mln_inputs, runs = inputs.data, inputs.mln, inputs.networks
+    mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, inputs.classes)
+    folded = set() if inputs.folds is None else set(inputs.folds.log_probs)
+    unvalidated = sorted(n for n, r in runs.items() if not r.checkpoint.config.get("val_spans") and n not in folded)
+    result.notes += network_weight.decoding_notes(mln.temporal, unvalidated if network_weight_option is None else [])
+    split_parts = np.where(data.splits == "test", "test", "train")
+    learned: dict[str, float] = {}  # method -> its network factor's weight learned on out-of-fold predictions
+    for kind in decoding:
+        for method in available:
+            network, name = network_of(method), decoded_name(method, kind)
+            rows = runs[network].parts if network is not None else split_parts
+            weight = 1.0
+            if network is not None and network_weight_option is not None:
+                weight = network_weight_option
+            elif network in folded:
+                if method not in learned:
+                    learned[method] = test_weight(method, inputs, mln)
+                result.choices[name] = WeightChoice(learned[method], None, {}, "learned")
+                weight = learned[method]
+            elif network is not None:
+                choice = network_weight.choose(method, kind, mln, mln_inputs.evidence, data.episodes, rows,
+                                               runs[network].log_probs, data.labels)
+                result.choices[name], weight = choice, choice.weight
+            factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
+                               runs[network].log_probs if network is not None else None, weight)
+            decoded = decode_chain(kind, factors)
+            result.probabilities[name], result.predicted[name] = decoded.probabilities, decoded.path
+            if len(decoded.restarts):
+                keys, names = inputs.keys[decoded.restarts], inputs.meta.get("episode_names") or []  # the user's ids
+                result.restarts[name] = [(names[e] if 0 <= e < len(names) else e, f)
+                                         for e, f in zip(keys["episode"].to_list(), keys["frame"].to_list())]
+                result.notes.append(Note(CHAIN_RESTARTED, restart_note(name, result.restarts[name])))
+            result.modes[name] = result.modes[method]
+
+
 @dataclass(frozen=True)
 class ConflateResult:
     path: Path
     methods: list[str]
-    notes: list[str]
-    choices: dict[str, recognizer.WeightChoice]
+    notes: list[Note]
+    choices: dict[str, WeightChoice]
 
 
 def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     """Read frames, models and MLN weights from ``workdir``; write ``predictions.parquet``."""
     options.validate()
     workdir = Path(workdir)
-    predicted = recognizer.predict_workdir(workdir, options.mln_mode, options.decodes,
-                                           network_weight=options.network_weight)
-    methods = [recognizer.decoded_name(m, d) for d in options.decodes for m in recognizer.METHODS
-               if recognizer.decoded_name(m, d) in predicted.probabilities]
-    table = predictions_table(predicted.keys, {m: predicted.probabilities[m] for m in methods}, predicted.predicted)
-    meta = predicted.meta
-    path = artifacts.write_table(
-        table, workdir / artifacts.PREDICTIONS, "predictions",
-        {"methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": options.mln_mode,
-         "decode": list(options.decodes), "network_weight_option": options.network_weight, "classes": meta["classes"], "source": meta.get("source", ""),
-         "network_weights": {m: {"weight": c.weight, "validation_frame_accuracy": c.accuracy,
-                                 "tried": {str(w): a for w, a in c.tried.items()}}
-                             for m, c in predicted.choices.items()},
-         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
-         "notes": predicted.notes},
-        inputs=predicted.inputs,
-    )
+    inputs = read_workdir(workdir, NETWORKS)
+    predicted = predict(inputs, options.mln_mode, options.decodes, network_weight_option=options.network_weight)
+    methods = [decoded_name(m, d) for d in options.decodes for m in METHODS
+               if decoded_name(m, d) in predicted.probabilities]
+    table = predictions_table(inputs.keys, {m: predicted.probabilities[m] for m in methods}, predicted.predicted)
+    meta: dict[str, Any] = {
+        "methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": options.mln_mode,
+        "decode": list(options.decodes), "network_weight_option": options.network_weight,
+        "classes": inputs.classes, "source": inputs.source,
+        "network_weights": {m: c.record() for m, c in predicted.choices.items()},
+        "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
+        "notes": [n.text for n in predicted.notes], "note_codes": [n.code for n in predicted.notes],
+        "cross_validation": None,
+    }
+    cv = predicted.cross_validated
+    if cv is not None:
+        meta["cross_validation"] = {"folds": inputs.folds.folds.record(),
+                                    "figures": {m: cv.figures[m] for m in methods if m in cv.figures},
+                                    "fold_network_weights": cv.fold_weights}
+    path = artifacts.write_table(table, workdir / artifacts.PREDICTIONS, "predictions", meta, inputs=inputs.inputs)
     return ConflateResult(path, methods, predicted.notes, predicted.choices)

@@ -17,7 +17,7 @@ import polars as pl
 from stages import artifacts
 from stages.errors import BadInput
 from stages.metrics import score_method
-from stages import recognizer
+from stages import methods
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class EvalOptions:
 
     def validate(self) -> None:
         if self.method != "all":
-            recognizer.parse_method(self.method)
+            methods.parse_method(self.method)
         if not 0 < self.fraction <= 1:
             raise BadInput(f"--fraction must be in (0, 1], got {self.fraction}")
 
@@ -56,7 +56,7 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
 
 
 def _remedy(method: str) -> str:
-    base, decode = recognizer.parse_method(method)
+    base, decode = methods.parse_method(method)
     stage = {"lstm": "train --method lstm", "priorlayer": "train --method priorlayer",
              "conflation": "train --method lstm", "combined": "train --method priorlayer",
              "mln": "learn-weights"}[base]

@@ -10,13 +10,18 @@ and no weights. stages/model_file.py writes and reads it (docs/model-file.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from stages import artifacts, model_file, recognizer
+from stages import artifacts, model_file, network_weight, recognizer
+from stages.checkpoints import load_checkpoint
 from stages.errors import BadInput, check_choice
-from stages.recognizer import DECODES, MLN_MODES
+from stages.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
+from stages.notes import Note
+
+
+AUTO = "auto"  # --method auto: the decoded method with the best cross-validated figures in the workdir
 
 
 @dataclass(frozen=True)
@@ -29,14 +34,17 @@ class ExportOptions:
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
 
     def validate(self) -> None:
-        check_choice("method", self.method, recognizer.METHODS)
+        check_choice("method", self.method, METHODS, more=AUTO)
+        if self.method == AUTO and self.decode not in ("filter", "viterbi"):
+            raise BadInput(f"--method {AUTO} chooses among decoded methods: add --decode filter (online) or "
+                           "--decode viterbi (offline)")
         check_choice("decode", self.decode, DECODES)
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
 
     def output_path(self, workdir: Path) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{recognizer.decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
+        return Path(workdir) / f"{decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -49,14 +57,18 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
     workdir = Path(workdir)
+    chosen = None
+    if options.method == AUTO:
+        chosen = choose_method(workdir, options.decode)
+        options = replace(options, method=chosen["method"])
     frames_path = workdir / artifacts.FRAMES
     frames_meta = artifacts.read_metadata(frames_path, "frames")
     inputs = [frames_path]
     notes: list[str] = []
-    network_name = recognizer.network_of(options.method)
+    network_name = network_of(options.method)
     checkpoint = network = None
     if network_name is not None:
-        checkpoint = recognizer.load_checkpoint(workdir, network_name, frames_meta)
+        checkpoint = load_checkpoint(workdir, network_name, frames_meta)
         inputs.append(artifacts.checkpoint_path(workdir, network_name))
         config = checkpoint.config
         network = {"name": network_name, "mode": config["mode"], "prior": config.get("prior"),
@@ -68,7 +80,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 
     spec_text = weights = None
     columns: list[str] = []
-    if recognizer.needs_mln(options.method, options.decode):
+    if needs_mln(options.method, options.decode):
         predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
         predicates_meta = artifacts.read_metadata(predicates_path, "predicates")
         weights, _ = artifacts.read_table(weights_path, "weights")
@@ -78,9 +90,8 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 
     choice = None
     if options.decode != "none" and network_name is not None:
-        predicted = recognizer.predict_workdir(workdir, options.mln_mode, (options.decode,), (options.method,))
-        choice = predicted.choices[recognizer.decoded_name(options.method, options.decode)]
-        notes += [n for n in predicted.notes if "validation part" in n or "uniform transitions" in n]
+        choice, said = weight_choice(workdir, options)
+        notes += [n.text for n in said]
 
     manifest = {
         "mlnseq_version": artifacts.package_version(),
@@ -89,6 +100,8 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "decode": options.decode,
         "mln_mode": options.mln_mode,
         "network_weight": None if choice is None else choice.weight,
+        "network_weight_how": None if choice is None else choice.how,
+        "chosen_by_cross_validation": chosen,
         "validation_frame_accuracy": None if choice is None else choice.accuracy,
         "classes": list(frames_meta["classes"]),
         "features": list(frames_meta["features"]),
@@ -102,3 +115,47 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
     return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
+
+
+def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
+    """``--method auto``: among the decoded methods conflate predicted in ``workdir`` with ``decode``, the one with
+    the best cross-validated choice score (cross_validation.choice_score), with its figures and the others'."""
+    from stages.cross_validation import choice_score
+
+    path = workdir / artifacts.PREDICTIONS
+    if not path.exists():
+        raise BadInput(f"--method {AUTO} chooses on the cross-validated figures conflate records: {path} not found; "
+                       f"run `mlnseq train --folds K` and `mlnseq conflate --decode {decode}` first")
+    meta = artifacts.read_metadata(path, "predictions")
+    figures = (meta.get("cross_validation") or {}).get("figures") or {}
+    candidates = {name: f for name, f in figures.items() if name.endswith(f"+{decode}")}
+    if not candidates:
+        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated {decode} figures; train its networks "
+                       f"with folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
+                       f"`mlnseq conflate --decode {decode}`")
+    best = max(candidates, key=lambda name: choice_score(candidates[name], decode))
+    return {"method": best.partition("+")[0], "name": best, "figures": candidates[best],
+            "score": choice_score(candidates[best], decode), "candidates": candidates,
+            "folds": meta["cross_validation"]["folds"]["k"]}
+
+
+def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:
+    """The network factor's weight of the one decoded network method exported, as conflate chooses it, and
+    the notes that bear on it."""
+    from stages.mln.factors import MLNFactors
+    from stages.workdir_inputs import read_workdir
+
+    from stages.cross_validation import test_weight
+
+    network = network_of(options.method)
+    inputs = read_workdir(workdir, (network,))
+    run_, mln_inputs = inputs.networks[network], inputs.mln
+    mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, inputs.classes)
+    if inputs.folds is not None and network in inputs.folds.log_probs:
+        return (network_weight.WeightChoice(test_weight(options.method, inputs, mln), None, {}, "learned"),
+                network_weight.decoding_notes(mln.temporal, []))
+    unvalidated = [] if run_.checkpoint.config.get("val_spans") else [network]
+    notes = network_weight.decoding_notes(mln.temporal, unvalidated)
+    choice = network_weight.choose(options.method, options.decode, mln, mln_inputs.evidence, inputs.data.episodes,
+                                   run_.parts, run_.log_probs, inputs.data.labels)
+    return choice, notes

@@ -41,6 +41,7 @@ class LearnWeightsOptions:
     engine: str = "native"
     objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
+    folds: int = 0  # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/folds.py
 
     def validate(self) -> None:
         check_choice("engine", self.engine, ENGINES)
@@ -48,6 +49,8 @@ class LearnWeightsOptions:
             check_choice("objective", self.objective, OBJECTIVES)
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
             raise BadInput(f"--l2 must be a number >= 0, got {self.l2}")
+        if self.folds < 0:
+            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2 folds")
 
     def formulas_path(self, workdir: Path) -> Path:
         path = Path(self.formulas)
@@ -248,13 +251,29 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
+    folds = None
+    if options.folds:
+        from stages import folds as folding
+
+        folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
     learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
                     list(classes))
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
-    with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # both or neither
+    per_fold = []
+    if folds is not None:
+        for k in range(folds.k):
+            held_out = predicates.with_columns(pl.Series("split", folds.splits(k)))
+            fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
+                         list(classes))
+            per_fold.append(fold.weights.with_columns(pl.lit(k, dtype=pl.Int32).alias("fold")))
+            learned.warnings.extend(f"fold {k}: {w}" for w in fold.warnings if w not in learned.warnings)
+    with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # all or none
         staged.write_text(learned.learned_mln, encoding="utf-8")
         path = artifacts.write_table(learned.weights, workdir / artifacts.WEIGHTS, "weights", table_meta,
                                      inputs=[predicates_path, formulas_path])
+        if folds is not None:
+            artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
+                                  {**table_meta, "folds": folds.record()}, inputs=[predicates_path, formulas_path, path])
     return path, learned

@@ -19,7 +19,8 @@ import polars as pl
 
 from stages import artifacts, metrics, sources
 from stages.errors import BadInput, check_choice
-from stages.recognizer import DECODES, Recognizer
+from stages.methods import DECODES
+from stages.recognizer import Recognizer
 from stages.sources import RECORDING_ENVS, SourceOptions, intervals
 from stages.table_import import TableColumns, prediction_frames
 

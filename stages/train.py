@@ -23,7 +23,10 @@ import polars as pl
 
 from stages import artifacts, networks, sequences
 from stages.errors import BadInput, check_choice
-from stages.recognizer import NETWORKS, PRIORS, FrameData, mln_class_scores, prior_input, save_checkpoint
+from stages.checkpoints import save_checkpoint
+from stages.methods import NETWORKS, PRIORS
+from stages.recognizer import prior_input
+from stages.workdir_inputs import FrameData, mln_class_scores
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run
     import torch
@@ -54,6 +57,7 @@ class TrainOptions:
     learning_rate: float = 0.1
     val_fraction: float = 0.2
     smoothing: float = 0.0  # tcn: weight of MS-TCN's smoothing loss
+    folds: int | None = None  # cross-validation folds (stages/folds.py); None: stream mode's default, 0: none
 
     def validate(self) -> None:
         choices = {"method": METHODS, "mode": sequences.MODES, "cell": networks.CELLS, "prior": PRIORS,
@@ -69,6 +73,8 @@ class TrainOptions:
                 raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.smoothing < 0:
             raise BadInput(f"--smoothing must be at least 0, got {self.smoothing}")
+        if self.folds is not None and self.folds < 0:
+            raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2 folds")
         if not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
         if self.device == "cuda":
@@ -186,9 +192,11 @@ Progress = Callable[[EpochDone], None]
 
 
 def fit(
-    data: FrameData, config: Any, options: TrainOptions, device: torch.device, progress: Progress | None = None
+    data: FrameData, config: Any, options: TrainOptions, device: torch.device, progress: Progress | None = None,
+    every_epoch: bool = True,
 ) -> Trained:
-    """Train a network on the training split of ``data``; log train/val/test accuracy each epoch."""
+    """Train a network on the training split of ``data``; log train/val/test accuracy each epoch (or, not
+    ``every_epoch``, after the last only: a fold network's log is not kept)."""
     import torch
 
     from stages.networks.classifier import SequenceClassifier
@@ -247,6 +255,8 @@ def fit(
             loss.backward()
             sgd_step(parameters, options.learning_rate)
 
+        if not (every_epoch or epoch == options.epochs):
+            continue
         spans = [s for name in eval_spans for s in eval_spans[name]]
         log_probs = predict_log_probs(model, spans, features, prior, device)
         measured = {}
@@ -285,6 +295,8 @@ class TrainResult:
 
 def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) -> TrainResult:
     """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
+    from stages import folds as folding
+
     options.validate()
     workdir = Path(workdir)
     set_threads()
@@ -303,6 +315,7 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
         prior_layer=options.method == "priorlayer", smoothing=options.smoothing,
     )
     device = resolve_device(options.device)
+    folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits)
     trained = fit(data, config, options, device, progress)
 
     checkpoint_config = {
@@ -323,10 +336,53 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
         "val_spans": [list(span) for span in trained.val_spans],
         "inputs": {path.name: artifacts.file_digest(path) for path in inputs},
     }
+    out_of_fold = None
+    if folds is not None:
+        checkpoint_config["folds"] = folds.record()
+        out_of_fold, fold_inputs = fold_networks(workdir, data, config, options, folds, device, meta)
+        trained.warnings.extend(out_of_fold[1])
     log_path = artifacts.train_log_path(workdir, options.method)
     checkpoint = artifacts.checkpoint_path(workdir, options.method)
-    with artifacts.atomic_path(checkpoint) as staged:  # both or neither: a failed log write keeps the old model
+    oof_path = artifacts.out_of_fold_path(workdir, options.method)
+    with artifacts.atomic_path(checkpoint) as staged:  # all or none: a failed write keeps the old model
         save_checkpoint(staged, trained.model, checkpoint_config)
         artifacts.write_table(trained.log, log_path, "train_log",
                               {"options": asdict(options), "kept_epoch": trained.kept_epoch}, inputs=inputs)
+        if out_of_fold is not None:
+            table = folding.out_of_fold_table(frames.select("episode", "frame"), folds, out_of_fold[0])
+            artifacts.write_table(table, oof_path, "out_of_fold",
+                                  {"method": options.method, "options": asdict(options), "folds": folds.record(),
+                                   "classes": list(meta["classes"]), "warnings": out_of_fold[1]},
+                                  inputs=inputs + fold_inputs)
+        else:
+            oof_path.unlink(missing_ok=True)  # a network trained without folds has no out-of-fold predictions
     return TrainResult(checkpoint, log_path, trained, str(device))
+
+
+def fold_networks(workdir: Path, data: FrameData, config: Any, options: TrainOptions, folds: Any,
+                  device: torch.device, meta: dict[str, Any]) -> tuple[tuple[np.ndarray, list[str]], list[Path]]:
+    """Train one network per fold without it and predict that fold: the out-of-fold class log-probabilities
+    [n, C] of every training frame, the warnings, and the inputs read (PriorLayer's fold networks read their
+    fold's MLN weights)."""
+    from dataclasses import replace
+
+    from stages import folds as folding
+    from stages.recognizer import prior_input
+
+    fold_scores, inputs = None, []
+    if options.method == "priorlayer":
+        fold_scores, inputs = folding.fold_mln_scores(workdir, folds, list(meta["classes"]))
+    out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
+    warnings = folding.missing_classes(folds, data.labels, list(meta["classes"]))
+    for k in range(folds.k):
+        prior = None if fold_scores is None else prior_input(fold_scores[k], options.prior, meta.get("source", ""))
+        fold_data = replace(data, splits=folds.splits(k), prior=prior)
+        trained = fit(fold_data, config, replace(options, select="none"), device, every_epoch=False)
+        parts = fold_data.splits
+        spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
+                 if parts[s.start] == "heldout"]
+        features = ((data.features - trained.mean) / trained.std).astype(np.float32)
+        log_probs = predict_log_probs(trained.model.to(device), spans, features, prior, device)
+        held = folds.fold == k
+        out[held] = log_probs[held]
+    return (out, warnings), inputs

@@ -95,6 +95,24 @@ def desk_stream_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
 
 
 @pytest.fixture(scope="session")
+def desk_folds_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
+    """DESK with examples/temporal.mln learned with 3 folds (learn-weights --folds 3), lstm and priorlayer trained in
+    stream mode on the whole training split with 3 fold networks each (2 epochs), conflated with every decoding
+    (the network factor's weight learned, every method cross-validated); read-only."""
+    from stages import binarize, conflate, formulas, learn_weights, train
+
+    workdir = tmp_path_factory.mktemp("desk-folds")
+    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+    binarize.run(workdir, binarize.BinarizeOptions())
+    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
+    for method in ("lstm", "priorlayer"):
+        train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=2, folds=3))
+    conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
+    return workdir
+
+
+@pytest.fixture(scope="session")
 def desk_test_recording(tmp_path_factory, desk_frames_workdir) -> Path:
     """The DESK test split as a user's recording: a CSV of frame, label and the three motion channels."""
     import polars as pl

@@ -22,7 +22,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, recognizer
+from stages import artifacts, checkpoints
 
 pytestmark = pytest.mark.slow
 
@@ -141,7 +141,7 @@ def test_sigkill_during_training_keeps_the_previous_model(desk_workdir):
     assert snapshot(desk_workdir) == before
     ok("conflate", "-w", desk_workdir)  # the previous model still loads and predicts
     ok("train", "--epochs", 1, "-w", desk_workdir)
-    recognizer.load_checkpoint(desk_workdir, "lstm")
+    checkpoints.load_checkpoint(desk_workdir, "lstm")
 
 
 def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk_workdir):
@@ -157,7 +157,7 @@ def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk
     assert len(leftovers(desk_workdir)) == len(leftovers_now)  # conflate leaves other artifacts' files alone
     ok("train", "--epochs", 1, "--seed", 7, "-w", desk_workdir)
     assert leftovers(desk_workdir) == []  # the temporary file and the temp's temp are gone
-    assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 7
+    assert checkpoints.load_checkpoint(desk_workdir, "lstm").config["seed"] == 7
 
 
 def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk_workdir):
@@ -170,7 +170,7 @@ def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk
     assert err.strip().splitlines() == ["error: interrupted; artifacts written before the interruption are intact"]
     assert "Traceback" not in out + err
     assert snapshot(desk_workdir) == before  # nothing half-written, no temporary file left
-    checkpoint = recognizer.load_checkpoint(desk_workdir, "lstm")
+    checkpoint = checkpoints.load_checkpoint(desk_workdir, "lstm")
     assert checkpoint.config["options"]["epochs"] == 2  # the model of the last complete run
     ok("conflate", "-w", desk_workdir)
     ok("eval", "-w", desk_workdir)

@@ -8,6 +8,7 @@ only what depends on it.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from stages import artifacts, recognizer
+from stages import artifacts, methods
 from stages.report import loading
 
 pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
@@ -25,10 +26,10 @@ REPORT_SECTIONS = (
     "## Table III", "### Do the paper's claims hold here?", "## Table IV", "## Fig. 7", "## Fig. 8",
     "## Confusion matrices", "## Data efficiency", "## Learned weights", "## Fetch: richer predicate spec",
     "## Stream mode", "## Sequential logic: decoded methods", "## Ablation", "## Timeline of one test episode",
-    "## Which decoded method to deploy", "### Targets of issue 12", "## Timings and machine",
+    "## Which decoded method to deploy", "### Targets (stream mode", "## Timings and machine",
     "## Hyper-parameters used", "## Differences from the paper",
 )
-SEQUENTIAL_FOLDERS = {f"{d}-{v}" for d in ("fetch", "desk") for v in ("temporal", "order", "fixed-weight")}
+SEQUENTIAL_FOLDERS = {f"{d}-{v}" for d in ("fetch", "desk") for v in ("temporal", "order", "conjunctive", "fixed-weight")}
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +77,9 @@ def test_the_report_has_every_section_and_figure(reduced):
     for dataset in ("fetch", "desk"):  # the causal TCN's stream rows beside the LSTM's
         assert f"| {dataset}-tcn | LSTM + PriorLayer |" in text
     for dataset in ("fetch", "desk"):
-        assert f"- {dataset}: deploy **" in text and f"- {dataset}, chosen on validation (" in text
+        assert f"- {dataset}: deploy **" in text and f"- {dataset}, online choice (" in text
+    summary = json.loads((reports / "summary.json").read_text())
+    assert set(summary) == {"fetch", "desk"} and all(set(s) == {"online", "offline", "lstm"} for s in summary.values())
 
 
 def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(reduced):
@@ -96,10 +99,12 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert (fixed / "models" / "lstm.pt").resolve() == (stream / "lstm.pt").resolve()
         meta = artifacts.read_metadata(fixed / artifacts.PREDICTIONS)
         assert meta["network_weight_option"] == 1.0 and meta["network_weights"] == {}
-        assert meta["methods"] == [recognizer.decoded_name(m, d) for d in recognizer.DECODES
+        assert meta["methods"] == [methods.decoded_name(m, d) for d in methods.DECODES
                                    for m in ("lstm", "mln", "conflation")]
         paper = artifacts.read_metadata(runs / dataset / "stream" / "seed-0" / artifacts.PREDICTIONS)
-        assert "conflation+filter" in paper["methods"] and paper["validation_frame_accuracy"]
+        assert "conflation+filter" in paper["methods"] and paper["cross_validation"]["folds"]["k"] == 5
+        assert set(paper["cross_validation"]["figures"]) == set(paper["methods"])
+        assert paper["network_weights"]["conflation+viterbi"]["how"] == "learned"
         assert artifacts.read_metadata(runs / dataset / "segment" / "seed-0" / artifacts.PREDICTIONS)["methods"] == [
             "lstm", "mln", "priorlayer", "conflation", "combined"]
         tcn = runs / f"{dataset}-tcn"

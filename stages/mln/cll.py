@@ -235,3 +235,31 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
         weights[objective.learned] = learned
     weights[[f.weight is None for f in formulas]] = np.inf
     return weights
+
+
+def network_weight(factors: chain.ChainFactors, log_p_network: np.ndarray, labels: np.ndarray,
+                   l2: float = DEFAULT_L2) -> float:
+    """The network factor's weight w >= 0 maximising CLL - l2/2 w^2 of the chains whose per-frame log-potentials
+    are ``factors.unary + w * log_p_network`` (the network's log-probabilities as one more per-frame feature,
+    the MLN's weights as given): concave in w; its gradient is the observed minus the expected network
+    log-probability of the true classes. Pass out-of-fold log-probabilities: on the frames a network was
+    trained on it is overconfident, and the weight learned there is far too large."""
+    from dataclasses import replace
+
+    log_p = np.asarray(log_p_network, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    observed = float(log_p[np.arange(len(labels)), labels].sum())
+    finite = np.where(np.isfinite(factors.unary), log_p, 0.0)  # a forbidden class has marginal 0
+    frames = len(labels)
+
+    def objective(w: np.ndarray) -> tuple[float, np.ndarray]:
+        weighted = replace(factors, unary=factors.unary + w[0] * log_p)
+        expected = chain.expectations(weighted)
+        value = chain.path_score(weighted, labels) - expected.log_z - 0.5 * l2 * w[0] ** 2
+        gradient = observed - float((expected.unary * finite).sum()) - l2 * w[0]
+        return -value / frames, np.array([-gradient / frames])
+
+    with one_thread():
+        result = optimize.minimize(objective, np.array([1.0]), jac=True, method="L-BFGS-B", bounds=[(0.0, None)],
+                                   options={"gtol": 1e-7, "ftol": 1e-10})
+    return float(result.x[0])

@@ -8,7 +8,8 @@ second frame follows the first in one chain (consecutive rows of one episode and
 A per-frame formula relates atoms of one frame: each atom's last argument is the same frame
 variable. A temporal formula relates two consecutive frames: exactly one ``Next(p, q)`` atom with
 two different frame variables, every other atom on p or q, and it must hold whenever ``Next(p, q)``
-is false (``Next`` in the body), so that pairs of frames that are not consecutive count for nothing
+is false (``Next`` in the body; a soft formula may instead be false there, a conjunction with ``Next``),
+so that pairs of frames that are not consecutive count for nothing
 and the formula is a factor between neighbours. A frame's atoms form one row of a boolean matrix (the
 columns first, then the classes), a consecutive pair's atoms the previous row then the current one,
 so a ground formula is evaluated on all frames or pairs at once.
@@ -255,7 +256,8 @@ def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], 
         if atom.predicate != NEXT and atom.args[-1].name not in (previous, current):  # type: ignore[union-attr]
             raise BadInput(f"{at(atom)}: {format_formula(atom)} is on frame {atom.args[-1].name}, but "  # type: ignore[union-attr]
                            f"{format_formula(joined)} joins only {previous} and {current}")
-    if not holds_without_next(item.formula, at()):
+    soft_constant = item.weight is not None and holds_without_next(item.formula, at(), value=False)
+    if not (holds_without_next(item.formula, at()) or soft_constant):
         raise BadInput(
             f"{at()}: {format_formula(item.formula)} must hold whenever {format_formula(joined)} is false (frames that "
             f"are not consecutive), else every pair of frames counts: put {format_formula(joined)} in the body, "
@@ -272,16 +274,18 @@ class _Propositions:
         return len(self.columns) if atom.predicate == NEXT else self.columns[(atom.predicate, atom.args)]
 
 
-def holds_without_next(formula: Formula, where: str = "formula") -> bool:
-    """Whether the formula is true in every world where its Next atom is false (its other atoms taken as
-    independent propositions: a sufficient check)."""
+def holds_without_next(formula: Formula, where: str = "formula", value: bool = True) -> bool:
+    """Whether the formula is true (``value`` False: false) in every world where its Next atom is false (its
+    other atoms taken as independent propositions: a sufficient check). A soft formula false there, such as
+    the conjunction Topic(c1, p) ^ Next(p, q) ^ Topic(c2, q), counts for nothing on pairs that are not
+    consecutive, as one true there does."""
     keys = list(dict.fromkeys((a.predicate, a.args) for a in atoms(formula) if a.predicate != NEXT))
     if len(keys) > MAX_CHECKED_ATOMS:
         raise BadInput(f"{where}: a temporal formula may hold at most {MAX_CHECKED_ATOMS} distinct atoms, "
                        f"this one has {len(keys)}")
     worlds = (np.arange(2 ** len(keys))[:, None] >> np.arange(len(keys))[None, :]) & 1
     worlds = np.concatenate([worlds.astype(bool), np.zeros((len(worlds), 1), dtype=bool)], axis=1)
-    return bool(truth(formula, worlds, _Propositions({k: i for i, k in enumerate(keys)})).all())
+    return bool((truth(formula, worlds, _Propositions({k: i for i, k in enumerate(keys)})) == value).all())
 
 
 def _first_vars(formula: Formula, expand: bool) -> dict[str, str]:

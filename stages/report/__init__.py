@@ -5,7 +5,8 @@ MLN weights, ``RUNS/DATASET/MODE/seed-N/`` one training seed's models (with thei
 predictions and metrics, and ``RUNS/timings.tsv`` one row per stage run (scripts/timed_stage.sh).
 Datasets: ``fetch`` and ``desk`` (the paper's splits), ``fetch-rich`` (the richer predicate spec),
 ``fetch-fraction-F`` (the first F of the Fetch episodes train: the data-efficiency curve) and, per paper
-dataset D, the sequential logic's ``D-temporal``, ``D-order`` and ``D-fixed-weight`` (``loading.VARIANTS``).
+dataset D, the sequential logic's ``D-temporal``, ``D-order``, ``D-conjunctive`` and ``D-fixed-weight``
+(``loading.VARIANTS``). Besides ``REPORT.md``: ``summary.json``, the deploy choices and the stream LSTM's figures.
 
 One module per part: ``loading`` reads the folder into a :class:`Run`; the pure ``tables``, ``claims``,
 ``figures`` and ``rendering`` turn it into rows, statements, figures and Markdown; :func:`run` below writes
@@ -14,6 +15,7 @@ One module per part: ``loading`` reads the folder into a :class:`Run`; the pure 
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +28,9 @@ from stages.report.figures import (
 )
 from stages.report.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from stages.report.rendering import render
-from stages.report.tables import deploy_choices, efficiency_points, method_name
+from stages.report.tables import deploy_choices, efficiency_points, method_name, summary
+
+SUMMARY = "summary.json"
 
 
 @dataclass(frozen=True)
@@ -72,6 +76,7 @@ def run(options: ReportOptions) -> ReportResult:
         plt.close(figure)
         written.append(out / name)
     path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines))
+    artifacts.write_text(out / SUMMARY, json.dumps(summary(loaded), indent=1, sort_keys=True) + "\n")
     n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
     return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)
 
@@ -79,7 +84,7 @@ def run(options: ReportOptions) -> ReportResult:
 
 def timeline_of(run: Run, dataset: str):
     """(what it shows, the figure) of one test episode of ``dataset`` in stream mode, the first seed: true labels,
-    the LSTM, and the online and offline methods chosen on validation; None where they were not run."""
+    the LSTM, and the online and offline methods chosen by cross-validation; None where they were not run."""
     choices = deploy_choices(run, dataset)
     seeds = run.metrics.filter((pl.col("dataset") == dataset) & (pl.col("mode") == "stream"))["seed"]
     if "filter" not in choices or "viterbi" not in choices or seeds.len() == 0:

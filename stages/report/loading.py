@@ -15,7 +15,7 @@ import polars as pl
 
 from stages import artifacts
 from stages.errors import BadInput
-from stages.recognizer import NETWORKS
+from stages.methods import NETWORKS
 
 PAPER_DATASETS = ("fetch", "desk")
 RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"
@@ -24,7 +24,8 @@ VARIANTS = {
     "": "no transitions",  # D: the paper's per-frame formulas, decoded with uniform transitions
     "-temporal": "learned transitions",  # examples/temporal.mln: the decoded rows
     "-order": "plus hard order",  # examples/D.order.mln
-    "-fixed-weight": "network factor weight fixed at 1",  # D-temporal decoded with --network-weight 1
+    "-conjunctive": "conjunctive transitions",  # examples/conjunctive.mln: temporal.mln's transitions as a conjunction
+    "-fixed-weight": "network factor weight fixed at 1",  # D-temporal decoded with --network-weight 1, not learned
 }
 TEMPORAL = "-temporal"
 TCN = "-tcn"  # D-tcn: D's inputs, its networks causal TCNs (--cell tcn), stream mode
@@ -48,18 +49,23 @@ class Run:
     validation: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=SEED_VALUE_SCHEMA))
     network_weights: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=SEED_VALUE_SCHEMA))
     notes: dict[tuple[str, str], list[str]] = field(default_factory=dict)  # (dataset, mode) -> conflate's notes
+    # cross-validated figures on the training split (conflate with fold networks): dataset, mode, seed, method,
+    # metric (segment_accuracy and frame_accuracy in %, edit, f1_50), value
+    cv: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=CV_SCHEMA))
     runs: Path | None = None  # the run folder (the timeline figure reads one workdir's predictions)
 
 
 SEED_VALUE_SCHEMA = {"dataset": pl.String, "mode": pl.String, "seed": pl.Int64, "method": pl.String,
                      "value": pl.Float64}
+CV_SCHEMA = {"dataset": pl.String, "mode": pl.String, "seed": pl.Int64, "method": pl.String, "metric": pl.String,
+             "value": pl.Float64}
 
 
 def load_run(runs: Path) -> Run:
     """Read every dataset folder and seed workdir of a run (see the module docstring)."""
     metrics, logs, settings = [], [], {}
     datasets, weights = {}, {}
-    validation, network_weights, notes = [], [], {}
+    validation, network_weights, notes, cv = [], [], {}, []
     for frames_path in sorted(runs.glob(f"*/{artifacts.FRAMES}")):
         folder = frames_path.parent
         _, meta = artifacts.read_table(frames_path, "frames")
@@ -91,6 +97,8 @@ def load_run(runs: Path) -> Run:
                            for m, v in predictions_meta.get("validation_frame_accuracy", {}).items()]
             network_weights += [{**keys, "method": m, "value": float(c["weight"])}
                                 for m, c in predictions_meta.get("network_weights", {}).items()]
+            for m, figures in ((predictions_meta.get("cross_validation") or {}).get("figures") or {}).items():
+                cv += [{**keys, "method": m, "metric": k, "value": float(v)} for k, v in figures.items()]
             for note in predictions_meta.get("notes", []):
                 notes.setdefault((folder.name, keys["mode"]), [])
                 if note not in notes[(folder.name, keys["mode"])]:
@@ -115,6 +123,7 @@ def load_run(runs: Path) -> Run:
         timings=read_timings(runs / TIMINGS), machine=machine(),
         validation=pl.DataFrame(validation, schema=SEED_VALUE_SCHEMA),
         network_weights=pl.DataFrame(network_weights, schema=SEED_VALUE_SCHEMA), notes=notes, runs=runs,
+        cv=pl.DataFrame(cv, schema=CV_SCHEMA),
     )
 
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages.recognizer import DECODES, METHODS, decoded_name
+from stages.methods import DECODES, METHODS, decoded_name
 from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TCN, TEMPORAL, VARIANTS, Run, present
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
@@ -21,7 +21,9 @@ METHOD_NAMES = {"lstm": "LSTM", "mln": "MLN", "priorlayer": "LSTM + PriorLayer",
 DECODE_NAMES = {"none": "", "filter": " + filter (online)", "viterbi": " + Viterbi (offline)"}
 SEQUENCE_METRICS = ("segment_accuracy", "frame_accuracy", "edit", "f1@50")
 ABLATION_METHODS = ("lstm", "mln", "conflation")  # no retraining: every variant has them
-DEPLOY_VARIANTS = ("", TEMPORAL, "-order")  # what a user may deploy (fixed-weight is an ablation of TEMPORAL)
+DEPLOY_VARIANTS = ("", TEMPORAL, "-order", "-conjunctive")  # what a user may deploy (fixed-weight: an ablation)
+CV_METRICS = {"segment_accuracy": "segment_accuracy", "frame_accuracy": "frame_accuracy", "edit": "edit",
+              "f1@50": "f1_50"}  # SEQUENCE_METRICS -> the cross-validated figures' names
 STAGE_ORDER = ("collect", "binarize", "formulas", "learn-weights", "train", "conflate", "eval", "report")
 
 
@@ -123,11 +125,13 @@ def sequence_stats(run: Run, mode: str = "stream") -> dict[str, pl.DataFrame]:
     return {m: method_stats(run, m, mode=mode) for m in SEQUENCE_METRICS}
 
 
-def validation_stats(run: Run, mode: str = "stream") -> pl.DataFrame:
-    """Frame accuracy (%) on the networks' validation part, mean and std over seeds, per dataset folder and method."""
-    return (run.validation.filter(pl.col("mode") == mode).group_by(["dataset", "method"], maintain_order=True)
-            .agg((pl.col("value") * 100).mean().alias("mean"), (pl.col("value") * 100).std().alias("std"),
-                 pl.col("seed").n_unique().alias("seeds")))
+def cv_stats(run: Run, mode: str = "stream") -> dict[str, pl.DataFrame]:
+    """Per metric of SEQUENCE_METRICS: the cross-validated figure on the training split, mean and std over seeds,
+    per dataset folder and method."""
+    return {m: run.cv.filter((pl.col("mode") == mode) & (pl.col("metric") == CV_METRICS[m]))
+            .group_by(["dataset", "method"], maintain_order=True)
+            .agg(pl.col("value").mean().alias("mean"), pl.col("value").std().alias("std"),
+                 pl.col("seed").n_unique().alias("seeds")) for m in SEQUENCE_METRICS}
 
 
 def weight_cell(run: Run, folder: str, mode: str, method: str) -> str:
@@ -139,18 +143,20 @@ def weight_cell(run: Run, folder: str, mode: str, method: str) -> str:
     return ", ".join(f"{w:g}" for w in sorted(chosen.unique())) if chosen.len() else "–"
 
 
-def decoded_cells(run: Run, stats: dict[str, pl.DataFrame], validation: pl.DataFrame, folder: str, mode: str,
+def decoded_cells(run: Run, stats: dict[str, pl.DataFrame], cv: dict[str, pl.DataFrame], folder: str, mode: str,
                   method: str) -> list[str]:
-    """A decoded-method row's figures: SEQUENCE_METRICS on test, the network factor's weight, validation accuracy."""
+    """A decoded-method row's figures: SEQUENCE_METRICS on test, the network factor's weight, the cross-validated
+    segment accuracy and edit on the training split."""
     return [*(fmt(*lookup(stats[m], dataset=folder, method=method)) for m in SEQUENCE_METRICS),
-            weight_cell(run, folder, mode, method), fmt(*lookup(validation, dataset=folder, method=method))]
+            weight_cell(run, folder, mode, method),
+            *(fmt(*lookup(cv[m], dataset=folder, method=method)) for m in ("segment_accuracy", "edit"))]
 
 
 def decoded_table(run: Run) -> list[list[str]]:
     """The decoded rows: per paper dataset and mode, every method of DATASET-temporal undecoded and decoded."""
     rows = []
     for mode in ("segment", "stream"):
-        stats, validation = sequence_stats(run, mode), validation_stats(run, mode)
+        stats, cv = sequence_stats(run, mode), cv_stats(run, mode)
         for dataset in PAPER_DATASETS:
             folder = dataset + TEMPORAL
             for decode in DECODES:
@@ -159,13 +165,13 @@ def decoded_table(run: Run) -> list[list[str]]:
                     if lookup(stats["segment_accuracy"], dataset=folder, method=name)[0] is None:
                         continue
                     rows.append([dataset, mode, method_name(name),
-                                 *decoded_cells(run, stats, validation, folder, mode, name)])
+                                 *decoded_cells(run, stats, cv, folder, mode, name)])
     return rows
 
 
 def ablation_table(run: Run, dataset: str) -> list[list[str]]:
     """Stream mode, per decoded method of ABLATION_METHODS: each variant of VARIANTS that has it."""
-    stats, validation = sequence_stats(run), validation_stats(run)
+    stats, cv = sequence_stats(run), cv_stats(run)
     rows = []
     for method in ABLATION_METHODS:
         for decode in DECODES[1:]:
@@ -177,55 +183,86 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
                 if method == "mln" and suffix == "-fixed-weight":
                     continue  # the MLN alone has no network factor
                 rows.append([method_name(name), variant,
-                             *decoded_cells(run, stats, validation, folder, "stream", name)])
+                             *decoded_cells(run, stats, cv, folder, "stream", name)])
     return rows
 
 
-def deploy_choices(run: Run, dataset: str) -> dict[str, dict[str, Any]]:
-    """Per decoding (filter, viterbi), the decoded method of a DEPLOY_VARIANTS folder with the best mean frame
-    accuracy on the validation part (stream mode; ties: the first in that order and METHODS order, the others
-    listed under ``ties``), with its validation and test figures; and ``best_on_test`` per metric (optimistic:
-    chosen on test)."""
-    stats, validation = sequence_stats(run), validation_stats(run)
+def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
+    """Per decoding (filter, viterbi), every decoded method of a DEPLOY_VARIANTS folder (stream mode) with its
+    cross-validated and test figures (mean, std over seeds), and the one with the best cross-validated choice
+    score (``cross_validation.choice_score`` of the means; ties: the first in that order and METHODS order, the
+    others listed under ``ties``); the test split is never looked at for the choice. ``best_on_test`` per metric
+    is shown beside it, marked optimistic."""
+    from stages.cross_validation import choice_score
+
+    stats, cv = sequence_stats(run), cv_stats(run)
     candidates = []
     for suffix in DEPLOY_VARIANTS:
         for decode in DECODES[1:]:
             for method in METHODS:
-                name = decoded_name(method, decode)
-                value = lookup(validation, dataset=dataset + suffix, method=name)[0]
-                if value is not None and lookup(stats["segment_accuracy"], dataset=dataset + suffix,
-                                                method=name)[0] is not None:
-                    candidates.append({"folder": dataset + suffix, "variant": VARIANTS[suffix], "method": name,
-                                       "decode": decode, "validation": value,
-                                       **{m: lookup(stats[m], dataset=dataset + suffix, method=name)
-                                          for m in SEQUENCE_METRICS}})
-    choices: dict[str, Any] = {}
+                name, folder = decoded_name(method, decode), dataset + suffix
+                figures = {m: lookup(cv[m], dataset=folder, method=name) for m in SEQUENCE_METRICS}
+                if figures["segment_accuracy"][0] is None or lookup(stats["segment_accuracy"], dataset=folder,
+                                                                     method=name)[0] is None:
+                    continue
+                score = choice_score({CV_METRICS[m]: v[0] for m, v in figures.items()}, decode)
+                candidates.append({"folder": folder, "variant": VARIANTS[suffix], "method": name, "decode": decode,
+                                   "score": score, "cv": figures,
+                                   **{m: lookup(stats[m], dataset=folder, method=name) for m in SEQUENCE_METRICS}})
+    choices: dict[str, Any] = {"candidates": candidates}
     for decode in DECODES[1:]:
         kind = [c for c in candidates if c["decode"] == decode]
         if kind:
-            best = max(kind, key=lambda c: c["validation"])  # max keeps the first of equals
-            ties = [c for c in kind if c is not best and np.isclose(c["validation"], best["validation"], atol=1e-9)]
+            best = max(kind, key=lambda c: c["score"])  # max keeps the first of equals
+            ties = [c for c in kind if c is not best and np.isclose(c["score"], best["score"], atol=1e-9)]
             choices[decode] = {**best, "ties": ties}
     if candidates:
         choices["best_on_test"] = {m: max(candidates, key=lambda c: c[m][0] if c[m][0] is not None else -np.inf)
                                    for m in SEQUENCE_METRICS}
-        choices["best_on_test_by_decode"] = {
-            d: max((c for c in candidates if c["decode"] == d), key=lambda c: c["frame_accuracy"][0])
-            for d in DECODES[1:] if any(c["decode"] == d for c in candidates)}
     return choices
 
 
+def _number(value: float | None) -> float | None:
+    """A figure for JSON: None where it is absent or not a number."""
+    return None if value is None or np.isnan(value) else float(value)
+
+
 def deploy_table(run: Run) -> list[list[str]]:
-    """Per paper dataset, stream mode: the online and the offline method chosen on validation, with test figures."""
+    """Per paper dataset and use (online: filter, offline: Viterbi), stream mode: every candidate with its
+    cross-validated figures (training split) and its test figures side by side; the choice marked."""
     rows = []
     for dataset in PAPER_DATASETS:
         choices = deploy_choices(run, dataset)
         for decode, kind in (("filter", "online"), ("viterbi", "offline")):
+            for c in choices["candidates"]:
+                if c["decode"] != decode:
+                    continue
+                chosen = decode in choices and c["folder"] == choices[decode]["folder"] \
+                    and c["method"] == choices[decode]["method"]
+                rows.append([dataset, kind, ("**chosen** " if chosen else "") + method_name(c["method"]),
+                             f"{c['variant']} (`{c['folder']}`)",
+                             *(fmt(*c["cv"][m]) for m in SEQUENCE_METRICS), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
+    return rows
+
+
+def summary(run: Run) -> dict[str, Any]:
+    """reports/summary.json: per paper dataset and use, the chosen method with its cross-validated and test figures
+    (segment_accuracy, frame_accuracy in %, edit, f1_50; means over seeds), and the stream LSTM's test figures."""
+    out: dict[str, Any] = {}
+    stats = sequence_stats(run)
+    for dataset in present(run, PAPER_DATASETS):
+        choices = deploy_choices(run, dataset)
+        entry: dict[str, Any] = {}
+        for decode, use in (("filter", "online"), ("viterbi", "offline")):
             if decode in choices:
                 c = choices[decode]
-                rows.append([dataset, kind, method_name(c["method"]), f"{c['variant']} (`{c['folder']}`)",
-                             fmt(c["validation"]), str(len(c["ties"])), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
-    return rows
+                entry[use] = {"method": c["method"], "folder": c["folder"], "variant": c["variant"],
+                              "cv": {CV_METRICS[m]: _number(c["cv"][m][0]) for m in SEQUENCE_METRICS},
+                              "test": {CV_METRICS[m]: _number(c[m][0]) for m in SEQUENCE_METRICS}}
+        entry["lstm"] = {"test": {CV_METRICS[m]: _number(lookup(stats[m], dataset=dataset, method="lstm")[0])
+                                  for m in SEQUENCE_METRICS}}
+        out[dataset] = entry
+    return out
 
 
 def stream_table(run: Run) -> list[list[str]]:

@@ -7,7 +7,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, conflate, recognizer, train
+from stages import artifacts, conflate, methods, network_weight, notes, recognizer, train, workdir_inputs
 from stages.errors import BadInput, MissingArtifact
 
 
@@ -28,7 +28,7 @@ def predicted(tmp_path_factory, desk_mln_workdir):
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, workdir / name)
     train.run(workdir, train.TrainOptions(epochs=3))
-    train.run(workdir, train.TrainOptions(method="priorlayer", epochs=3, mode="stream"))
+    train.run(workdir, train.TrainOptions(method="priorlayer", epochs=3, mode="stream", folds=0))
     result = conflate.run(workdir, conflate.ConflateOptions())
     return workdir, result
 
@@ -52,7 +52,7 @@ def test_mln_alone_needs_only_weights_and_names_missing_models(tmp_path, desk_ml
         shutil.copy(desk_mln_workdir / name, tmp_path / name)
     result = conflate.run(tmp_path, conflate.ConflateOptions(mln_mode="exact"))
     assert result.methods == ["mln"]
-    assert any("train --method lstm" in note for note in result.notes)
+    assert any(n.code == notes.MISSING_INPUT and "train --method lstm" in n.text for n in result.notes)
 
 
 def test_conflate_with_nothing_trained_names_the_stages(tmp_path, desk_frames_workdir):
@@ -79,17 +79,17 @@ def test_unknown_mln_mode_is_refused():
 
 def test_every_decoding_is_predicted_with_its_weight_chosen_on_validation(desk_stream_workdir):
     table, meta = artifacts.read_table(desk_stream_workdir / artifacts.PREDICTIONS, "predictions")
-    assert meta["methods"] == recognizer.method_names()
+    assert meta["methods"] == methods.method_names()
     for name in meta["methods"]:
         probabilities = table.select(artifacts.prob_columns(name, 7)).to_numpy().astype(np.float64)
         if name != "conflation" and name != "combined":  # eq. 16 is not renormalised
             np.testing.assert_allclose(probabilities.sum(1), 1.0, atol=1e-4)
-        method, decode = recognizer.parse_method(name)
+        method, decode = methods.parse_method(name)
         assert meta["modes"][name] == meta["modes"][method]
     chosen = meta["network_weights"]
     assert set(chosen) == {f"{m}+{d}" for m in ("lstm", "priorlayer", "conflation", "combined") for d in ("filter", "viterbi")}
     for choice in chosen.values():
-        assert choice["weight"] in recognizer.NETWORK_WEIGHTS and choice["validation_frame_accuracy"] == max(choice["tried"].values())
+        assert choice["weight"] in network_weight.NETWORK_WEIGHTS and choice["validation_frame_accuracy"] == max(choice["tried"].values())
     assert set(meta["validation_frame_accuracy"]) == set(meta["methods"])
     # the decoded MLN beats the per-frame one on the held-out part of the training split
     assert meta["validation_frame_accuracy"]["mln+viterbi"] > meta["validation_frame_accuracy"]["mln"]
@@ -101,10 +101,11 @@ def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tm
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)
     result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter",)))
-    assert any("no temporal formula" in note and "uniform transitions" in note for note in result.notes)
+    assert [n.code for n in result.notes] == [notes.MISSING_INPUT, notes.MISSING_INPUT, notes.UNIFORM_TRANSITIONS]
+    assert "no temporal formula" in result.notes[-1].text
     table = pl.read_parquet(result.path)
     frames, meta = artifacts.read_table(tmp_path / artifacts.FRAMES, "frames")
-    scores = recognizer.mln_class_scores(tmp_path, frames, meta["classes"])[0]  # weights name the classes so
+    scores = workdir_inputs.mln_class_scores(tmp_path, frames, meta["classes"])[0]  # weights name the classes so
     expected = np.exp(classifier.class_log_probs(scores, "exact", "desk"))
     np.testing.assert_allclose(table.select(artifacts.prob_columns("mln+filter", 7)).to_numpy(), expected, atol=1e-5)
 

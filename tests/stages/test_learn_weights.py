@@ -286,3 +286,28 @@ def test_a_template_expansion_also_written_out_is_learned_once_with_the_written_
     assert learned.weights.height == stage.learn(desk, 7, PAPER).weights.height
     assert ("line 3: 1 expansion(s) of this template repeat the formula(s) of line 4: each is learned once, as line 4 "
             "gives it") in learned.warnings
+def test_the_conjunctive_transition_template_learns_the_same_chain_family(desk: pl.DataFrame, repo_root: Path) -> None:
+    conjunctive = stage.learn(desk, 7, parse_mln((repo_root / "examples" / "conjunctive.mln").read_text())).weights
+    assert conjunctive["temporal"].sum() == 49
+    stay = conjunctive.filter(pl.col("formula") == 'Topic("C2",p) ^ Next(p,q) ^ Topic("C2",q)')["weight"][0]
+    leave = conjunctive.filter(pl.col("formula") == 'Topic("C2",p) ^ Next(p,q) ^ Topic("C6",q)')["weight"][0]
+    assert stay > leave
+    hard = parse_mln(DECLARED + "Next(page, page)\nTopic(C0, p) ^ Next(p, q) ^ Topic(C0, q).\n", "hard.mln")
+    with pytest.raises(BadInput, match="must hold whenever Next"):  # a hard conjunction would forbid every other pair
+        formulas_for(hard, Path("hard.mln"), artifacts.feature_columns(desk), [f"S{k + 1}" for k in range(7)])
+
+
+def test_fold_weights_are_learned_without_their_fold(tmp_path: Path, shared_data: Path) -> None:
+    frames, predicates = desk_predicates(shared_data)
+    write_predicates(tmp_path, frames, predicates, "desk")
+    (tmp_path / "formulas.mln").write_text(TEMPORAL)
+    stage.run(tmp_path, stage.LearnWeightsOptions(folds=2))
+    table, meta = artifacts.read_table(tmp_path / artifacts.FOLD_WEIGHTS, "fold_weights")
+    assert meta["folds"] == {"k": 2, "kind": "blocks", "spans": [[0, 703], [703, 1405]]}
+    first = table.filter(pl.col("fold") == 0).drop("fold")
+    held_out = frames.with_columns(pl.Series("split", np.where(np.arange(frames.height) < 703, "heldout",
+                                                               frames["split"].to_numpy())))
+    expected = stage.learn(held_out, 7, parse_mln(TEMPORAL)).weights
+    np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy())
+    with pytest.raises(BadInput, match="--folds 1: .* at most 70; use --folds 70"):
+        stage.run(tmp_path, stage.LearnWeightsOptions(folds=1))

@@ -11,14 +11,14 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, export, model_file, recognizer
+from stages import artifacts, export, methods, model_file, recognizer
 from stages.errors import BadInput
 from stages.recognizer import Recognizer
 
 STEPPED_FRAMES = 1500  # one frame at a time is checked on the first frames of the 20,924-frame recording
 
 
-NAMES = recognizer.method_names()  # lstm ... combined, lstm+filter ... combined+viterbi
+NAMES = methods.method_names()  # lstm ... combined, lstm+filter ... combined+viterbi
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def models(tmp_path_factory, desk_stream_workdir) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("models")
     exported = {}
     for name in NAMES:
-        method, decode = recognizer.parse_method(name)
+        method, decode = methods.parse_method(name)
         options = export.ExportOptions(method=method, decode=decode, output=folder / f"{name}.mlnseq")
         exported[name] = export.run(desk_stream_workdir, options).path
     return exported
@@ -129,3 +129,12 @@ def test_a_segment_mode_network_is_exported_with_a_note(desk_full_workdir, tmp_p
     exported = export.run(desk_full_workdir, export.ExportOptions(method="lstm", output=tmp_path / "m.mlnseq"))
     assert any("segment mode" in note for note in exported.manifest["notes"])
     assert exported.manifest["network"]["mode"] == "segment"
+
+
+def test_decoding_refuses_an_unknown_kind(desk_stream_workdir):
+    from stages.mln import chain
+
+    factors = chain.ChainFactors(np.zeros((3, 2)), np.zeros((1, 2, 2)), np.array([-1, 0, 0]))
+    assert recognizer.decode_chain("viterbi", factors)[1].shape == (3,)
+    with pytest.raises(BadInput, match="unknown decoding 'smooth'"):
+        recognizer.decode_chain("smooth", factors)

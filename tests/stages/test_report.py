@@ -2,22 +2,23 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import polars as pl
 import pytest
 
-from stages import artifacts, conflate, recognizer, report, train
+from stages import artifacts, conflate, methods, report, train
 from stages import eval as evaluation
 from stages.errors import BadInput
 from stages.report import claims, loading, tables
 
 
 @pytest.fixture(scope="module")
-def desk_run(tmp_path_factory, desk_mln_workdir, desk_stream_workdir) -> Path:
+def desk_run(tmp_path_factory, desk_mln_workdir, desk_folds_workdir) -> Path:
     """RUNS/desk/{segment,stream}/seed-0 laid out as `make reproduce` does, from the shared DESK artifacts, and
-    RUNS/desk-temporal/stream/seed-0 from the decoded stream workdir (examples/temporal.mln, a validation part)."""
+    RUNS/desk-temporal/stream/seed-0 from the cross-validated stream workdir (examples/temporal.mln, 3 folds)."""
     runs = tmp_path_factory.mktemp("runs")
     dataset = runs / "desk"
     dataset.mkdir()
@@ -29,19 +30,20 @@ def desk_run(tmp_path_factory, desk_mln_workdir, desk_stream_workdir) -> Path:
         for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
             (workdir / name).symlink_to(Path("../..") / name)
         for method in train.METHODS:
-            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0))
+            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0, folds=0))
         conflate.run(workdir, conflate.ConflateOptions())
         evaluation.run(workdir, evaluation.EvalOptions())
     temporal = runs / "desk-temporal"
     workdir = temporal / "stream" / "seed-0"
     (workdir / artifacts.MODELS_DIR).mkdir(parents=True)
-    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.FORMULAS, artifacts.WEIGHTS):
-        shutil.copy(desk_stream_workdir / name, temporal / name)
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.FORMULAS, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS):
+        shutil.copy(desk_folds_workdir / name, temporal / name)
         if name != artifacts.FORMULAS:
             (workdir / name).symlink_to(Path("../..") / name)
     for method in train.METHODS:
-        shutil.copy(artifacts.checkpoint_path(desk_stream_workdir, method), artifacts.checkpoint_path(workdir, method))
-    shutil.copy(desk_stream_workdir / artifacts.PREDICTIONS, workdir / artifacts.PREDICTIONS)
+        shutil.copy(artifacts.checkpoint_path(desk_folds_workdir, method), artifacts.checkpoint_path(workdir, method))
+        shutil.copy(artifacts.out_of_fold_path(desk_folds_workdir, method), artifacts.out_of_fold_path(workdir, method))
+    shutil.copy(desk_folds_workdir / artifacts.PREDICTIONS, workdir / artifacts.PREDICTIONS)
     evaluation.run(workdir, evaluation.EvalOptions())
     (runs / loading.TIMINGS).write_text(
         "2026-01-01T00:00:00\t3.5\tcollect\t--env desk\n2026-01-01T00:00:04\t2.0\ttrain\t--method lstm\n"
@@ -55,12 +57,13 @@ def loaded(desk_run) -> loading.Run:
     return loading.load_run(desk_run)
 
 
-def test_load_run_reads_every_seed_workdir(loaded, desk_stream_workdir):
+def test_load_run_reads_every_seed_workdir(loaded, desk_folds_workdir):
     assert set(loaded.metrics["mode"].unique()) == {"segment", "stream"}
     assert set(loaded.metrics["dataset"].unique()) == {"desk", "desk-temporal"}
-    meta = artifacts.read_metadata(desk_stream_workdir / artifacts.PREDICTIONS)
-    validation = loaded.validation.filter(pl.col("dataset") == "desk-temporal")
-    assert dict(validation.select("method", "value").iter_rows()) == meta["validation_frame_accuracy"]
+    meta = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)
+    cv = loaded.cv.filter((pl.col("dataset") == "desk-temporal") & (pl.col("metric") == "edit"))
+    assert dict(cv.select("method", "value").iter_rows()) == {
+        m: f["edit"] for m, f in meta["cross_validation"]["figures"].items()}
     weights = loaded.network_weights.filter(pl.col("dataset") == "desk-temporal")
     assert dict(weights.select("method", "value").iter_rows()) == {
         m: c["weight"] for m, c in meta["network_weights"].items()}
@@ -73,10 +76,10 @@ def test_load_run_reads_every_seed_workdir(loaded, desk_stream_workdir):
 
 def test_table_iii_puts_the_paper_beside_the_measured_value(loaded):
     rows = tables.table_iii(loaded)
-    assert [r[1] for r in rows] == [tables.METHOD_NAMES[m] for m in recognizer.METHODS]
+    assert [r[1] for r in rows] == [tables.METHOD_NAMES[m] for m in methods.METHODS]
     measured = loaded.metrics.filter((pl.col("mode") == "segment") & (pl.col("method") == "mln")
                                      & (pl.col("metric") == "segment_accuracy"))["value"][0]
-    mln = rows[recognizer.METHODS.index("mln")]
+    mln = rows[methods.METHODS.index("mln")]
     assert mln[2] == "49" and mln[3] == f"{100 * measured:.1f}"
 
 
@@ -88,7 +91,7 @@ def test_confusion_counts_every_test_segment(loaded):
 def test_claims_are_computed_from_the_numbers():
     metrics = pl.DataFrame({
         "dataset": ["fetch"] * 5, "mode": ["segment"] * 5, "seed": [0] * 5,
-        "method": list(recognizer.METHODS), "metric": ["segment_accuracy"] * 5, "item": ["0.5"] * 5,
+        "method": list(methods.METHODS), "metric": ["segment_accuracy"] * 5, "item": ["0.5"] * 5,
         "value": [0.70, 0.50, 0.65, 0.72, 0.71],  # lstm, mln, priorlayer, conflation, combined
     })
     run = loading.Run(metrics, pl.DataFrame(schema={"dataset": pl.String, "mode": pl.String, "seed": pl.Int64,
@@ -118,7 +121,7 @@ def test_wall_seconds_spans_first_start_to_last_end(loaded):
 def test_decoded_rows_come_from_the_temporal_folder(loaded):
     rows = tables.decoded_table(loaded)
     assert {(r[0], r[1]) for r in rows} == {("desk", "stream")}
-    assert [r[2] for r in rows][:len(recognizer.METHODS)] == [tables.METHOD_NAMES[m] for m in recognizer.METHODS]
+    assert [r[2] for r in rows][:len(methods.METHODS)] == [tables.METHOD_NAMES[m] for m in methods.METHODS]
     viterbi = next(r for r in rows if r[2] == "LSTM + Conflation + Viterbi (offline)")
     frame = loaded.metrics.filter((pl.col("dataset") == "desk-temporal") & (pl.col("method") == "conflation+viterbi")
                                   & (pl.col("metric") == "frame_accuracy"))["value"][0]
@@ -127,41 +130,50 @@ def test_decoded_rows_come_from_the_temporal_folder(loaded):
     assert viterbi[7] == f"{chosen:g}"
 
 
-def sequence_run(test: dict[str, float], validation: dict[str, float]) -> loading.Run:
+def sequence_run(test: dict[str, float], cv: dict[str, float]) -> loading.Run:
     """A Run of two seeds whose DESK stream folders score each (folder, method) as given (test frame accuracy and
-    segment accuracy alike, edit 95), and the same on validation."""
+    segment accuracy alike, edit 95), and likewise cross-validated on the training split (edit 95)."""
     metrics, checked = [], []
     for (folder, method), value in test.items():
         for seed in (0, 1):
             for metric, scaled in (("segment_accuracy", value), ("frame_accuracy", value), ("edit", 95.0 * 100)):
                 metrics.append((folder, "stream", seed, method, metric, "", scaled / 100))
-            checked.append((folder, "stream", seed, method, validation[(folder, method)] / 100))
+            for metric, scaled in (("segment_accuracy", cv[(folder, method)]), ("frame_accuracy", cv[(folder, method)]),
+                                   ("edit", 95.0), ("f1_50", 50.0)):
+                checked.append((folder, "stream", seed, method, metric, scaled))
     schema = ["dataset", "mode", "seed", "method", "metric", "item", "value"]
     return loading.Run(pl.DataFrame(metrics, schema=schema, orient="row"), pl.DataFrame(), {}, {}, {},
                        loading.read_timings(Path("absent.tsv")),
-                       validation=pl.DataFrame(checked, schema=loading.SEED_VALUE_SCHEMA, orient="row"))
+                       cv=pl.DataFrame(checked, schema=loading.CV_SCHEMA, orient="row"))
 
 
-def test_the_method_to_deploy_is_chosen_on_validation_never_on_test():
+def test_the_method_to_deploy_is_chosen_by_cross_validation_never_on_test():
     run = sequence_run(
         test={("desk-temporal", "conflation+viterbi"): 80.0, ("desk-temporal", "mln+viterbi"): 60.0,
-              ("desk-order", "conflation+filter"): 76.0, ("desk", "lstm+filter"): 50.0},
-        validation={("desk-temporal", "conflation+viterbi"): 70.0, ("desk-temporal", "mln+viterbi"): 90.0,
-                    ("desk-order", "conflation+filter"): 75.0, ("desk", "lstm+filter"): 76.0})
+              ("desk-conjunctive", "conflation+filter"): 76.0, ("desk", "lstm+filter"): 50.0},
+        cv={("desk-temporal", "conflation+viterbi"): 70.0, ("desk-temporal", "mln+viterbi"): 90.0,
+            ("desk-conjunctive", "conflation+filter"): 75.0, ("desk", "lstm+filter"): 76.0})
     choices = tables.deploy_choices(run, "desk")
     assert (choices["viterbi"]["folder"], choices["viterbi"]["method"]) == ("desk-temporal", "mln+viterbi")
     assert (choices["filter"]["folder"], choices["filter"]["method"]) == ("desk", "lstm+filter")
     assert choices["best_on_test"]["segment_accuracy"]["method"] == "conflation+viterbi"
     lines = claims.target_checks(run)
-    honest = next(line for line in lines if "chosen on validation (" in line)
-    assert "MLN + Viterbi (offline), learned transitions" in honest
-    assert "segment accuracy 60.0 ± 0.0 (target ≥ 74: **missed**)" in honest and "edit 95.0 ± 0.0 (target ≥ 90: met)" in honest
+    offline = next(line for line in lines if line.startswith("desk, offline choice ("))
+    assert "MLN + Viterbi (offline), learned transitions" in offline
+    assert "edit 95.0 ± 0.0 (target ≥ 90: met)" in offline and "segment accuracy 60.0 ± 0.0 (target ≥ 70: **missed**)" in offline
+    online = next(line for line in lines if line.startswith("desk, online choice ("))
+    assert "segment accuracy 50.0 ± 0.0 (target ≥ 74: **missed**)" in online
     optimistic = next(line for line in lines if "**optimistic**" in line)
-    assert "segment accuracy 80.0 ± 0.0 (LSTM + Conflation + Viterbi (offline), learned transitions; ≥ 74: met)" in optimistic
-    gap = next(line for line in lines if "(chosen on validation):" in line)
-    assert "offline − online +10.0: **missed**" in gap
+    assert "segment accuracy 80.0 ± 0.0 (LSTM + Conflation + Viterbi (offline), learned transitions)" in optimistic
     assert "deploy **LSTM + filter (online), no transitions** (`desk`)" in claims.deploy_sentence(run, "desk")
     assert claims.deploy_sentence(run, "fetch") is None and not any(line.startswith("fetch") for line in lines)
+    rows = tables.deploy_table(run)
+    chosen = next(r for r in rows if r[2].startswith("**chosen**") and r[1] == "online")
+    assert chosen[3] == "no transitions (`desk`)" and chosen[4] == "76.0 ± 0.0" and chosen[8] == "50.0 ± 0.0"
+    summary = tables.summary(run)["desk"]
+    assert summary["online"]["method"] == "lstm+filter" and summary["online"]["cv"]["segment_accuracy"] == 76.0
+    assert summary["offline"]["test"] == {"segment_accuracy": 60.0, "frame_accuracy": 60.0, "edit": 95.0,
+                                          "f1_50": None}
 
 
 def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
@@ -173,7 +185,10 @@ def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
         assert f"({name})" in text
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
     assert "desk: stream mode, seed 0, test episode 1 (the first wholly in the test split), frames 0–599" in text
-    assert "- desk: deploy **" in text and "- desk, chosen on validation (" in text
+    assert "- desk: deploy **" in text and "- desk, online choice (" in text
+    summary = json.loads((tmp_path / report.SUMMARY).read_text())
+    assert set(summary["desk"]) == {"online", "offline", "lstm"}
+    assert set(summary["desk"]["online"]["cv"]) == {"segment_accuracy", "frame_accuracy", "edit", "f1_50"}
     assert result.n_seed_runs == 3
 
 

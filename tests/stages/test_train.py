@@ -7,7 +7,7 @@ import polars as pl
 import pytest
 import torch
 
-from stages import artifacts, recognizer, sequences, train
+from stages import artifacts, checkpoints, sequences, train
 from stages.errors import BadInput, MissingArtifact
 
 
@@ -50,9 +50,9 @@ def test_a_few_epochs_learn_better_than_chance_and_are_deterministic(desk_workdi
     test = log.filter(pl.col("split") == "test")["accuracy"]
     assert test[-1] > 2 / 7  # chance over 7 classes is about 1/7
     assert log.filter(pl.col("split") == "train")["accuracy"][-1] > 0.3
-    weights = recognizer.load_checkpoint(desk_workdir, "lstm").network.weights
+    weights = checkpoints.load_checkpoint(desk_workdir, "lstm").network.weights
     second = train.run(desk_workdir, options)
-    again = recognizer.load_checkpoint(desk_workdir, "lstm")
+    again = checkpoints.load_checkpoint(desk_workdir, "lstm")
     for name, value in again.network.weights.items():
         np.testing.assert_array_equal(value, weights[name], err_msg=name)
     assert artifacts.read_table(second.log, "train_log")[0].equals(log)
@@ -89,7 +89,7 @@ def test_priorlayer_trains_on_the_learned_mln_weights(tmp_path, desk_mln_workdir
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)
     result = train.run(tmp_path, train.TrainOptions(method="priorlayer", prior="paper", epochs=2))
-    checkpoint = recognizer.load_checkpoint(tmp_path, "priorlayer")
+    checkpoint = checkpoints.load_checkpoint(tmp_path, "priorlayer")
     assert checkpoint.config["prior"] == "paper" and "prior.weight" in checkpoint.network.weights
     assert set(checkpoint.config["inputs"]) == {artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS}
     assert result.trained.log.height == 4  # 2 epochs x (train, test)
@@ -126,7 +126,7 @@ def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatc
     with pytest.raises(KeyboardInterrupt):
         train.run(desk_workdir, train.TrainOptions(epochs=1, seed=1))
     assert path.read_bytes() == before
-    assert recognizer.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
+    assert checkpoints.load_checkpoint(desk_workdir, "lstm").config["seed"] == 0
 
 
 def test_select_last_holds_out_a_validation_part_and_keeps_the_last_epoch(desk_workdir):
@@ -134,5 +134,5 @@ def test_select_last_holds_out_a_validation_part_and_keeps_the_last_epoch(desk_w
     trained = result.trained
     assert trained.kept_epoch == 3 and trained.n_val_units > 0
     assert trained.log.filter(pl.col("split") == "val").height == 3
-    spans = recognizer.load_checkpoint(desk_workdir, "lstm").config["val_spans"]
+    spans = checkpoints.load_checkpoint(desk_workdir, "lstm").config["val_spans"]
     assert [tuple(s) for s in spans] == trained.val_spans and spans

@@ -1,0 +1,125 @@
+"""Cross-validation on the training split: every training frame predicted by what was fitted without its fold
+(the fold's network, its MLN weights, and a network factor weight learned on the other folds), so that a
+choice among methods, and the network factor's weight, are made on honest predictions and never on test.
+
+The network factor's weight of a decoded network method is learned by the chain's exact conditional
+likelihood (stages.mln.cll.network_weight) on out-of-fold network log-probabilities: per fold on its fit
+part, for the cross-validated figures; on the whole training split, for the model that decodes test.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stages.methods import decoded_name, network_of
+from stages.mln import chain
+from stages.recognizer import chain_of, decode_chain, fuse
+
+if TYPE_CHECKING:
+    from stages.mln.factors import MLNFactors
+    from stages.workdir_inputs import MLNInputs, WorkdirInputs
+
+FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
+
+
+def choice_score(figures: dict[str, float], decode: str) -> float:
+    """What a choice among decoded methods maximises: online (filter), the segment accuracy; offline (viterbi),
+    the mean of segment accuracy and edit score (an offline user also wants the segments' order right)."""
+    if decode == "viterbi":
+        return (figures["segment_accuracy"] + figures["edit"]) / 2
+    return figures["segment_accuracy"]
+
+
+def chains(mask: np.ndarray, episodes: np.ndarray, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, starts) of the chains over the rows ``mask`` selects: cut at episodes, folds and gaps."""
+    rows = np.flatnonzero(mask)
+    starts = chain.chain_starts(episodes[rows], fold[rows]) | np.r_[True, np.diff(rows) > 1]
+    return rows, starts
+
+
+def learned_weight(method: str, mln: MLNFactors, evidence: np.ndarray, rows: np.ndarray, starts: np.ndarray,
+                   log_p: np.ndarray, labels: np.ndarray) -> float:
+    """The network factor's weight of a decoded method learned by exact CLL on ``rows`` (out-of-fold ``log_p``)."""
+    from stages.mln import cll
+
+    base = chain_of(method, mln, evidence[rows], starts, log_p[rows], 0.0)
+    return cll.network_weight(base, log_p[rows], labels[rows])
+
+
+def figures_of(predicted: np.ndarray, labels: np.ndarray, starts: np.ndarray, n_classes: int,
+               segmental: bool) -> dict[str, float]:
+    """Segment and frame accuracy (%), edit and F1@50 of predictions over chains cut at ``starts``."""
+    from stages.metrics import score_method
+
+    scored = score_method(predicted, labels, np.cumsum(starts), n_classes, 0.5, segmental)
+    return {"segment_accuracy": 100 * scored["segment_accuracy"], "frame_accuracy": 100 * scored["frame_accuracy"],
+            "edit": scored.get("edit", float("nan")), "f1_50": scored.get("f1@50", float("nan"))}
+
+
+@dataclass
+class CrossValidated:
+    figures: dict[str, dict[str, float]] = field(default_factory=dict)  # method name -> FIGURES
+    fold_weights: dict[str, list[float]] = field(default_factory=dict)  # decoded network method -> per fold
+
+
+def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str], methods: Sequence[str],
+                   fixed_weight: float | None = None) -> CrossValidated:
+    """Every method (with each decoding in ``decodes``) predicted on each fold by what was fitted without it;
+    its figures over the whole training split. Methods whose network has no out-of-fold predictions are left out."""
+    from stages.mln import classifier
+    from stages.mln.factors import MLNFactors
+
+    cv, data, folds = inputs.folds, inputs.data, inputs.folds.folds
+    n_classes = len(inputs.classes)
+    result = CrossValidated()
+    usable = [m for m in methods if (network_of(m) is None or network_of(m) in cv.log_probs)
+              and (network_of(m) == m or cv.mln)]
+    predicted = {decoded_name(m, d): np.zeros(len(data.labels), dtype=np.int64) for m in usable for d in decodes}
+    for k in range(folds.k):
+        held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
+        rows, starts = chains(held, data.episodes, folds.fold)
+        fold_mln: MLNInputs | None = cv.mln[k] if cv.mln else None
+        p_mln = None if fold_mln is None else np.exp(classifier.class_log_probs(fold_mln.scores, mln_mode,
+                                                                                  inputs.source))
+        factors = None
+        if fold_mln is not None and any(d != "none" for d in decodes):
+            factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
+        for method in usable:
+            network = network_of(method)
+            log_p = cv.log_probs.get(network)
+            for decode in decodes:
+                name = decoded_name(method, decode)
+                if decode == "none":
+                    probabilities = fuse(method, None if log_p is None else np.exp(log_p[rows]),
+                                         None if p_mln is None else p_mln[rows])
+                    predicted[name][rows] = probabilities.argmax(1)
+                    continue
+                weight = 1.0
+                if network is not None:
+                    weight = fixed_weight if fixed_weight is not None else learned_weight(
+                        method, factors, fold_mln.evidence, *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                    result.fold_weights.setdefault(name, []).append(weight)
+                chained = chain_of(method, factors, fold_mln.evidence[rows], starts,
+                                   None if log_p is None else log_p[rows], weight)
+                predicted[name][rows] = decode_chain(decode, chained).path
+    rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
+    for name, values in predicted.items():
+        network = network_of(name.partition("+")[0])
+        segmental = network is None or inputs.networks[network].checkpoint.mode != "segment"
+        result.figures[name] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental)
+    return result
+
+
+def test_weight(method: str, inputs: WorkdirInputs, mln: MLNFactors) -> float:
+    """The weight that decodes test: learned on the whole training split's out-of-fold log-probabilities, with
+    the MLN weights learned on the whole training split."""
+    folds = inputs.folds.folds
+    rows, starts = chains(folds.fold >= 0, inputs.data.episodes, folds.fold)
+    return learned_weight(method, mln, inputs.mln.evidence, rows, starts, inputs.folds.log_probs[network_of(method)],
+                          inputs.data.labels)
+
+

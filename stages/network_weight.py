@@ -1,0 +1,72 @@
+"""The network factor's weight of a decoded method: how much the network's log-probabilities count against
+the MLN's factors in the chain. Chosen on a network's validation part (never on test), else 1."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stages import artifacts
+from stages.mln import chain
+from stages.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
+from stages.recognizer import chain_of, decode_chain
+
+if TYPE_CHECKING:
+    from stages.mln.factors import MLNFactors
+
+NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
+
+
+@dataclass(frozen=True)
+class WeightChoice:
+    """The network factor's weight of a decoded method, how it was set, and the validation frame accuracy."""
+
+    weight: float
+    accuracy: float | None  # None: not chosen on a validation part
+    tried: dict[float, float] = field(default_factory=dict)
+    how: str = "validation"  # validation (grid) | fixed (by option, or nothing to choose on)
+
+    def record(self) -> dict:
+        return {"weight": self.weight, "how": self.how, "validation_frame_accuracy": self.accuracy,
+                "tried": {str(w): a for w, a in self.tried.items()}}
+
+
+def choose_on_validation(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
+                         log_p_network: np.ndarray, labels: np.ndarray, validation: np.ndarray) -> WeightChoice:
+    """The weight in NETWORK_WEIGHTS with the best frame accuracy on the ``validation`` rows (ties: the one
+    nearest 1); with no validation row the weight is 1. Test rows are never passed here."""
+    if not validation.any():
+        return WeightChoice(1.0, None, {}, "fixed")
+    rows = np.flatnonzero(validation)
+    starts = starts[rows] | np.r_[True, np.diff(rows) > 1]  # a chain also starts where validation resumes
+    tried = {}
+    for weight in NETWORK_WEIGHTS:
+        factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
+        tried[weight] = float((decode_chain(kind, factors).path == labels[validation]).mean())
+    best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
+    return WeightChoice(best, tried[best], tried)
+
+
+def choose(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, episodes: np.ndarray, parts: np.ndarray,
+           log_p_network: np.ndarray, labels: np.ndarray, fixed: float | None = None) -> WeightChoice:
+    """A decoded network method's weight: ``fixed`` when given, else chosen on the rows ``parts`` marks val."""
+    if fixed is not None:
+        return WeightChoice(fixed, None, {}, "fixed")
+    return choose_on_validation(method, kind, mln, evidence, chain.chain_starts(episodes, parts), log_p_network,
+                                labels, parts == "val")
+
+
+def decoding_notes(temporal: bool, unvalidated: list[str]) -> list[Note]:
+    """What decoding says: uniform transitions (no temporal formula), and the networks whose decoded methods keep
+    the weight 1 because they were trained without a validation part."""
+    notes = []
+    if not temporal:
+        notes.append(Note(UNIFORM_TRANSITIONS, f"{artifacts.WEIGHTS} has no temporal formula (Next): decoding uses "
+                                               "uniform transitions"))
+    if unvalidated:
+        notes.append(Note(WEIGHT_NOT_CHOSEN, f"{', '.join(unvalidated)} trained without a validation part "
+                                             "(`train --select last` or `val_accuracy`): its decoded methods keep the "
+                                             "network factor's weight 1"))
+    return notes

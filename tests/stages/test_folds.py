@@ -1,0 +1,139 @@
+"""Cross-validation: the folds, the fold networks' out-of-fold predictions, the network factor's weight learned by
+exact CLL on them, the cross-validated figures conflate records, and `export --method auto`."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from stages import artifacts, checkpoints, conflate, export, folds, learn_weights, train
+from stages.cross_validation import FIGURES, choice_score
+from stages.errors import BadInput, StaleArtifact
+
+
+def desk_keys(workdir: Path) -> tuple[np.ndarray, np.ndarray]:
+    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "split"])
+    return frames["episode"].to_numpy(), frames["split"].to_numpy()
+
+
+def test_desk_has_one_training_recording_so_its_folds_are_contiguous_blocks(desk_frames_workdir):
+    episodes, splits = desk_keys(desk_frames_workdir)
+    cut = folds.assign(episodes, splits, 5)
+    assert cut.kind == "blocks" and cut.k == 5
+    assert (cut.fold[splits == "test"] == -1).all() and (cut.fold[splits == "train"] >= 0).all()
+    assert cut.record()["spans"] == [[0, 281], [281, 562], [562, 843], [843, 1124], [1124, 1405]]
+    assert folds.assign(episodes, splits, 5).record() == cut.record()  # deterministic
+
+
+def test_folds_are_whole_episodes_when_there_are_enough():
+    episodes = np.repeat([3, 1, 2, 7], 30)
+    splits = np.array(["train"] * 90 + ["test"] * 30)
+    cut = folds.assign(episodes, splits, 3)
+    assert cut.kind == "episodes" and [s[:2] for s in cut.record()["spans"]] == [[0, 30], [30, 60], [60, 90]]
+    assert folds.assign(episodes, splits, 4).kind == "blocks"  # 3 training episodes: 4 folds are blocks
+
+
+@pytest.mark.parametrize("k", [1, 71])
+def test_a_k_the_split_cannot_make_names_the_largest(desk_frames_workdir, k):
+    episodes, splits = desk_keys(desk_frames_workdir)
+    with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 70"):
+        folds.assign(episodes, splits, k)
+
+
+def test_out_of_fold_predictions_cover_every_training_frame_with_its_fold(desk_folds_workdir):
+    table, meta = artifacts.read_table(artifacts.out_of_fold_path(desk_folds_workdir, "lstm"), "out_of_fold")
+    checkpoint = checkpoints.load_checkpoint(desk_folds_workdir, "lstm")
+    assert meta["folds"] == checkpoint.config["folds"] and meta["folds"]["k"] == 3
+    assert checkpoint.config["n_val_units"] == 0  # the deployed network is refit on the whole training split
+    assert table.height == 1405 and table["fold"].to_list() == np.repeat([0, 1, 2], [469, 468, 468]).tolist()
+    log_probs = table.select(artifacts.log_prob_columns(7)).to_numpy()
+    np.testing.assert_allclose(np.exp(log_probs).sum(1), 1.0, atol=1e-4)
+    fold_weights, weights_meta = artifacts.read_table(desk_folds_workdir / artifacts.FOLD_WEIGHTS, "fold_weights")
+    assert weights_meta["folds"] == meta["folds"] and fold_weights["fold"].unique().sort().to_list() == [0, 1, 2]
+
+
+def test_conflate_learns_the_network_weight_and_cross_validates_every_method(desk_folds_workdir):
+    meta = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS, "predictions")
+    cv = meta["cross_validation"]
+    assert set(cv["figures"]) == set(meta["methods"])
+    for figures in cv["figures"].values():
+        assert set(figures) == set(FIGURES) and 0 <= figures["segment_accuracy"] <= 100
+    for name in ("lstm+filter", "conflation+viterbi", "combined+filter"):
+        assert meta["network_weights"][name]["how"] == "learned" and meta["network_weights"][name]["weight"] >= 0
+        assert len(cv["fold_network_weights"][name]) == 3
+    # the same weight decodes test online and offline: it is learned by likelihood, not per decoding
+    assert meta["network_weights"]["conflation+filter"] == meta["network_weights"]["conflation+viterbi"]
+
+
+def test_the_learned_weight_follows_how_informative_the_network_is(desk_folds_workdir):
+    from stages.mln import cll
+    from stages.mln.factors import MLNFactors
+
+    predicates, _ = artifacts.read_table(desk_folds_workdir / artifacts.PREDICATES, "predicates")
+    weights, _ = artifacts.read_table(desk_folds_workdir / artifacts.WEIGHTS, "weights")
+    train_rows = predicates.filter(pl.col("split") == "train")
+    columns = artifacts.feature_columns(predicates)
+    labels = train_rows["label"].to_numpy().astype(np.int64)
+    mln = MLNFactors.from_weights(weights, columns, 7)
+    factors = mln.chain(train_rows.select(columns).to_numpy().astype(bool), np.r_[True, np.zeros(len(labels) - 1, bool)])
+    honest = np.log(np.where(np.eye(7)[labels] > 0, 0.5, 0.5 / 6))  # half its mass on the true class
+    shuffled = honest[np.random.default_rng(0).permutation(len(labels))]
+    assert cll.network_weight(factors, honest, labels) > 0.5
+    assert cll.network_weight(factors, shuffled, labels) < 0.05
+
+
+def test_export_auto_picks_the_best_cross_validated_method(desk_folds_workdir, tmp_path):
+    exported = export.run(desk_folds_workdir, export.ExportOptions(method="auto", decode="viterbi",
+                                                                    output=tmp_path / "auto.mlnseq"))
+    chosen = exported.manifest["chosen_by_cross_validation"]
+    figures = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]["figures"]
+    best = max((n for n in figures if n.endswith("+viterbi")), key=lambda n: choice_score(figures[n], "viterbi"))
+    assert chosen["name"] == best and exported.manifest["method"] == best.partition("+")[0]
+    assert exported.manifest["decode"] == "viterbi"
+
+
+def test_export_auto_without_folds_says_to_train_with_folds(desk_stream_workdir, tmp_path):
+    with pytest.raises(BadInput, match=r"train --folds K"):
+        export.run(desk_stream_workdir, export.ExportOptions(method="auto", decode="filter", output=tmp_path / "m"))
+    with pytest.raises(BadInput, match="add --decode filter"):
+        export.ExportOptions(method="auto").validate()
+
+
+def test_out_of_fold_predictions_of_another_training_are_stale(desk_folds_workdir, tmp_path):
+    workdir = Path(shutil.copytree(desk_folds_workdir, tmp_path / "work"))
+    other = Path(shutil.copytree(desk_folds_workdir, tmp_path / "other"))
+    train.run(other, train.TrainOptions(method="lstm", mode="stream", epochs=1, folds=3, seed=5))
+    shutil.copy(artifacts.out_of_fold_path(other, "lstm"), artifacts.out_of_fold_path(workdir, "lstm"))
+    before = (workdir / artifacts.PREDICTIONS).read_bytes()
+    with pytest.raises(StaleArtifact, match="rerun `mlnseq train --method lstm --folds 3`"):
+        conflate.run(workdir, conflate.ConflateOptions())
+    assert (workdir / artifacts.PREDICTIONS).read_bytes() == before
+
+
+def test_priorlayer_fold_networks_need_the_folds_mln_weights(desk_folds_workdir, tmp_path):
+    workdir = Path(shutil.copytree(desk_folds_workdir, tmp_path / "work"))
+    (workdir / artifacts.FOLD_WEIGHTS).unlink()
+    with pytest.raises(BadInput, match="learn-weights --folds 3"):
+        train.run(workdir, train.TrainOptions(method="priorlayer", mode="stream", epochs=1, folds=3))
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=2))
+    with pytest.raises(BadInput, match="other folds"):
+        train.run(workdir, train.TrainOptions(method="priorlayer", mode="stream", epochs=1, folds=3))
+
+
+def test_a_fold_lacking_a_class_is_a_warning_naming_fold_and_class():
+    cut = folds.assign(np.zeros(60, dtype=int), np.array(["train"] * 60), 3)
+    labels = np.r_[np.zeros(20, int), np.ones(40, int)]  # class a only in fold 0
+    assert folds.missing_classes(cut, labels, ["a", "b"]) == [
+        "fold 0: its fit part lacks class a; its out-of-fold predictions are written all the same"]
+
+
+def test_train_refuses_a_bad_k_before_training(desk_frames_workdir, tmp_path):
+    shutil.copy(desk_frames_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
+    for k in (1, 71):
+        with pytest.raises(BadInput, match=f"--folds {k}: .* use --folds 70"):
+            train.run(tmp_path, train.TrainOptions(mode="stream", epochs=1, folds=k))
+    assert not (tmp_path / artifacts.MODELS_DIR).exists()
