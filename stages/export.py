@@ -34,7 +34,7 @@ class ExportOptions:
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
 
     def validate(self) -> None:
-        check_choice("method", self.method, METHODS, more=AUTO)
+        check_choice("method", self.method, (*METHODS, AUTO))
         if self.method == AUTO and self.decode not in ("filter", "viterbi"):
             raise BadInput(f"--method {AUTO} chooses among decoded methods: add --decode filter (online) or "
                            "--decode viterbi (offline)")

@@ -15,7 +15,6 @@ import polars as pl
 from stages import artifacts
 from stages.errors import BadInput
 
-DEFAULT_FOLDS = 5  # stream mode's default, or as many as the training split allows
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
 
@@ -66,15 +65,15 @@ def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--fo
     return Folds(fold, "blocks")
 
 
-def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray) -> Folds | None:
-    """``train --folds``: None is the default (stream mode without a validation part: DEFAULT_FOLDS, or as many
-    as the split allows; otherwise none); 0 is none."""
+def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray,
+            workdir: Path | None = None) -> Folds | None:
+    """``train --folds``: None is the default: in stream mode without a validation part, the folds the MLN's
+    weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none; 0 is none."""
     if k is None:
-        if mode != "stream" or select != "none":
+        path = None if workdir is None else Path(workdir) / artifacts.FOLD_WEIGHTS
+        if mode != "stream" or select != "none" or path is None or not path.exists():
             return None
-        k = min(DEFAULT_FOLDS, largest(episodes, splits))
-        if k < 2:
-            return None
+        k = int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
     if k == 0:
         return None
     return assign(episodes, splits, k)

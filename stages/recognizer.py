@@ -100,8 +100,6 @@ def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5)
             f"episode boundary, or evidence that breaks a hard rule): {where}{more}")
 
 
-@dataclass(frozen=True)
-
 # --- the Recognizer (export, info, predict, stream, the Python API) ---------------------------------
 
 

@@ -315,7 +315,7 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
         prior_layer=options.method == "priorlayer", smoothing=options.smoothing,
     )
     device = resolve_device(options.device)
-    folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits)
+    folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, workdir)
     trained = fit(data, config, options, device, progress)
 
     checkpoint_config = {

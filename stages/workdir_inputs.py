@@ -132,7 +132,7 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
         predicates, weights, mln_inputs = read_mln(workdir, frames)
         result.inputs += mln_inputs
         columns = artifacts.feature_columns(predicates)
-        result.mln = MLNInputs(weights, classifier.class_scores(predicates, weights, len(result.classes)), columns,
+        result.mln = MLNInputs(weights, classifier.class_scores(predicates, weights, result.classes), columns,
                                predicates.select(columns).to_numpy().astype(bool), predicates)
     else:
         result.notes.append(Note(MISSING_INPUT, f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined "

@@ -254,7 +254,7 @@ def network_weight(factors: chain.ChainFactors, log_p_network: np.ndarray, label
 
     def objective(w: np.ndarray) -> tuple[float, np.ndarray]:
         weighted = replace(factors, unary=factors.unary + w[0] * log_p)
-        expected = chain.expectations(weighted)
+        expected = chain_moments.expectations(weighted)
         value = chain.path_score(weighted, labels) - expected.log_z - 0.5 * l2 * w[0] ** 2
         gradient = observed - float((expected.unary * finite).sum()) - l2 * w[0]
         return -value / frames, np.array([-gradient / frames])

@@ -135,6 +135,6 @@ def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_with_a_note(tmp_path
     shutil.copytree(own_data_glitch["workdir"], tmp_path, dirs_exist_ok=True)
     result = conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter", "viterbi")))
     for name in ("mln+filter", "mln+viterbi"):
-        assert [n for n in result.notes if n.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
+        assert [n.text for n in result.notes if n.text.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
             f"{name}: the chain restarted at 1 frame(s) that no allowed transition reaches (a missed episode boundary, "
             f"or evidence that breaks a hard rule): episode 11 frame {own_data_glitch['frame']}"]

@@ -74,11 +74,11 @@ def test_the_learned_weight_follows_how_informative_the_network_is(desk_folds_wo
     from stages.mln.factors import MLNFactors
 
     predicates, _ = artifacts.read_table(desk_folds_workdir / artifacts.PREDICATES, "predicates")
-    weights, _ = artifacts.read_table(desk_folds_workdir / artifacts.WEIGHTS, "weights")
+    weights, meta = artifacts.read_table(desk_folds_workdir / artifacts.WEIGHTS, "weights")
     train_rows = predicates.filter(pl.col("split") == "train")
     columns = artifacts.feature_columns(predicates)
     labels = train_rows["label"].to_numpy().astype(np.int64)
-    mln = MLNFactors.from_weights(weights, columns, 7)
+    mln = MLNFactors.from_weights(weights, columns, meta["classes"])
     factors = mln.chain(train_rows.select(columns).to_numpy().astype(bool), np.r_[True, np.zeros(len(labels) - 1, bool)])
     honest = np.log(np.where(np.eye(7)[labels] > 0, 0.5, 0.5 / 6))  # half its mass on the true class
     shuffled = honest[np.random.default_rng(0).permutation(len(labels))]
