@@ -10,7 +10,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import binarize
+from stages import binarize, predicate_spec
 
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "predicates.md"
 
@@ -28,7 +28,7 @@ def examples() -> list[tuple[str, str]]:
 
 
 def test_every_kind_the_parser_knows_has_a_section_listing_its_keys():
-    known = {**binarize.KIND_KEYS, **binarize.CHANNEL_KEYS}
+    known = {**predicate_spec.KIND_KEYS, **predicate_spec.CHANNEL_KEYS}
     found = sections()
     assert set(found) == set(known)
     for kind, keys in known.items():
@@ -41,7 +41,7 @@ def test_every_kind_the_parser_knows_has_a_section_listing_its_keys():
 
 def test_every_kind_has_an_example_and_each_parses(tmp_path):
     found = examples()
-    assert {kind for kind, _ in found} == set(binarize.KIND_KEYS) | set(binarize.CHANNEL_KEYS)
+    assert {kind for kind, _ in found} == set(predicate_spec.KIND_KEYS) | set(predicate_spec.CHANNEL_KEYS)
     for kind, text in found:
         spec = binarize.parse_spec(text, tmp_path / f"{kind}.binarize.toml")
         kinds = {type(p).__name__.lower() for p in spec.predicates} | {"distance" for _ in spec.channels}
