@@ -140,7 +140,7 @@ def weight_cell(run: Run, folder: str, mode: str, method: str) -> str:
         return "1 (fixed)"
     chosen = run.network_weights.filter((pl.col("dataset") == folder) & (pl.col("mode") == mode)
                                         & (pl.col("method") == method))["value"]
-    return ", ".join(f"{w:g}" for w in sorted(chosen.unique())) if chosen.len() else "–"
+    return ", ".join(f"{w:.3g}" for w in sorted(chosen.unique())) if chosen.len() else "–"
 
 
 def decoded_cells(run: Run, stats: dict[str, pl.DataFrame], cv: dict[str, pl.DataFrame], folder: str, mode: str,

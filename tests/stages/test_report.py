@@ -127,7 +127,7 @@ def test_decoded_rows_come_from_the_temporal_folder(loaded):
                                   & (pl.col("metric") == "frame_accuracy"))["value"][0]
     assert viterbi[4] == f"{100 * frame:.1f}"
     chosen = loaded.network_weights.filter(pl.col("method") == "conflation+viterbi")["value"][0]
-    assert viterbi[7] == f"{chosen:g}"
+    assert viterbi[7] == f"{chosen:.3g}"
 
 
 def sequence_run(test: dict[str, float], cv: dict[str, float]) -> loading.Run:
