@@ -9,7 +9,6 @@ they are (see ``stages.sources``), all assembled by ``stages.table_import``.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ import polars as pl
 
 from stages import artifacts, fetch_demos, sources
 from stages.errors import BadInput, check_choice
-from stages.sources import RECORDING_ENVS, SourceOptions
+from stages.sources import RECORDING_ENVS, SourceOptions, numeric_text
 from stages.table_import import TableColumns, collect_frames, reading_record
 
 ENVS = ("fetch", "desk", *RECORDING_ENVS)
@@ -107,27 +106,7 @@ def read_numeric_text(path: Path, n_columns: int) -> np.ndarray:
     """Read a whitespace-separated numeric text file, naming the file and line of any bad value."""
     if not path.is_file():
         raise BadInput(f"{path} not found: point --source at a folder holding it")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadInput(f"cannot read {path}: {error}") from error
-    rows: list[list[float]] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
-        if not fields:
-            continue
-        if len(fields) != n_columns:
-            raise BadInput(f"{path}:{number}: expected {n_columns} columns, found {len(fields)}")
-        try:
-            values = [float(field) for field in fields]
-        except ValueError:
-            raise BadInput(f"{path}:{number}: non-numeric value in {line.strip()[:60]!r}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise BadInput(f"{path}:{number}: NaN or infinite value; remove or repair that frame")
-        rows.append(values)
-    if not rows:
-        raise BadInput(f"{path} is empty: expected {n_columns} numeric columns per line")
-    return np.asarray(rows, dtype=np.float64)
+    return numeric_text.read_numeric_text(path, n_columns, f"{n_columns} numeric columns per line")
 
 
 def _labels(values: np.ndarray, path: Path, n_classes: int) -> np.ndarray:

@@ -8,7 +8,6 @@ linear and angular velocity and gripper angle. A file of another width gets ``k1
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ import polars as pl
 
 from stages.errors import BadInput
 from stages.sources import intervals
+from stages.sources.numeric_text import read_numeric_text
 from stages.table_import import Recording, TableColumns, check_features
 
 MANIPULATORS = ("mtm_left", "mtm_right", "psm_left", "psm_right")
@@ -27,29 +27,7 @@ KINEMATICS, TRANSCRIPTIONS = Path("kinematics") / "AllGestures", Path("transcrip
 
 
 def read_kinematics(path: Path) -> np.ndarray:
-    rows: list[list[float]] = []
-    width = None
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadInput(f"cannot read {path}: {error}") from error
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
-        if not fields:
-            continue
-        width = width or len(fields)
-        if len(fields) != width:
-            raise BadInput(f"{path}:{number}: expected {width} columns as on the first line, found {len(fields)}")
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            raise BadInput(f"{path}:{number}: non-numeric value in {line.strip()[:60]!r}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise BadInput(f"{path}:{number}: NaN or infinite value; remove or repair that frame")
-        rows.append(values)
-    if not rows:
-        raise BadInput(f"{path} is empty: expected one frame of kinematics per line")
-    return np.asarray(rows)
+    return read_numeric_text(path, None, "one frame of kinematics per line")
 
 
 def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:

@@ -110,10 +110,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
     start = reader.start_time
     row: np.ndarray | None = None
     offsets: dict[str, tuple[int, int]] = {}
-    blocks: list[np.ndarray] = []
+    frames: _Blocks | None = None
     label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label): ticks' times and labels follow
-    block = np.empty((0, 0))
-    filled = 0
     tick = 0
     clock0 = None
 
@@ -126,11 +124,7 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         last_time[topic] = timestamp
         if row is not None:
             while clock0 + round(tick * period) < timestamp:  # ticks before this message hold the values so far
-                if filled == CHUNK:
-                    blocks.append(block)
-                    block, filled = np.empty((CHUNK, len(row))), 0
-                block[filled] = row
-                filled += 1
+                frames.append(row)
                 tick += 1
         message = reader.deserialize(raw, connection.msgtype)
         if topic == label_topic:
@@ -165,7 +159,7 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
                 offsets[t] = (position, position + len(current[t]))
                 position += len(current[t])
             row = np.concatenate([current[t] for t in candidates])
-            block, filled, clock0 = np.empty((CHUNK, len(row))), 0, timestamp
+            frames, clock0 = _Blocks(len(row)), timestamp
     if row is None:
         if not candidates:
             raise BadInput(f"{path}: no topic has a numeric field ({listed})")
@@ -173,13 +167,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         raise BadInput(f"{path}: topic {waiting[0]!r} sent no message, so no frame has every topic's value")
     end = max(last_time.values())
     while clock0 + round(tick * period) <= end:
-        if filled == CHUNK:
-            blocks.append(block)
-            block, filled = np.empty((CHUNK, len(row))), 0
-        block[filled] = row
-        filled += 1
+        frames.append(row)
         tick += 1
-    blocks.append(block[:filled])
     feature_names = [name for t in candidates for name in names[t]]
     n = tick
     times = clock0 + np.round(np.arange(n) * period).astype(np.int64)
@@ -196,9 +185,9 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
             raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
     columns = {}
     for i, name in enumerate(feature_names):  # one column at a time: the blocks and the frames, never a third copy
-        column = np.concatenate([b[:, i] for b in blocks])
+        column = frames.column(i)
         columns[name] = column[keep] if label_topic else column
-    del blocks, block
+    del frames
     features = check_features(pl.DataFrame(columns), path, "{file} frame {row}", pl.Series(rows))
     return Recording(
         path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
@@ -207,6 +196,24 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         row=pl.Series(rows), where="{file} frame {row}",
         resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
     )
+
+
+class _Blocks:
+    """Frames held in blocks of CHUNK rows: the buffer grows without copying the frames it holds."""
+
+    def __init__(self, width: int):
+        self.full: list[np.ndarray] = []
+        self.block, self.filled = np.empty((CHUNK, width)), 0
+
+    def append(self, row: np.ndarray) -> None:
+        if self.filled == CHUNK:
+            self.full.append(self.block)
+            self.block, self.filled = np.empty_like(self.block), 0
+        self.block[self.filled] = row
+        self.filled += 1
+
+    def column(self, i: int) -> np.ndarray:
+        return np.concatenate([b[:, i] for b in (*self.full, self.block[:self.filled])])
 
 
 def _rate_of(reader, path: Path, topic: str) -> float:

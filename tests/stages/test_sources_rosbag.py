@@ -51,23 +51,24 @@ def messages(desk: np.ndarray):
             yield "/phase", t, String(data=DESK_CLASSES[int(previous)])
 
 
+def write_messages(writer, desk: np.ndarray, serialize) -> None:
+    """The recording's messages through a rosbags writer, each topic's connection added at its first message."""
+    connections = {}
+    for topic, t, message in messages(desk):
+        if topic not in connections:
+            connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=STORE)
+        writer.write(connections[topic], t, serialize(message, message.__msgtype__))
+
+
 def write_ros2(path: Path, desk: np.ndarray, storage) -> Path:
     with Writer2(path, version=9, storage_plugin=storage) as writer:
-        connections = {}
-        for topic, t, message in messages(desk):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=STORE)
-            writer.write(connections[topic], t, STORE.serialize_cdr(message, message.__msgtype__))
+        write_messages(writer, desk, STORE.serialize_cdr)
     return path
 
 
 def write_ros1(path: Path, desk: np.ndarray) -> Path:
     with Writer1(path) as writer:
-        connections = {}
-        for topic, t, message in messages(desk):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=STORE)
-            writer.write(connections[topic], t, STORE.serialize_ros1(message, message.__msgtype__))
+        write_messages(writer, desk, STORE.serialize_ros1)
     return path
 
 
