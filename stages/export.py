@@ -142,10 +142,9 @@ def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
 def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:
     """The network factor's weight of the one decoded network method exported, as conflate chooses it, and
     the notes that bear on it."""
+    from stages.cross_validation import test_weight
     from stages.mln.factors import MLNFactors
     from stages.workdir_inputs import read_workdir
-
-    from stages.cross_validation import test_weight
 
     network = network_of(options.method)
     inputs = read_workdir(workdir, (network,))
