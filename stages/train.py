@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +22,7 @@ import numpy as np
 import polars as pl
 
 from stages import artifacts, networks, sequences
+from stages import folds as folding
 from stages.errors import BadInput, check_choice
 from stages.checkpoints import save_checkpoint
 from stages.methods import NETWORKS, PRIORS
@@ -295,8 +296,6 @@ class TrainResult:
 
 def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) -> TrainResult:
     """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
-    from stages import folds as folding
-
     options.validate()
     workdir = Path(workdir)
     set_threads()
@@ -364,11 +363,6 @@ def fold_networks(workdir: Path, data: FrameData, config: Any, options: TrainOpt
     """Train one network per fold without it and predict that fold: the out-of-fold class log-probabilities
     [n, C] of every training frame, the warnings, and the inputs read (PriorLayer's fold networks read their
     fold's MLN weights)."""
-    from dataclasses import replace
-
-    from stages import folds as folding
-    from stages.recognizer import prior_input
-
     fold_scores, inputs = None, []
     if options.method == "priorlayer":
         fold_scores, inputs = folding.fold_mln_scores(workdir, folds, list(meta["classes"]))
