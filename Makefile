@@ -53,7 +53,7 @@ FETCH_RICH_SPEC ?= examples/fetch-rich.binarize.toml
 DESK_SPEC ?= stages/specs/desk.binarize.toml
 FORMULAS_SPEC ?= stages/specs/paper.mln
 TEMPORAL_SPEC ?= examples/temporal.mln
-# steps of one FetchPickAndPlace-v4 episode (EPISODE_STEPS in stages/fetch_demos.py)
+# steps of one FetchPickAndPlace-v4 episode (EPISODE_STEPS in stages/sources/fetch.py)
 FETCH_EPISODE_FRAMES := 50
 
 REPORT := $(REPORTS)/REPORT.md
@@ -103,14 +103,20 @@ reproduce: $(SETUP_DONE) ## Set up (without pracmln), then rebuild the paper's r
 report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and the report (no set-up)
 	@$(if $(HAVE_DESK),,echo "DESK Taurus files not found in $(DESK_DIR): the DESK half was skipped (set DESK_DIR=...)")
 
-MLN_SOURCES := $(wildcard stages/mln/*.py)
-NETWORK_SOURCES := $(wildcard stages/networks/*.py)
-TRAIN_SOURCES := stages/train.py $(NETWORK_SOURCES) stages/sequences.py stages/folds.py
-RECOGNIZER_SOURCES := stages/conflate.py stages/recognizer.py stages/methods.py stages/checkpoints.py stages/network_weight.py \
-  stages/notes.py stages/workdir_inputs.py stages/cross_validation.py stages/folds.py $(NETWORK_SOURCES) \
-  stages/sequences.py $(MLN_SOURCES)
+# Each stage's sources: its own file and the library folders it reads (stages/ holds a file per stage and a
+# folder per shared library), so a change anywhere a stage depends on reruns it.
+libraries = $(foreach folder,$(1),$(wildcard stages/$(folder)/*.py)) stages/__init__.py
+RECOGNITION_LIBRARIES := catalog timeline predicates mln networks model recognition
+COLLECT_SOURCES := stages/collect.py $(call libraries,catalog sources)
+BINARIZE_SOURCES := stages/binarize.py $(call libraries,catalog predicates)
+FORMULAS_SOURCES := stages/formulas.py $(call libraries,catalog mln)
+LEARN_SOURCES := stages/learn_weights.py $(call libraries,$(RECOGNITION_LIBRARIES))
+TRAIN_SOURCES := stages/train.py $(call libraries,$(RECOGNITION_LIBRARIES))
+RECOGNIZER_SOURCES := stages/conflate.py $(call libraries,$(RECOGNITION_LIBRARIES))
+EVAL_SOURCES := stages/eval.py $(call libraries,catalog timeline)
+REPORT_SOURCES := stages/report.py mlnseq_cli/report.py $(call libraries,$(RECOGNITION_LIBRARIES) reporting)
 
-$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnseq_cli/report.py
+$(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(REPORT_SOURCES)
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)
 
 # Frames: Fetch simulated once with the paper's split (first 126 frames train), its episodes kept in
@@ -118,18 +124,18 @@ $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(wildcard stages/report/*.py) mlnse
 FETCH_CACHE := $(RUNS)/cache
 FETCH_COLLECT = $(STAGE) collect --env fetch --episodes $(FETCH_EPISODES) --cache $(FETCH_CACHE) --workdir $(@D)
 
-$(RUNS)/fetch/frames.parquet: stages/collect.py stages/fetch_demos.py
+$(RUNS)/fetch/frames.parquet: $(COLLECT_SOURCES)
 	$(FETCH_COLLECT)
 
-$(RUNS)/desk/frames.parquet: $(DESK_FILES) stages/collect.py
+$(RUNS)/desk/frames.parquet: $(DESK_FILES) $(COLLECT_SOURCES)
 	$(STAGE) collect --env desk --source $(DESK_DIR) --workdir $(@D)
 
 # The richer predicate spec needs the goal: the same Fetch episodes with the 6 goal values added.
-$(RUNS)/fetch-rich/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+$(RUNS)/fetch-rich/frames.parquet: $(COLLECT_SOURCES) | $(RUNS)/fetch/frames.parquet
 	$(FETCH_COLLECT) --goals
 
 # Data efficiency: the same Fetch episodes, the first F of them train (the MLN learns on those only).
-$(RUNS)/fetch-fraction-%/frames.parquet: stages/collect.py stages/fetch_demos.py | $(RUNS)/fetch/frames.parquet
+$(RUNS)/fetch-fraction-%/frames.parquet: $(COLLECT_SOURCES) | $(RUNS)/fetch/frames.parquet
 	$(FETCH_COLLECT) --train-frames \
 	  $$(awk 'BEGIN { n = int($* * $(FETCH_EPISODES) + 0.5); print (n < 1 ? 1 : n) * $(FETCH_EPISODE_FRAMES) }')
 
@@ -163,14 +169,14 @@ formulas_of = $(if $(filter %-temporal,$(1)),$(TEMPORAL_SPEC),$(if $(filter %-or
 # The dataset folders whose stream workdirs cross-validate: each fold's MLN weights are learned too.
 FOLDED := $(foreach d,$(SEQUENTIAL),$(d) $(d)-temporal $(d)-order $(d)-conjunctive)
 
-$(RUNS)/%/predicates.parquet: $(RUNS)/%/frames.parquet $$(call spec_of,$$*) stages/binarize.py
+$(RUNS)/%/predicates.parquet: $(RUNS)/%/frames.parquet $$(call spec_of,$$*) $(BINARIZE_SOURCES)
 	$(STAGE) binarize --spec $(call spec_of,$*) --workdir $(@D)
 
-$(RUNS)/%/formulas.mln: $(RUNS)/%/predicates.parquet $$(call formulas_of,$$*) stages/formulas.py
+$(RUNS)/%/formulas.mln: $(RUNS)/%/predicates.parquet $$(call formulas_of,$$*) $(FORMULAS_SOURCES)
 	$(STAGE) formulas --spec $(call formulas_of,$*) --workdir $(@D)
 
 # pll for the paper's per-frame formulas, cll (exact conditional likelihood) where a formula uses Next.
-$(RUNS)/%/weights.parquet: $(RUNS)/%/formulas.mln stages/learn_weights.py $(MLN_SOURCES)
+$(RUNS)/%/weights.parquet: $(RUNS)/%/formulas.mln $(LEARN_SOURCES)
 	$(STAGE) $(strip learn-weights $< $(if $(filter $(FOLDED),$*),--folds $(FOLDS)) --workdir $(@D))
 
 $(RUNS)/%/weights.folds.parquet: $(RUNS)/%/weights.parquet
@@ -211,7 +217,7 @@ $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(
   $$(if $$(filter $(FOLDED) $(SEQUENTIAL:%=%-fixed-weight),$$(call stem_word,1)),$$(dataset_dir)/weights.folds.parquet)
 	$(STAGE) $(strip conflate $(conflate_flags) --workdir $(@D))
 
-$(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet stages/eval.py stages/metrics.py
+$(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet $(EVAL_SOURCES)
 	$(STAGE) eval --method all --workdir $(@D)
 
 clean: ## Remove generated workdirs and reports (keeps .venv)

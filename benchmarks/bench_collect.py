@@ -9,7 +9,8 @@ import os
 import time
 from pathlib import Path
 
-from stages import collect, fetch_demos
+from mlnseq import collect
+from mlnseq.sources import fetch as fetch_demos
 
 TARGET_SECONDS = 120.0
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
@@ -25,7 +26,7 @@ def main() -> None:
     env.close()
 
     started = time.perf_counter()
-    collected = collect.collect_fetch(collect.CollectOptions(env="fetch", episodes=episodes, seed=0))
+    collected = fetch_demos.collect(collect.CollectOptions(env="fetch", episodes=episodes, seed=0))
     elapsed = time.perf_counter() - started
     frames = collected.frames.height
     per_episode = (elapsed - setup) / episodes

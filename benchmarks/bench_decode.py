@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages import learn_weights
-from stages.formulas import formulas_for, read_spec
-from stages.mln import chain
-from stages.mln.factors import MLNFactors
-from stages.mln.published_codes import desk_predicates
+from mlnseq.catalog import artifacts
+from mlnseq import learn_weights
+from mlnseq.formulas import formulas_for, read_spec
+from mlnseq.mln import chain
+from mlnseq.mln.factors import MLNFactors
+from mlnseq.mln.published_codes import desk_predicates
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TEMPORAL = Path(__file__).resolve().parents[1] / "examples" / "temporal.mln"

@@ -37,7 +37,7 @@ TARGET_RATIO = 1000.0
 
 def fetch_like(frames: int) -> pl.DataFrame:
     """The published Fetch gripper codes (train, then test) tiled to ``frames`` frames, all training."""
-    from stages.mln.published_codes import FETCH_GRIPPER, one_hot, predicates_table
+    from mlnseq.mln.published_codes import FETCH_GRIPPER, one_hot, predicates_table
 
     codes = np.concatenate([np.loadtxt(DATA / "gym-fetch-v1" / name) for name in
                             ("fetch_motion_train.txt", "fetch_motion_test.txt")]).astype(np.int64)
@@ -48,7 +48,7 @@ def fetch_like(frames: int) -> pl.DataFrame:
 
 
 def dataset(name: str, train_limit: int) -> tuple[pl.DataFrame, int]:
-    from stages.mln.published_codes import desk_predicates
+    from mlnseq.mln.published_codes import desk_predicates
 
     if name == "desk-train":
         return desk_predicates(DATA, train_limit=train_limit or None)[0], 7
@@ -63,8 +63,8 @@ PAIRWISE = "Has(word, page)\nTopic(class, page)\n0.0 Has(+w1, p) ^ Has(+w2, p) =
 
 def read_formulas(spec: str):
     """paper: the built-in spec; temporal: examples/temporal.mln; pairwise: the pairwise template."""
-    from stages.formulas import DEFAULT_SPEC, read_spec
-    from stages.mln.syntax import parse_mln
+    from mlnseq.formulas import DEFAULT_SPEC, read_spec
+    from mlnseq.mln.syntax import parse_mln
 
     return {"paper": lambda: read_spec(DEFAULT_SPEC), "temporal": lambda: read_spec(TEMPORAL),
             "pairwise": lambda: parse_mln(PAIRWISE, "pairwise.mln")}[spec]()
@@ -73,9 +73,10 @@ def read_formulas(spec: str):
 def worker(engine: str, name: str, size: int, spec: str = "paper", objective: str = "", optimiser: str = "",
            columns: int = 0) -> None:
     """In the subprocess: learn once, print one JSON line."""
-    from stages import artifacts, learn_weights
-    from stages.mln import bpll
-    from stages.mln.grounding import expand_templates
+    from mlnseq.catalog import artifacts
+    from mlnseq import learn_weights
+    from mlnseq.mln import bpll
+    from mlnseq.mln.grounding import expand_templates
 
     table, n_classes = dataset(name, size)
     if columns:
@@ -176,10 +177,11 @@ def held_out(table: pl.DataFrame) -> pl.DataFrame:
 
 def l2_scores(table: pl.DataFrame, n_classes: int) -> list[tuple[float, float]]:
     """Per L2 value: held-out conditional log-likelihood per frame, and MLN-alone Viterbi frame accuracy."""
-    from stages import artifacts, learn_weights
-    from stages.formulas import formulas_for, read_spec
-    from stages.mln import chain
-    from stages.mln.factors import MLNFactors
+    from mlnseq.catalog import artifacts
+    from mlnseq import learn_weights
+    from mlnseq.formulas import formulas_for, read_spec
+    from mlnseq.mln import chain
+    from mlnseq.mln.factors import MLNFactors
 
     spec = Path(__file__).resolve().parents[1] / "examples" / "temporal.mln"
     table = held_out(table)
@@ -201,9 +203,10 @@ def l2_scores(table: pl.DataFrame, n_classes: int) -> list[tuple[float, float]]:
 def l2_table() -> None:
     import tempfile
 
-    from stages import artifacts, binarize, collect
-    from stages.mln import cll
-    from stages.mln.published_codes import desk_predicates
+    from mlnseq.catalog import artifacts
+    from mlnseq import binarize, collect
+    from mlnseq.mln import cll
+    from mlnseq.mln.published_codes import desk_predicates
 
     print("learn-weights: cll's L2 penalty on held-out training frames (CLL per frame / Viterbi frame accuracy)",
           flush=True)

@@ -19,9 +19,9 @@ import numpy as np
 def build(cell: str):
     import torch
 
-    from stages import networks
-    from stages.networks.classifier import SequenceClassifier
-    from stages.networks.network import Network
+    from mlnseq import networks
+    from mlnseq.networks.classifier import SequenceClassifier
+    from mlnseq.networks.network import Network
 
     torch.manual_seed(0)
     config = networks.make_config(cell, n_features=3, n_classes=7, hidden_size=32, prior_layer=True)
@@ -31,8 +31,8 @@ def build(cell: str):
 
 
 def main() -> None:
-    from stages import networks
-    from stages.networks.network import StreamingNetwork
+    from mlnseq import networks
+    from mlnseq.networks.network import StreamingNetwork
 
     n_frames = 5_000 if os.environ.get("BENCH_QUICK") else 20_000
     rng = np.random.default_rng(0)

@@ -36,7 +36,7 @@ TARGET_P99_MS, TARGET_FPS, TARGET_GROWTH_MB = 1.0, 5000.0, 10.0
 
 def build_model(folder: Path) -> tuple[Path, pl.DataFrame]:
     """The exported combined+filter model and the DESK test recording's frames."""
-    from stages import binarize, collect, export, formulas, learn_weights, train
+    from mlnseq import binarize, collect, export, formulas, learn_weights, train
 
     workdir = folder / "work"
     collect.run(workdir, collect.CollectOptions(env="desk", source=DESK_SOURCE))
@@ -59,7 +59,7 @@ def resident_mb() -> float:
 
 
 def api_latency(model: Path, features: np.ndarray) -> None:
-    from stages.recognizer import Recognizer
+    from mlnseq.recognition.recognizer import Recognizer
 
     recognizer = Recognizer.load(model)
     for frame in features[:500]:  # warm the caches of the evidence rows seen first
@@ -98,7 +98,7 @@ def cli_throughput(model: Path, csv_text: str, repeats: int) -> None:
 
 
 def memory(model: Path, features: np.ndarray, total: int) -> None:
-    from stages.recognizer import Recognizer
+    from mlnseq.recognition.recognizer import Recognizer
 
     recognizer = Recognizer.load(model)
     done, after_warmup = 0, None

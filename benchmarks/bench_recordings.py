@@ -27,12 +27,12 @@ from pathlib import Path
 path, how = Path(sys.argv[1]), sys.argv[2]
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
-from stages import sources
-from stages.sources import SourceOptions, rosbag
-from stages.table_import import TableColumns
+from mlnseq import sources
+from mlnseq.sources import SourceOptions, rosbag
+from mlnseq.sources.recording import Labels, TableColumns
 started = time.perf_counter()  # imports left out of both
 if how == "collect":
-    recording = sources.read("rosbag", path, TableColumns(), SourceOptions(topics=("/joint_states",)), label="none")[0]
+    recording = sources.read("rosbag", path, TableColumns(), SourceOptions(topics=("/joint_states",)), label=Labels.NONE)[0]
     frames, size = recording.features.height, recording.features.estimated_size()
 else:
     frames, size = 0, 0

@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from stages import binarize, collect, formulas
+from mlnseq import binarize, collect, formulas
 
 TARGET_HELP_RATIO = 1.5
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"

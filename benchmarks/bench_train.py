@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stages import collect, sequences, train
-from stages.networks.classifier import SequenceClassifier
-from stages.networks.recurrent import Config as ModelConfig
+from mlnseq import collect, train
+from mlnseq.timeline import sequences
+from mlnseq.networks.classifier import SequenceClassifier
+from mlnseq.networks.recurrent import Config as ModelConfig
 
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
 REPEATS = 3

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
-from stages import binarize as stage
+from mlnseq import binarize as stage
 
 
 def binarize(

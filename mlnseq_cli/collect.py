@@ -9,7 +9,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
-from stages import collect as stage
+from mlnseq import collect as stage
 
 
 def collect(

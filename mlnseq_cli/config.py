@@ -29,9 +29,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from mlnseq_cli.console import console, reported_errors
-from mlnseq_cli.main import FlagCommand, FlagGroup
-from stages.artifacts import DEFAULT_WORKDIR
-from stages.errors import BadInput
+from mlnseq_cli.flags import FlagCommand, FlagGroup
+from mlnseq.catalog.artifacts import DEFAULT_WORKDIR
+from mlnseq.catalog.errors import BadInput
 
 CONFIG_NAME = "mlnseq.toml"
 

@@ -8,7 +8,7 @@ import typer
 from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
-from stages import conflate as stage
+from mlnseq import conflate as stage
 
 
 def conflate(

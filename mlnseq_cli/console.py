@@ -13,8 +13,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from stages.artifacts import DEFAULT_WORKDIR
-from stages.errors import MlnseqError
+from mlnseq.catalog.artifacts import DEFAULT_WORKDIR
+from mlnseq.catalog.errors import MlnseqError
 
 # soft_wrap: a printed line is never broken at the terminal's width (a summary names a file people copy and
 # grep; the terminal folds a long line itself); tables still fit the width.

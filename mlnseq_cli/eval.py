@@ -9,8 +9,8 @@ import typer
 from rich.table import Table
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
-from stages import eval as stage
-from stages.metrics import EARLY_FRACTIONS
+from mlnseq import eval as stage
+from mlnseq.timeline.metrics import EARLY_FRACTIONS
 
 
 def evaluate(

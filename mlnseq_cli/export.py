@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
-from stages import export as stage
+from mlnseq import export as stage
 
 Defaults = stage.ExportOptions
 

@@ -8,8 +8,8 @@ from typing import Annotated, Optional
 import typer
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
-from stages import formulas as stage
-from stages.mln.grounding import is_template
+from mlnseq import formulas as stage
+from mlnseq.mln.grounding import is_template
 
 
 def formulas(

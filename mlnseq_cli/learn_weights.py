@@ -10,7 +10,7 @@ from rich.table import Table
 from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
-from stages import artifacts
+from mlnseq.catalog import artifacts
 
 
 def learn_weights(
@@ -28,8 +28,8 @@ def learn_weights(
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln (with --folds K also WORKDIR/weights.folds.parquet, each fold's weights learned without it)."""
-    from stages import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
-    from stages.mln.weights_table import strongest, strongest_temporal
+    from mlnseq import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
+    from mlnseq.mln.weights_table import strongest, strongest_temporal
 
     options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2, folds=folds)
     with reported_errors():

@@ -16,7 +16,9 @@ from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
 import typer
-from typer.core import TyperCommand, TyperGroup
+from typer.core import TyperCommand
+
+from mlnseq_cli.flags import FlagCommand, FlagGroup
 
 
 class Command(NamedTuple):
@@ -45,29 +47,6 @@ COMMANDS = {
 }
 GLOBAL_FLAGS = ("--verbose",)
 GLOBAL_OPTIONS = ("--config",)
-
-
-def _bare_flags(params: list[Any]) -> list[Any]:
-    """typer 0.29's rich help prints a flag's type, `<bool>`, as if the flag took a value; show none, as typer
-    did before and click does."""
-    for param in params:
-        if getattr(param, "is_flag", False) and param.metavar is None:
-            param.metavar = ""
-    return params
-
-
-class FlagCommand(TyperCommand):
-    """A command whose --help lists flags without a type."""
-
-    def get_params(self, ctx: Any) -> list[Any]:
-        return _bare_flags(super().get_params(ctx))
-
-
-class FlagGroup(TyperGroup):
-    """A group of commands whose --help lists flags without a type."""
-
-    def get_params(self, ctx: Any) -> list[Any]:
-        return _bare_flags(super().get_params(ctx))
 
 
 class MlnseqGroup(FlagGroup):

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
-from stages import predict as stage
+from mlnseq import predict as stage
 
 
 def predict(
@@ -39,7 +39,7 @@ def predict(
     )
     with reported_errors():
         result = stage.run(options)
-    from stages.recognizer import restart_note
+    from mlnseq.recognition.recognizer import restart_note
 
     restarted = ""
     if result.restarts:

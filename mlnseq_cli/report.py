@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from mlnseq_cli.console import console, counted, reported_errors
-from stages import report as stage
+from mlnseq import report as stage
 
 
 def report(

@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from mlnseq_cli.console import fail, reported_errors
-from stages import stream as stage
+from mlnseq import stream as stage
 
 
 def stream(

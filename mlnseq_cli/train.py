@@ -13,8 +13,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
-from stages import networks
-from stages import train as stage
+from mlnseq import networks
+from mlnseq import train as stage
 
 Defaults = stage.TrainOptions
 

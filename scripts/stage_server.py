@@ -38,7 +38,7 @@ def serve(path: Path) -> None:
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
     listener.bind(str(path))
     listener.listen(64)
-    import stages  # noqa: F401  (sets the BLAS thread count before numpy loads, as the mlnseq command does)
+    import mlnseq  # noqa: F401  (sets the BLAS thread count before numpy loads, as the mlnseq command does)
 
     for name in PRELOAD:
         importlib.import_module(name)

@@ -1,7 +1,7 @@
 """binarize: turn ``frames.parquet`` into ``predicates.parquet``, one boolean column per ground predicate.
 
-The spec (its language and parser: stages/predicate_spec.py) declares derived channels and predicates;
-stages/predicate_rules.py holds the rules that give each frame its codes. The core, :func:`binarize`,
+The spec (its language and parser: stages/predicates/spec.py) declares derived channels and predicates;
+stages/predicates/rules.py holds the rules that give each frame its codes. The core, :func:`binarize`,
 checks the frames against the spec and evaluates it over them; :func:`run` reads and writes the files.
 """
 
@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, predicate_rules
-from stages.errors import BadInput
-from stages.predicate_spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
+from mlnseq.catalog import artifacts
+from mlnseq.predicates import rules as predicate_rules
+from mlnseq.catalog.errors import BadInput
+from mlnseq.predicates.spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
 
 __all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
            "parse_spec", "run", "true_shares"]

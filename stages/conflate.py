@@ -10,8 +10,8 @@ Methods: lstm, priorlayer (the networks), mln (the MLN classifier alone), confla
 and combined (priorlayer + MLN); with ``--decode filter`` or ``viterbi`` also METHOD+filter (online
 forward filtering) and METHOD+viterbi (offline: the most probable path, forward-backward marginals).
 A method whose inputs are absent is left out with a note. The core (:func:`predict`) works on the
-workdir's arrays (stages/workdir_inputs.py); fusion and decoding are stages/recognizer.py's, the
-network factor's weight stages/network_weight.py's.
+workdir's arrays (stages/recognition/workdir_inputs.py); fusion and decoding are stages/recognition/recognizer.py's, the
+network factor's weight stages/recognition/network_weight.py's.
 """
 
 from __future__ import annotations
@@ -24,15 +24,16 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, network_weight
-from stages.errors import BadInput, MissingArtifact, check_choice
-from stages.methods import DECODES, METHODS, MLN_MODES, NETWORKS, decoded_name, network_of
-from stages.mln import chain
-from stages.cross_validation import CrossValidated, cross_validate, test_weight
-from stages.network_weight import WeightChoice
-from stages.notes import CHAIN_RESTARTED, Note
-from stages.recognizer import chain_of, decode_chain, fuse, restart_note
-from stages.workdir_inputs import WorkdirInputs, read_workdir
+from mlnseq.catalog import artifacts
+from mlnseq.recognition import network_weight
+from mlnseq.catalog.errors import BadInput, MissingArtifact, check_choice
+from mlnseq.catalog.methods import DECODES, METHODS, MLN_MODES, NETWORKS, decoded_name, network_of
+from mlnseq.mln import chain
+from mlnseq.recognition.cross_validation import CrossValidated, cross_validate, test_weight
+from mlnseq.recognition.network_weight import WeightChoice
+from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
+from mlnseq.recognition.recognizer import chain_of, decode_chain, fuse, restart_note
+from mlnseq.recognition.workdir_inputs import WorkdirInputs, read_workdir
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("non
     ``network_weight_option`` when given, else chosen on the validation part its network held out in training
     (never on test); a network trained without one keeps the weight 1, and a note says so.
     """
-    from stages.mln import classifier
+    from mlnseq.mln import classifier
 
     data, mln_inputs = inputs.data, inputs.mln
     result = WorkdirPredictions(notes=list(inputs.notes))
@@ -144,7 +145,7 @@ def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("non
 
 def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], network_weight_option: float | None,
             result: WorkdirPredictions) -> None:
-    from stages.mln.factors import MLNFactors
+    from mlnseq.mln.factors import MLNFactors
 
     data, mln_inputs, runs = inputs.data, inputs.mln, inputs.networks
     mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, inputs.classes)

@@ -1,4 +1,4 @@
-"""eval: score the predictions of ``predictions.parquet`` on the test split (metrics: stages/metrics.py).
+"""eval: score the predictions of ``predictions.parquet`` on the test split (metrics: stages/timeline/metrics.py).
 
 The paper's segment metric, per-class and early-recognition accuracy, frame accuracy, macro F1 over
 segments, the confusion matrix and, for methods that see no segment boundaries, the edit score and
@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput
-from stages.metrics import score_method
-from stages import methods
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.timeline.metrics import score_method
+from mlnseq.catalog import methods
 
 
 @dataclass(frozen=True)

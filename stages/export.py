@@ -5,7 +5,7 @@ factor weight, classes, features in order, the source, the predicate columns, th
 configuration, the input digests, notes, the number of formulas, every other member's size and SHA-256),
 the predicate spec ``binarize.toml``, the MLN's ``weights.parquet`` and the network's arrays
 ``network.npz`` (with its standardisation). A method that needs no MLN (lstm, undecoded) carries no spec
-and no weights. stages/model_file.py writes and reads it (docs/model-file.md).
+and no weights. stages/model/model_file.py writes and reads it (docs/model-file.md).
 """
 
 from __future__ import annotations
@@ -14,11 +14,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from stages import artifacts, model_file, network_weight, recognizer
-from stages.checkpoints import load_checkpoint
-from stages.errors import BadInput, check_choice
-from stages.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
-from stages.notes import Note
+from mlnseq.catalog import artifacts
+from mlnseq.model import model_file
+from mlnseq.recognition import network_weight, recognizer
+from mlnseq.model.checkpoints import load_checkpoint
+from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.catalog.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
+from mlnseq.catalog.notes import Note
 
 
 AUTO = "auto"  # --method auto: the decoded method with the best cross-validated figures in the workdir
@@ -120,7 +122,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
     """``--method auto``: among the decoded methods conflate predicted in ``workdir`` with ``decode``, the one with
     the best cross-validated choice score (cross_validation.choice_score), with its figures and the others'."""
-    from stages.cross_validation import choice_score
+    from mlnseq.recognition.cross_validation import choice_score
 
     path = workdir / artifacts.PREDICTIONS
     if not path.exists():
@@ -142,9 +144,9 @@ def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
 def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:
     """The network factor's weight of the one decoded network method exported, as conflate chooses it, and
     the notes that bear on it."""
-    from stages.cross_validation import test_weight
-    from stages.mln.factors import MLNFactors
-    from stages.workdir_inputs import read_workdir
+    from mlnseq.recognition.cross_validation import test_weight
+    from mlnseq.mln.factors import MLNFactors
+    from mlnseq.recognition.workdir_inputs import read_workdir
 
     network = network_of(options.method)
     inputs = read_workdir(workdir, (network,))

@@ -11,13 +11,13 @@ import importlib.resources
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from stages import artifacts
-from stages.errors import BadInput
-from stages.mln.formula_spec import formulas_for, read_spec
-from stages.mln.grounding import shown
-from stages.mln.syntax import MLN, format_weighted
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.formula_spec import formulas_for, read_spec
+from mlnseq.mln.grounding import shown
+from mlnseq.mln.syntax import MLN, format_weighted
 
-DEFAULT_SPEC = Path(importlib.resources.files("stages") / "specs" / "paper.mln")  # shipped in the package
+DEFAULT_SPEC = Path(importlib.resources.files("mlnseq") / "specs" / "paper.mln")  # shipped in the package
 
 
 @dataclass(frozen=True)

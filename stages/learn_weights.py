@@ -3,9 +3,9 @@
 Reads predicates.parquet and a .mln file; writes ``weights.parquet`` (one row per expanded
 formula: formula, class, weight, fixed, hard, template, temporal) and ``learned.mln``, the weighted,
 expanded formulas as a .mln pracmln can read. Objectives: ``pll``, pracmln's pseudo-likelihood
-(stages.mln.bpll), and ``cll``, the exact conditional likelihood of each chain's classes given its
-evidence (stages.mln.cll), the default when a formula uses Next. Engines: ``native`` and ``pracmln``
-(the paper's engine, pll only, through stages.mln.pracmln_compat). The chains are the runs of training
+(mlnseq.mln.bpll), and ``cll``, the exact conditional likelihood of each chain's classes given its
+evidence (mlnseq.mln.cll), the default when a formula uses Next. Engines: ``native`` and ``pracmln``
+(the paper's engine, pll only, through mlnseq.mln.pracmln_compat). The chains are the runs of training
 frames of one episode (a change of split within an episode cuts it).
 """
 
@@ -19,16 +19,16 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput, MlnseqError, check_choice
-from stages.mln import bpll, cll, pracmln_compat
-from stages.mln.chain import chain_starts
-from stages.mln.formula_spec import formulas_for, read_spec
-from stages.mln.grounding import (
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput, MlnseqError, check_choice
+from mlnseq.mln import bpll, cll, pracmln_compat
+from mlnseq.mln.chain import chain_starts
+from mlnseq.mln.formula_spec import formulas_for, read_spec
+from mlnseq.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
     show, shown, space_of, truth,
 )
-from stages.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
+from mlnseq.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
 
 ENGINES = ("native", "pracmln")
 OBJECTIVES = ("pll", "cll")
@@ -41,7 +41,7 @@ class LearnWeightsOptions:
     engine: str = "native"
     objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
-    folds: int = 0  # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/folds.py
+    folds: int = 0  # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
 
     def validate(self) -> None:
         check_choice("engine", self.engine, ENGINES)
@@ -253,7 +253,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
     folds = None
     if options.folds:
-        from stages import folds as folding
+        from mlnseq.recognition import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
     learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),

@@ -17,12 +17,15 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, metrics, sources
-from stages.errors import BadInput, check_choice
-from stages.methods import DECODES
-from stages.recognizer import Recognizer
-from stages.sources import RECORDING_ENVS, SourceOptions, intervals
-from stages.table_import import TableColumns, prediction_frames
+from mlnseq.catalog import artifacts
+from mlnseq.timeline import metrics
+from mlnseq import sources
+from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.catalog.methods import DECODES
+from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.sources import RECORDING_ENVS, SourceOptions, intervals
+from mlnseq.sources.recording import Labels, TableColumns
+from mlnseq.sources.table import prediction_frames
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,7 @@ def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableCo
     names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
     known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
     recordings = SourceOptions(**{**known, **options.overrides})
-    return env, columns, recordings, "required" if options.label_column is not None else "optional"
+    return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
 
 
 def run(options: PredictOptions) -> Predicted:
@@ -134,7 +137,7 @@ def run(options: PredictOptions) -> Predicted:
             segments.write_csv(tmp)
         written.append(Path(options.intervals))
     if options.rerun is not None:
-        from stages.sources import rerun
+        from mlnseq.sources import rerun
 
         written.append(rerun.write(Path(options.rerun), table["episode"].to_list(), frames, times, table,
                                    list(model.features), list(model.classes)))

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from stages.errors import BadInput
-from stages.recognizer import Recognizer
+from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition.recognizer import Recognizer
 
 EPISODE = "episode"
 MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes

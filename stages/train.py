@@ -21,18 +21,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, networks, sequences
-from stages import folds as folding
-from stages.errors import BadInput, check_choice
-from stages.checkpoints import save_checkpoint
-from stages.methods import NETWORKS, PRIORS
-from stages.recognizer import prior_input
-from stages.workdir_inputs import FrameData, mln_class_scores
+from mlnseq.catalog import artifacts
+from mlnseq import networks
+from mlnseq.timeline import sequences
+from mlnseq.recognition import folds as folding
+from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.model.checkpoints import save_checkpoint
+from mlnseq.catalog.methods import NETWORKS, PRIORS
+from mlnseq.recognition.recognizer import prior_input
+from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run
     import torch
 
-    from stages.networks.classifier import SequenceClassifier
+    from mlnseq.networks.classifier import SequenceClassifier
 
 METHODS = NETWORKS
 SELECTS = ("none", "last", "val_accuracy")
@@ -47,7 +49,7 @@ class TrainOptions:
     seed: int = 0
     epochs: int = 100
     mode: str = "segment"
-    cell: str = "lstm"  # the network type: a name in stages.networks.TYPES
+    cell: str = "lstm"  # the network type: a name in mlnseq.networks.TYPES
     prior: str = "paper"  # c2c input of PriorLayer: paper (clamped MLN sums) | logprob (MLN log-probs)
     select: str = "none"
     device: str = "auto"
@@ -58,7 +60,7 @@ class TrainOptions:
     learning_rate: float = 0.1
     val_fraction: float = 0.2
     smoothing: float = 0.0  # tcn: weight of MS-TCN's smoothing loss
-    folds: int | None = None  # cross-validation folds (stages/folds.py); None: stream mode's default, 0: none
+    folds: int | None = None  # cross-validation folds (stages/recognition/folds.py); None: stream mode's default, 0: none
 
     def validate(self) -> None:
         choices = {"method": METHODS, "mode": sequences.MODES, "cell": networks.CELLS, "prior": PRIORS,
@@ -200,7 +202,7 @@ def fit(
     ``every_epoch``, after the last only: a fold network's log is not kept)."""
     import torch
 
-    from stages.networks.classifier import SequenceClassifier
+    from mlnseq.networks.classifier import SequenceClassifier
 
     torch.manual_seed(options.seed)
     rng = np.random.default_rng(options.seed)

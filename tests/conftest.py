@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from stages import collect
+from mlnseq import collect
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -53,7 +53,7 @@ def fetch_frames_workdir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def desk_mln_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     """DESK frames + predicates + the paper's formulas + learned weights (bare options); read-only."""
-    from stages import binarize, formulas, learn_weights
+    from mlnseq import binarize, formulas, learn_weights
 
     workdir = tmp_path_factory.mktemp("desk-mln")
     shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
@@ -66,7 +66,7 @@ def desk_mln_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
 @pytest.fixture(scope="session")
 def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
     """Every artifact of the bare DESK pipeline (lstm trained 2 epochs, conflated, evaluated); read-only."""
-    from stages import conflate, eval as evaluate, train
+    from mlnseq import conflate, eval as evaluate, train
 
     workdir = tmp_path_factory.mktemp("desk-full")
     for path in desk_mln_workdir.iterdir():
@@ -81,7 +81,7 @@ def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
 def desk_stream_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     """DESK with examples/temporal.mln learned (cll), lstm and priorlayer trained in stream mode (3 epochs, a
     validation part held out) and conflated with every decoding: a model a live stream can use; read-only."""
-    from stages import binarize, conflate, formulas, learn_weights, train
+    from mlnseq import binarize, conflate, formulas, learn_weights, train
 
     workdir = tmp_path_factory.mktemp("desk-stream")
     shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
@@ -99,7 +99,7 @@ def desk_folds_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     """DESK with examples/temporal.mln learned with 3 folds (learn-weights --folds 3), lstm and priorlayer trained in
     stream mode on the whole training split with 3 fold networks each (2 epochs), conflated with every decoding
     (the network factor's weight learned, every method cross-validated); read-only."""
-    from stages import binarize, conflate, formulas, learn_weights, train
+    from mlnseq import binarize, conflate, formulas, learn_weights, train
 
     workdir = tmp_path_factory.mktemp("desk-folds")
     shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
@@ -134,8 +134,8 @@ def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
 
     import polars as pl
 
-    from stages import binarize, export, formulas, learn_weights
-    from stages.table_import import TableColumns
+    from mlnseq import binarize, export, formulas, learn_weights
+    from mlnseq.sources.recording import TableColumns
 
     folder = tmp_path_factory.mktemp("own-data-glitch")
     example = REPO / "examples" / "own-data"

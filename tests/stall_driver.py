@@ -41,7 +41,7 @@ def main() -> None:
     marker, where, *args = sys.argv[1:]
     marker = Path(marker)
     if where == "parquet-write":
-        from stages import artifacts
+        from mlnseq.catalog import artifacts
 
         artifacts.pq.write_table = half_then_hang(artifacts.pq.write_table, marker)
     elif where == "checkpoint-write":

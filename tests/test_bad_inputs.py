@@ -18,7 +18,8 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, binarize, collect
+from mlnseq.catalog import artifacts
+from mlnseq import binarize, collect
 
 runner = CliRunner()
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0

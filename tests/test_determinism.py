@@ -17,7 +17,8 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, collect
+from mlnseq.catalog import artifacts
+from mlnseq import collect
 
 runner = CliRunner()
 EPOCH = "1700000000"

@@ -22,7 +22,8 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, checkpoints
+from mlnseq.catalog import artifacts
+from mlnseq.model import checkpoints
 
 pytestmark = pytest.mark.slow
 
@@ -95,7 +96,7 @@ def desk_workdir(tmp_path, desk_full_workdir) -> Path:
 def test_sigkill_while_collect_simulates_keeps_the_previous_frames(fetch_workdir):
     before = snapshot(fetch_workdir)
     process, marker = start(fetch_workdir, "collect", "--env", "fetch", "--episodes", 2000,
-                            where="running:stages.fetch_demos:demonstrate")
+                            where="running:mlnseq.sources.fetch:demonstrate")
     wait_for(process, marker)
     kill(process)
     assert snapshot(fetch_workdir) == before
@@ -135,7 +136,7 @@ def test_plain_sigkill_of_collect_keeps_the_previous_frames(tmp_path, desk_frame
 
 def test_sigkill_during_training_keeps_the_previous_model(desk_workdir):
     before = snapshot(desk_workdir)
-    process, marker = start(desk_workdir, "train", "--epochs", 1000, where="running:stages.train:predict_log_probs")
+    process, marker = start(desk_workdir, "train", "--epochs", 1000, where="running:mlnseq.train:predict_log_probs")
     wait_for(process, marker)  # the first epoch is done, the second is running
     kill(process)
     assert snapshot(desk_workdir) == before
@@ -162,7 +163,7 @@ def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk
 
 def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk_workdir):
     before = snapshot(desk_workdir)
-    process, marker = start(desk_workdir, "train", "--epochs", 1000, where="running:stages.train:predict_log_probs")
+    process, marker = start(desk_workdir, "train", "--epochs", 1000, where="running:mlnseq.train:predict_log_probs")
     wait_for(process, marker)
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=WAIT_S)

@@ -21,10 +21,11 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, binarize
-from stages.errors import BadInput
-from stages.mln.grounding import check_mln
-from stages.mln.syntax import format_weighted, parse_mln
+from mlnseq.catalog import artifacts
+from mlnseq import binarize
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.grounding import check_mln
+from mlnseq.mln.syntax import format_weighted, parse_mln
 
 REPO = Path(__file__).resolve().parents[1]
 MLN_FILES = sorted([*REPO.glob("examples/**/*.mln"), *REPO.glob("stages/specs/*.mln")])

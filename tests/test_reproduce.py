@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from stages import artifacts, methods
-from stages.report import loading
+from mlnseq.catalog import artifacts, methods
+from mlnseq.reporting import loading
 
 pytestmark = [pytest.mark.slow, pytest.mark.mujoco]
 

@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 
-from stages.recognizer import Recognizer
+from mlnseq.recognition.recognizer import Recognizer
 
 
 def read_sensor(path: str, features: Sequence[str], episode_column: str) -> Iterator[tuple[str | None, dict[str, float]]]:

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, sparse
 
-from stages.mln.blas import one_thread
-from stages.mln.grounding import AtomSpace, Expanded, atom_indices, ground, is_temporal, space_of, truth
+from mlnseq.mln.blas import one_thread
+from mlnseq.mln.grounding import AtomSpace, Expanded, atom_indices, ground, is_temporal, space_of, truth
 
 
 @dataclass(frozen=True)

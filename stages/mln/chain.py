@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.mln.chain_factors import CLIP, ChainFactors, Filter, _restarted
-from stages.mln.chain_scan import _Dead, _forward, _smoothed, _viterbi_once
+from mlnseq.mln.chain_factors import CLIP, ChainFactors, Filter, _restarted
+from mlnseq.mln.chain_scan import _Dead, _forward, _smoothed, _viterbi_once
 
 __all__ = ["CLIP", "ChainFactors", "Filter", "chain_starts", "filtered", "log_partition", "path_score", "smoothed",
            "viterbi"]

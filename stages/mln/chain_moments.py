@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.mln.chain_factors import ChainFactors
-from stages.mln.chain_scan import Repeats, _forward, _kinds, _smoothed
+from mlnseq.mln.chain_factors import ChainFactors
+from mlnseq.mln.chain_scan import Repeats, _forward, _kinds, _smoothed
 
 @dataclass(frozen=True)
 class Expectations:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.mln.chain_factors import ChainFactors, _restarted, _scaled
+from mlnseq.mln.chain_factors import ChainFactors, _restarted, _scaled
 
 _MAX_GROUPS = 64  # distinct (step matrix, step matrix) kinds up to which leaves are never built one by one
 

@@ -13,8 +13,8 @@ import numpy as np
 import polars as pl
 from scipy.special import log_softmax
 
-from stages import artifacts
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
 
 HARD_WEIGHT = 1000.0  # a hard formula's weight in the scores: far above any learned weight
 MODES = ("paper", "exact")
@@ -24,9 +24,9 @@ def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, classes: int |
     """[n_frames, n_classes] float64: per frame, sum of the weights of the formulas whose body (the
     evidence part) is true in that frame and whose head is Topic(C<k>) — i.e. the formulas that are
     satisfied only if the class is k. Row order = predicates' row order. Temporal formulas (Next) are
-    left out: they are factors between frames (stages.mln.factors). ``classes``: the frames' class names in
+    left out: they are factors between frames (mlnseq.mln.factors). ``classes``: the frames' class names in
     label order, or their number (formulas naming classes as C<k> only)."""
-    from stages.mln.factors import frame_scores, parse_weights
+    from mlnseq.mln.factors import frame_scores, parse_weights
 
     words = tuple(artifacts.feature_columns(predicates))
     evidence = predicates.select(words).to_numpy().astype(bool) if words else np.zeros((predicates.height, 0), bool)

@@ -3,12 +3,12 @@
 With one class per frame (one-hot Topic atoms) and formulas over one frame or two consecutive ones,
 the MLN conditioned on the evidence is a linear-chain CRF: per-frame formulas give unary
 log-potentials, temporal ones pairwise log-potentials, both linear in the weights
-(``stages.mln.features``). The objective
+(``mlnseq.mln.features``). The objective
 
     CLL(w) - l2/2 |w|^2,   CLL(w) = sum over chains of log p(y_chain | evidence_chain; w)
 
 is concave; its gradient is the observed minus the expected formula counts, the expectations coming
-from forward-backward marginals (``stages.mln.chain_moments``), and it is maximised with (L-)BFGS from zero
+from forward-backward marginals (``mlnseq.mln.chain_moments``), and it is maximised with (L-)BFGS from zero
 weights (see ``learn``). Without the penalty an optimum may lie at infinity (a transition never seen in training gets
 weight -> -inf), hence ``l2`` (a Gaussian prior of variance 1/l2 on each learned weight).
 
@@ -37,12 +37,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, optimize, sparse
 
-from stages.mln import chain, chain_moments
-from stages.mln.chain_scan import Repeats
-from stages.mln.blas import one_thread
-from stages.mln.bpll import DENSE_LIMIT
-from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
-from stages.mln.grounding import AtomSpace, Expanded, is_temporal
+from mlnseq.mln import chain, chain_moments
+from mlnseq.mln.chain_scan import Repeats
+from mlnseq.mln.blas import one_thread
+from mlnseq.mln.bpll import DENSE_LIMIT
+from mlnseq.mln.features import PairColumns, frame_counts, pair_counts, read_columns
+from mlnseq.mln.grounding import AtomSpace, Expanded, is_temporal
 
 DEFAULT_L2 = 0.1
 

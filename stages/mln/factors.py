@@ -1,7 +1,7 @@
 """The MLN's factors for chain inference, from a weights.parquet table.
 
 Per-frame formulas give each frame's unary log-potentials [C] (the class scores of
-``stages.mln.classifier``, with -inf where a hard formula forbids the class); temporal formulas give
+``mlnseq.mln.classifier``, with -inf where a hard formula forbids the class); temporal formulas give
 the pairwise log-potentials [C, C] between a frame and the next (-inf where a hard rule forbids the
 transition). Both are computed once per distinct evidence row (pair of rows) and cached, so a live
 stream may ask for one frame at a time.
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from stages.errors import BadInput
-from stages.mln.chain import ChainFactors
-from stages.mln.features import PairColumns, frame_counts, pair_counts, read_columns
-from stages.mln.grounding import EVIDENCE, AtomSpace, class_aliases, class_constant, is_temporal, rename_classes
-from stages.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.chain import ChainFactors
+from mlnseq.mln.features import PairColumns, frame_counts, pair_counts, read_columns
+from mlnseq.mln.grounding import EVIDENCE, AtomSpace, class_aliases, class_constant, is_temporal, rename_classes
+from mlnseq.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from stages.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, next_atom, space_of, truth
-from stages.mln.syntax import Formula, Var, atoms
+from mlnseq.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, next_atom, space_of, truth
+from mlnseq.mln.syntax import Formula, Var, atoms
 
 
 @dataclass(frozen=True)

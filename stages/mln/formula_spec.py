@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stages.errors import BadInput
-from stages.mln.grounding import (
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.grounding import (
     check_class_names, check_mln, class_aliases, default_declarations, duplicates, name_classes,
 )
-from stages.mln.syntax import MLN, parse_mln
+from mlnseq.mln.syntax import MLN, parse_mln
 
 
 def read_spec(path: Path) -> MLN:

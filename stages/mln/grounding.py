@@ -24,8 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from stages.errors import BadInput
-from stages.mln.syntax import (
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.syntax import (
     MLN, And, Atom, Const, Equiv, Formula, Implies, MLNSyntaxError, Not, Or, Var, WeightedFormula, atoms,
     format_formula, map_atoms, substitute,
 )

@@ -16,7 +16,7 @@ import types
 import warnings
 from typing import Any
 
-from stages.errors import BadInput, MlnseqError
+from mlnseq.catalog.errors import BadInput, MlnseqError
 
 TK_MODULES = ("tkinter", "tkinter.filedialog", "tkinter.messagebox", "tkinter.simpledialog",
               "tkinter.constants", "tkinter.ttk", "tkinter.font", "tkinter.scrolledtext")

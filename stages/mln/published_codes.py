@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages import artifacts
+from mlnseq.catalog import artifacts
 
 ARM = ("static", "increasing", "decreasing")
 GRIPPER = ("static", "open", "closed", "opening", "closing")

@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Callable, Union
 
-from stages.errors import BadInput
+from mlnseq.catalog.errors import BadInput
 
 
 @dataclass(frozen=True)

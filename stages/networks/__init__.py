@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 from types import ModuleType
 from typing import Any
 
-from stages.errors import BadInput
+from mlnseq.catalog.errors import BadInput
 
 INFERENCE_BATCH = 256  # sequences side by side when a network predicts log-probabilities (torch and numpy)
 
@@ -28,9 +28,9 @@ class NetworkType:
 
 
 TYPES = {t.name: t for t in (
-    NetworkType("lstm", "stages.networks.recurrent", "one-layer LSTM"),
-    NetworkType("gru", "stages.networks.recurrent", "one-layer GRU"),
-    NetworkType("tcn", "stages.networks.tcn", "causal temporal convolutional network (dilated 1-D convolutions)"),
+    NetworkType("lstm", "mlnseq.networks.recurrent", "one-layer LSTM"),
+    NetworkType("gru", "mlnseq.networks.recurrent", "one-layer GRU"),
+    NetworkType("tcn", "mlnseq.networks.tcn", "causal temporal convolutional network (dilated 1-D convolutions)"),
 )}
 CELLS = tuple(TYPES)
 

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from stages import networks
+from mlnseq import networks
 
 
 class SequenceClassifier(nn.Module):

@@ -12,8 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from stages import networks, sequences
-from stages.networks.prior_layer import head
+from mlnseq import networks
+from mlnseq.timeline import sequences
+from mlnseq.networks.prior_layer import head
 
 
 @dataclass(frozen=True)

@@ -1,20 +1,55 @@
-"""Recording formats read as they are: each module turns its files into ``table_import.Recording``s.
+"""Every source of frames behind one table (``SOURCES``), like the network types: the paper's datasets
+(``fetch`` simulated in MuJoCo, ``desk`` the Taurus files), made whole by their module's ``collect``, and
+recordings as they are (``table``, ``rosbag``, ``lerobot``, ``hdf5``, ``jigsaws``), each module's ``read``
+turning its files into ``Recording``s that ``collect`` and ``predict`` assemble with ``mlnseq.sources.table``.
 
-Not a stage: ``collect`` and ``predict`` both read through ``read`` here and assemble the recordings with
-``stages.table_import``. A format's optional library is imported only inside its reader; a missing one is
+A source's module, and a format's optional library, is imported only when it is read; a missing library is
 refused in one line naming the extra to install.
 """
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
-from stages.errors import BadInput
-from stages.table_import import Recording, TableColumns, read_tables
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
-RECORDING_ENVS = ("table", "rosbag", "lerobot", "hdf5", "jigsaws")
+
+@dataclass(frozen=True)
+class Source:
+    """One entry of the source table: its ``--env`` name, the module that reads it, and what it is."""
+
+    name: str
+    module: str
+    summary: str
+    recordings: bool  # True: a user's recordings (module.read, collect and predict); False: a dataset (module.collect)
+
+    def load(self) -> ModuleType:
+        return importlib.import_module(self.module)
+
+
+SOURCES = (
+    Source("fetch", "mlnseq.sources.fetch", "Fetch pick-and-place demonstrations simulated in MuJoCo", False),
+    Source("desk", "mlnseq.sources.desk", "the DESK Taurus robot's files", False),
+    Source("table", "mlnseq.sources.table", "your CSV or Parquet tables", True),
+    Source("rosbag", "mlnseq.sources.rosbag", "ROS 1 and ROS 2 bags, bare MCAP", True),
+    Source("lerobot", "mlnseq.sources.lerobot", "LeRobot datasets (v2.0, v2.1, v3.0)", True),
+    Source("hdf5", "mlnseq.sources.hdf5", "robomimic-style HDF5 demonstrations", True),
+    Source("jigsaws", "mlnseq.sources.jigsaws", "JIGSAWS kinematics and transcriptions", True),
+)
+ENVS = tuple(source.name for source in SOURCES)
+RECORDING_ENVS = tuple(source.name for source in SOURCES if source.recordings)
+
+
+def source_of(env: str) -> Source:
+    for source in SOURCES:
+        if source.name == env:
+            return source
+    raise BadInput(f"unknown --env {env!r}: choose one of {', '.join(ENVS)}")
 LABEL_UNITS = ("seconds", "frames")
 EXTRA = "recordings"
 
@@ -53,38 +88,20 @@ def missing_extra(module: str, error: ImportError) -> BadInput:
     return BadInput(f"reading this format needs {module}, which is not installed: pip install 'mlnseq[{EXTRA}]'")
 
 
-def read(env: str, source: Path, columns: TableColumns, options: SourceOptions, label: str = "required") -> list[Recording]:
-    """The recordings at ``source`` read as ``env`` reads them, with ``--labels`` intervals applied.
-
-    ``label``: required (collect), optional (predict: labels if the recordings carry them) or none.
-    """
+def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
+         label: Labels = Labels.REQUIRED) -> list[Recording]:
+    """The recordings at ``source`` read as ``env`` reads them, with ``--labels`` intervals applied."""
     options.validate()
-    if env not in RECORDING_ENVS:
-        raise BadInput(f"unknown --env {env!r}: choose one of {', '.join(RECORDING_ENVS)}")
+    reader = source_of(env)
+    if not reader.recordings:
+        raise BadInput(f"--env {env} is a dataset, not recordings: choose one of {', '.join(RECORDING_ENVS)}")
     source = Path(source)
     if not source.exists():
         raise BadInput(f"--source {source} not found")
-    own_label = "none" if options.labels is not None else label  # --labels replaces the recordings' own
-    if env == "table":
-        recordings = read_tables(source, columns, own_label)
-    elif env == "jigsaws":
-        from stages.sources import jigsaws
-
-        recordings = jigsaws.read(source, columns, options, own_label)
-    elif env == "rosbag":
-        from stages.sources import rosbag
-
-        recordings = rosbag.read(source, columns, options, own_label)
-    elif env == "lerobot":
-        from stages.sources import lerobot
-
-        recordings = lerobot.read(source, columns, own_label)
-    else:
-        from stages.sources import hdf5
-
-        recordings = hdf5.read(source, columns, own_label)
+    own_label = Labels.NONE if options.labels is not None else label  # --labels replaces the recordings' own
+    recordings = reader.load().read(source, columns, options, own_label)
     if options.labels is not None:
-        from stages.sources import intervals
+        from mlnseq.sources import intervals
 
         recordings = intervals.apply(recordings, intervals.read(Path(options.labels)), options.unit(env),
                                      options.unlabelled)

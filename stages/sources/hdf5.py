@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
 
-from stages.errors import BadInput
-from stages.table_import import Recording, TableColumns, check_features
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.table import check_features
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 
 def _datasets(group, prefix: str = "") -> list[str]:
@@ -33,11 +35,11 @@ def _datasets(group, prefix: str = "") -> list[str]:
     return found
 
 
-def read(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
+def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     try:
         import h5py
     except ImportError as error:
-        from stages.sources import missing_extra
+        from mlnseq.sources import missing_extra
 
         raise missing_extra("h5py", error) from error
     source = Path(source)
@@ -80,7 +82,7 @@ def read(source: Path, columns: TableColumns, label: str = "required") -> list[R
                 else:
                     flat.update({f"{path}/{k}": values[:, k] for k in range(values.shape[1])})
             labels = None
-            if label != "none" and columns.label in present:
+            if label is not Labels.NONE and columns.label in present:
                 raw = np.asarray(group[columns.label])
                 labels = pl.Series("label", [v.decode() if isinstance(v, bytes) else v for v in raw.tolist()])
             recordings.append(Recording(

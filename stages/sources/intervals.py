@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages.errors import BadInput
-from stages.table_import import Recording
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.recording import Recording
 
 COLUMNS = ("episode", "start", "end", "label")
 

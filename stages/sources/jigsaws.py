@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages.errors import BadInput
-from stages.sources import intervals
-from stages.sources.numeric_text import read_numeric_text
-from stages.table_import import Recording, TableColumns, check_features
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources import intervals
+from mlnseq.sources.numeric_text import read_numeric_text
+from mlnseq.sources.table import check_features
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 MANIPULATORS = ("mtm_left", "mtm_right", "psm_left", "psm_right")
 VARIABLES = ("x", "y", "z", *(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)),
@@ -30,7 +31,7 @@ def read_kinematics(path: Path) -> np.ndarray:
     return read_numeric_text(path, None, "one frame of kinematics per line")
 
 
-def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:
+def read(source: Path, columns: TableColumns, options, label: Labels = Labels.REQUIRED) -> list[Recording]:
     """Every trial of a JIGSAWS task folder; labelled from its transcription (``with_labels``), frames
     outside every gesture dropped or given ``options.unlabelled``. ``label``: required (every trial has a
     transcription), optional (trials without one are unlabelled: then all must be) or none."""
@@ -57,7 +58,7 @@ def read(source: Path, columns: TableColumns, options, label: str = "required") 
                               episode=pl.Series([path.stem] * len(values)), time=(rows - 1) / RATE, row=rows,
                               where="{file}:{row}")
         transcript = Path(source) / TRANSCRIPTIONS / path.name
-        if label == "required" or (label == "optional" and transcript.is_file()):
+        if label is Labels.REQUIRED or (label is Labels.OPTIONAL and transcript.is_file()):
             if not transcript.is_file():
                 raise BadInput(f"{path}: no transcription {transcript}; label every trial, or leave it out")
             found = intervals.transcription(transcript, first_frame=1)

@@ -15,8 +15,9 @@ from typing import Any
 
 import polars as pl
 
-from stages.errors import BadInput
-from stages.table_import import Recording, TableColumns, check_features
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.table import check_features
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 VERSIONS = ("v2.0", "v2.1", "v3.0")
 KEYS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
@@ -53,7 +54,7 @@ def element_names(column: str, spec: dict[str, Any]) -> list[str]:
     return [column] if size == 1 else [f"{column}/{k}" for k in range(size)]
 
 
-def read(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
+def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     source = Path(source)
     info = info_of(source)
     features = info["features"]
@@ -99,7 +100,7 @@ def read(source: Path, columns: TableColumns, label: str = "required") -> list[R
             else:
                 flat[names[0]] = column
         time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
-        labelled = label != "none" and columns.label in table.columns
+        labelled = label is not Labels.NONE and columns.label in table.columns
         recordings.append(Recording(
             path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),
             time=time, label=table[columns.label] if labelled else None,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.errors import BadInput
+from mlnseq.catalog.errors import BadInput
 
 
 def read_numeric_text(path: Path, n_columns: int | None, empty: str) -> np.ndarray:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages import artifacts
+from mlnseq.catalog import artifacts
 
 
 def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, predictions: pl.DataFrame,
@@ -18,7 +18,7 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
     try:
         import rerun as rr
     except ImportError as error:
-        from stages.sources import missing_extra
+        from mlnseq.sources import missing_extra
 
         raise missing_extra("rerun-sdk", error) from error
     ids = np.asarray([str(e) for e in episodes], dtype=object)

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages.errors import BadInput
-from stages.table_import import Recording, TableColumns, check_features
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.table import check_features
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 BAG_SUFFIXES = (".bag", ".mcap")
 STRING = "std_msgs/msg/String"
@@ -45,13 +46,13 @@ def bag_paths(source: Path) -> list[Path]:
     return found
 
 
-def read(source: Path, columns: TableColumns, options, label: str = "required") -> list[Recording]:
+def read(source: Path, columns: TableColumns, options, label: Labels = Labels.REQUIRED) -> list[Recording]:
     """One recording per bag; the topics and rate the first bag resolves hold for the others."""
     try:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError as error:
-        from stages.sources import missing_extra
+        from mlnseq.sources import missing_extra
 
         raise missing_extra("rosbags", error) from error
     typestore = get_typestore(Stores.ROS2_HUMBLE)  # for bags that carry no message definitions
@@ -60,8 +61,8 @@ def read(source: Path, columns: TableColumns, options, label: str = "required") 
     for path in bag_paths(Path(source)):
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
-                label_topic = options.label_topic if label != "none" else None
-                if label == "optional" and label_topic not in reader.topics:
+                label_topic = options.label_topic if label is not Labels.NONE else None
+                if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
                 recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
         except BadInput:

@@ -9,10 +9,12 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, collect
+from mlnseq.catalog import artifacts
+from mlnseq import collect
+from mlnseq.sources import desk
 
 runner = CliRunner()
-TRAIN, TEST = collect.DESK_MOTION_FILES
+TRAIN, TEST = desk.MOTION_FILES
 
 
 @pytest.fixture(autouse=True)

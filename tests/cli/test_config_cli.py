@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts
+from mlnseq.catalog import artifacts
 
 runner = CliRunner()
 

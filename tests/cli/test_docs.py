@@ -10,7 +10,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import binarize, predicate_spec
+from mlnseq import binarize
+from mlnseq.predicates import spec as predicate_spec
 
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "predicates.md"
 

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages.mln.published_codes import desk_predicates, write_predicates
+from mlnseq.mln.published_codes import desk_predicates, write_predicates
 
 runner = CliRunner()
 

@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages.mln import cll
-from stages.mln.published_codes import desk_predicates, write_predicates
+from mlnseq.mln import cll
+from mlnseq.mln.published_codes import desk_predicates, write_predicates
 
 runner = CliRunner()
 

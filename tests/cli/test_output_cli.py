@@ -104,7 +104,7 @@ def test_verbose_shows_the_traceback_and_keeps_a_bad_inputs_exit_code(monkeypatc
     verbose = runner.invoke(app, ["--verbose", "eval", "-w", str(tmp_path)])
     assert plain.exit_code == verbose.exit_code == 2
     assert "Traceback" not in plain.stderr and plain.stderr.count("\n") == 1
-    assert "Traceback" in verbose.stderr and "stages/artifacts.py" in verbose.stderr  # where it was raised
+    assert "Traceback" in verbose.stderr and "stages/catalog/artifacts.py" in verbose.stderr  # where it was raised
     assert verbose.stderr.strip().splitlines()[-1] == plain.stderr.strip()  # the same one line, last
 
 

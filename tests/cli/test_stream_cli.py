@@ -16,8 +16,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, export, predict
-from stages import stream as stage
+from mlnseq.catalog import artifacts
+from mlnseq import export, predict
+from mlnseq import stream as stage
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
 FRAMES = 2000  # of the DESK test recording, through the pipe

@@ -16,8 +16,9 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, networks, predict
-from stages.recognizer import Recognizer
+from mlnseq.catalog import artifacts
+from mlnseq import networks, predict
+from mlnseq.recognition.recognizer import Recognizer
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
 FRAMES = 1000  # of the DESK test recording, through the pipe

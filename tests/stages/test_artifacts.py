@@ -8,7 +8,7 @@ import sys
 
 import polars as pl
 
-from stages import artifacts
+from mlnseq.catalog import artifacts
 
 
 def finished_pid() -> int:

@@ -8,11 +8,12 @@ import pytest
 
 from pathlib import Path
 
-from stages import artifacts, collect
-from stages.fetch_demos import OBSERVATION_FEATURES
-from stages import binarize as stage
-from stages.errors import BadInput
-from stages.predicate_rules import StreamingBinarizer
+from mlnseq.catalog import artifacts
+from mlnseq import collect
+from mlnseq.sources.fetch import OBSERVATION_FEATURES
+from mlnseq import binarize as stage
+from mlnseq.catalog.errors import BadInput
+from mlnseq.predicates.rules import StreamingBinarizer
 
 DESK_GRIPPER_CODE = {"static": 0, "open": 1, "closed": 2, "opening": 3, "closing": 4}
 DESK_ARM_CODE = {"static": 0, "increase": 1, "decrease": 2}

@@ -1,4 +1,4 @@
-"""Exact chain inference (stages.mln.chain) against enumeration of every path, and its online form."""
+"""Exact chain inference (mlnseq.mln.chain) against enumeration of every path, and its online form."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from stages.mln.chain import (
+from mlnseq.mln.chain import (
     ChainFactors, Filter, chain_starts, filtered, log_partition, path_score, smoothed, viterbi,
 )
-from stages.mln.chain_moments import count_covariance, expectations
-from stages.mln.chain_scan import Repeats
+from mlnseq.mln.chain_moments import count_covariance, expectations
+from mlnseq.mln.chain_scan import Repeats
 
 
 def random_factors(rng: np.random.Generator, frames: int, classes: int, rows: int = 2, forbid: float = 0.0,
@@ -284,10 +284,10 @@ def test_chains_whose_block_products_underflow_decode_as_the_filter_does(own_dat
 
     import polars as pl
 
-    from stages import artifacts
-    from stages.binarize import binarize
-    from stages.mln import chain
-    from stages.recognizer import Recognizer
+    from mlnseq.catalog import artifacts
+    from mlnseq.binarize import binarize
+    from mlnseq.mln import chain
+    from mlnseq.recognition.recognizer import Recognizer
 
     recognizer = Recognizer.load(own_data_glitch["model"])
     features = pl.read_csv(own_data_glitch["csv"]).select(recognizer.features).to_numpy()

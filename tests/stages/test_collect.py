@@ -11,8 +11,11 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, collect, fetch_demos
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq import collect
+from mlnseq.sources import desk
+from mlnseq.sources import fetch as fetch_demos
+from mlnseq.catalog.errors import BadInput
 
 # Reads an artifact with polars, pyarrow and json only, and proves no project module was loaded.
 READ_WITHOUT_PROJECT = """
@@ -22,7 +25,7 @@ path = sys.argv[1]
 meta = json.loads(pq.read_schema(path).metadata[b"mlnseq"])
 assert json.loads(pl.read_parquet_metadata(path)["mlnseq"]) == meta
 frames = pl.read_parquet(path)
-assert not any(name.split(".")[0] in ("stages", "mlnseq_cli") for name in sys.modules)
+assert not any(name.split(".")[0] in ("mlnseq", "mlnseq_cli") for name in sys.modules)
 print(json.dumps({"meta": meta, "columns": frames.columns, "dtypes": [str(d) for d in frames.dtypes],
                   "height": frames.height}))
 """
@@ -58,8 +61,8 @@ def test_desk_import_matches_the_shared_files(desk_frames_workdir, shared_data):
     np.testing.assert_array_equal(frames["label"].to_numpy(), both[:, -1].astype(np.int16))
     np.testing.assert_array_equal(frames["arm_distance"].to_numpy(), both[:, 0].astype(np.float32))
     np.testing.assert_array_equal(frames["right_gripper"].to_numpy(), both[:, 4].astype(np.float32))
-    assert meta["source"] == "desk" and meta["classes"] == list(collect.DESK_CLASSES)
-    assert sorted(Path(name).name for name in meta["inputs"]) == sorted(collect.DESK_MOTION_FILES)
+    assert meta["source"] == "desk" and meta["classes"] == list(desk.CLASSES)
+    assert sorted(Path(name).name for name in meta["inputs"]) == sorted(desk.MOTION_FILES)
 
 
 def test_desk_arm_distance_is_the_distance_of_the_kinematics(desk_frames_workdir, shared_data):
@@ -67,8 +70,8 @@ def test_desk_arm_distance_is_the_distance_of_the_kinematics(desk_frames_workdir
         collect.CollectOptions(env="desk", source=shared_data / "desk-taurus", channels="kinematics")
     ).frames
     assert kinematics.height == 1_405
-    assert artifacts.feature_columns(kinematics) == list(collect.DESK_KINEMATICS_FEATURES)
-    assert len(collect.DESK_KINEMATICS_FEATURES) == 14
+    assert artifacts.feature_columns(kinematics) == list(desk.KINEMATICS_FEATURES)
+    assert len(desk.KINEMATICS_FEATURES) == 14
     assert (kinematics["split"] == "train").all()
 
     left = kinematics.select("left_x", "left_y", "left_z").to_numpy().astype(np.float64)
@@ -154,19 +157,19 @@ def test_fetch_same_seed_same_frames_other_seed_other_frames(fetch_frames):
     frames, meta = fetch_frames
     seed = meta["seed"]
     calls = []
-    again = collect.collect_fetch(
+    again = fetch_demos.collect(
         collect.CollectOptions(episodes=2, seed=seed), progress=lambda done, total: calls.append((done, total))
     ).frames
     assert calls == [(1, 2), (2, 2)]
     # an episode depends only on (seed, episode): a shorter run repeats the longer one's first episodes
     assert again.drop("split").equals(frames.filter(pl.col("episode") < 2).drop("split"))
-    other = collect.collect_fetch(collect.CollectOptions(episodes=2, seed=seed + 1)).frames
+    other = fetch_demos.collect(collect.CollectOptions(episodes=2, seed=seed + 1)).frames
     assert not np.allclose(other["object_pos_x"].to_numpy(), again["object_pos_x"].to_numpy())
 
 
 @pytest.mark.mujoco
 def test_fetch_goals_and_train_frames_options():
-    collected = collect.collect_fetch(collect.CollectOptions(episodes=1, goals=True, train_frames=10))
+    collected = fetch_demos.collect(collect.CollectOptions(episodes=1, goals=True, train_frames=10))
     frames = collected.frames
     assert collected.meta["features"] == [*fetch_demos.OBSERVATION_FEATURES, *fetch_demos.GOAL_FEATURES]
     assert artifacts.feature_columns(frames) == collected.meta["features"]
@@ -208,7 +211,7 @@ def test_a_failed_write_leaves_no_partial_frames(tmp_path, monkeypatch, desk_fra
 COLLECT_AND_SAY_IF_SIMULATED = """
 import json, sys
 from pathlib import Path
-from stages import collect
+from mlnseq import collect
 options = collect.CollectOptions(**json.loads(sys.argv[2]), cache=Path(sys.argv[3]))
 collect.run(Path(sys.argv[1]), options)
 print(json.dumps([name for name in ("mujoco", "gymnasium", "gymnasium_robotics") if name in sys.modules]))

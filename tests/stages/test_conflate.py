@@ -7,8 +7,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, conflate, methods, network_weight, notes, recognizer, train, workdir_inputs
-from stages.errors import BadInput, MissingArtifact
+from mlnseq.catalog import artifacts, methods, notes
+from mlnseq import conflate, train
+from mlnseq.recognition import network_weight, recognizer, workdir_inputs
+from mlnseq.catalog.errors import BadInput, MissingArtifact
 
 
 def test_conflation_is_equation_16():
@@ -96,7 +98,7 @@ def test_every_decoding_is_predicted_with_its_weight_chosen_on_validation(desk_s
 
 
 def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tmp_path, desk_mln_workdir):
-    from stages.mln import classifier
+    from mlnseq.mln import classifier
 
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)

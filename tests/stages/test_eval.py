@@ -2,8 +2,8 @@
 
 import pytest
 
-from stages import eval as stage
-from stages.errors import BadInput
+from mlnseq import eval as stage
+from mlnseq.catalog.errors import BadInput
 
 
 @pytest.mark.parametrize("options", [stage.EvalOptions(fraction=0.0), stage.EvalOptions(fraction=1.2),

@@ -10,9 +10,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, checkpoints, conflate, export, folds, learn_weights, train
-from stages.cross_validation import FIGURES, choice_score
-from stages.errors import BadInput, StaleArtifact
+from mlnseq.catalog import artifacts
+from mlnseq.model import checkpoints
+from mlnseq import conflate, export, learn_weights, train
+from mlnseq.recognition import folds
+from mlnseq.recognition.cross_validation import FIGURES, choice_score
+from mlnseq.catalog.errors import BadInput, StaleArtifact
 
 
 def desk_keys(workdir: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -70,8 +73,8 @@ def test_conflate_learns_the_network_weight_and_cross_validates_every_method(des
 
 
 def test_the_learned_weight_follows_how_informative_the_network_is(desk_folds_workdir):
-    from stages.mln import cll
-    from stages.mln.factors import MLNFactors
+    from mlnseq.mln import cll
+    from mlnseq.mln.factors import MLNFactors
 
     predicates, _ = artifacts.read_table(desk_folds_workdir / artifacts.PREDICATES, "predicates")
     weights, meta = artifacts.read_table(desk_folds_workdir / artifacts.WEIGHTS, "weights")

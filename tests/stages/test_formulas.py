@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from stages import formulas as stage
-from stages.errors import BadInput
-from stages.mln.published_codes import desk_predicates, write_predicates
-from stages.mln.syntax import format_weighted, parse_mln
+from mlnseq import formulas as stage
+from mlnseq.catalog.errors import BadInput
+from mlnseq.mln.published_codes import desk_predicates, write_predicates
+from mlnseq.mln.syntax import format_weighted, parse_mln
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from stages.networks.network import Network, StreamingNetwork
-from stages import networks
-from stages.networks.classifier import SequenceClassifier
+from mlnseq.networks.network import Network, StreamingNetwork
+from mlnseq import networks
+from mlnseq.networks.classifier import SequenceClassifier
 
 
 def trained_like(cell: str, prior_layer: bool) -> tuple[SequenceClassifier, Network, np.ndarray, np.ndarray]:

@@ -1,19 +1,23 @@
-"""The layout's two rules, read from the source: no module under stages/ imports a stage module other than
-itself (a shared piece lives in a module named for it), and none is over 400 lines."""
+"""The layout's rules, read from the source: the files directly under stages/ are the stages, one per
+command, and its folders the libraries they share; no library imports a stage, the folders' imports run one
+way (no circle between folders, none between modules), and no module is over 400 lines."""
 
 from __future__ import annotations
 
 import ast
+import importlib
+from collections import defaultdict
 from pathlib import Path
 
-STAGES = Path(__file__).resolve().parents[2] / "stages"
-STAGE_NAMES = ("collect", "binarize", "formulas", "learn_weights", "train", "conflate", "eval", "export", "predict",
-               "stream", "info", "report")
+from mlnseq_cli.main import COMMANDS
+
+REPO = Path(__file__).resolve().parents[2]
+STAGES = REPO / "stages"  # installed as the package `mlnseq`
 MAX_LINES = 400
 
 
-def imported_modules(tree: ast.AST) -> set[str]:
-    """Every module an import statement names, ``from stages import x`` as ``stages.x``."""
+def imported_modules(tree: ast.AST, package: str = "mlnseq") -> set[str]:
+    """Every module an import statement names, ``from mlnseq import x`` as ``mlnseq.x`` (lazy imports too)."""
     names = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -21,41 +25,115 @@ def imported_modules(tree: ast.AST) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.module:
             names.add(node.module)
             names |= {f"{node.module}.{alias.name}" for alias in node.names}
-    return names
+    return {name for name in names if name.split(".")[0] in (package, "mlnseq_cli")}
 
 
-def stage_of(module: str) -> str | None:
-    """The stage a dotted module name belongs to (``stages.report.tables`` -> report), or None."""
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 and parts[0] == "stages" and parts[1] in STAGE_NAMES else None
-
-
-def modules() -> list[tuple[str, Path]]:
-    found = []
-    for path in sorted(STAGES.rglob("*.py")):
-        parts = path.relative_to(STAGES.parent).with_suffix("").parts
-        found.append((".".join(parts[:-1] if parts[-1] == "__init__" else parts), path))
+def modules(root: Path = STAGES, package: str = "mlnseq") -> dict[str, Path]:
+    found = {}
+    for path in sorted(root.rglob("*.py")):
+        parts = (package, *path.relative_to(root).with_suffix("").parts)
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
     return found
 
 
-def test_no_module_under_stages_imports_another_stage():
+STAGE_FILES = sorted(path.stem for path in STAGES.glob("*.py") if path.stem != "__init__")
+LIBRARIES = sorted(path.name for path in STAGES.iterdir()
+                   if path.is_dir() and (path / "__init__.py").is_file())
+
+
+def stage_of(module: str) -> str | None:
+    """The stage a dotted module name belongs to (``mlnseq.report`` -> report), or None for a library."""
+    parts = module.split(".")
+    return parts[1] if len(parts) == 2 and parts[0] == "mlnseq" and parts[1] in STAGE_FILES else None
+
+
+def library_of(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == "mlnseq" and parts[1] in LIBRARIES else None
+
+
+def test_the_files_under_stages_are_the_commands():
+    commands = {name.replace("-", "_") for name in COMMANDS}
+    assert set(STAGE_FILES) <= commands, set(STAGE_FILES) - commands
+    assert {"collect", "binarize", "formulas", "learn_weights", "train", "conflate", "eval", "export", "predict",
+            "stream", "info", "report"} <= set(STAGE_FILES)
+    for stage in STAGE_FILES:
+        assert callable(getattr(importlib.import_module(f"mlnseq.{stage}"), "run", None)) or stage == "info", stage
+
+
+def test_no_library_imports_a_stage_and_no_stage_imports_another():
     crossings = []
-    for module, path in modules():
+    for module, path in modules().items():
         own = stage_of(module)
         for name in imported_modules(ast.parse(path.read_text())):
             other = stage_of(name)
             if other is not None and other != own:
-                crossings.append(f"{path.relative_to(STAGES.parent)} imports {name}")
+                crossings.append(f"{path.relative_to(REPO)} imports {name}")
+            if name.startswith("mlnseq_cli"):
+                crossings.append(f"{path.relative_to(REPO)} imports the command line ({name})")
     assert not crossings, "\n".join(crossings)
 
 
+def cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One circle of ``graph`` as a path that comes back to its start, or []."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        stack.pop()
+        state[node] = 2
+        return []
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return []
+
+
+def module_graph() -> dict[str, set[str]]:
+    known = {**modules(), **modules(REPO / "mlnseq_cli", "mlnseq_cli")}
+    graph = defaultdict(set)
+    for module, path in known.items():
+        for name in imported_modules(ast.parse(path.read_text())):
+            target = name if name in known else name.rsplit(".", 1)[0]
+            if target in known and target != module and not module.startswith(target + "."):
+                graph[module].add(target)
+    return graph
+
+
+def test_the_library_folders_import_one_way():
+    folders = defaultdict(set)
+    for module, targets in module_graph().items():
+        for target in targets:
+            source, dest = library_of(module), library_of(target)
+            if source and dest and source != dest:
+                folders[source].add(dest)
+    assert cycle(folders) == []
+
+
+def test_no_import_circle_between_modules():
+    assert cycle(module_graph()) == []
+
+
+def test_the_circle_finder_finds_one():
+    assert cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert cycle({"a": {"b"}, "b": {"c"}}) == []
+
+
 def test_no_module_under_stages_is_over_400_lines():
-    long = {str(path.relative_to(STAGES.parent)): n for _, path in modules()
+    long = {str(path.relative_to(REPO)): n for path in modules().values()
             if (n := len(path.read_text().splitlines())) > MAX_LINES}
     assert long == {}
 
 
 def test_the_import_rule_sees_each_form_of_import():
-    tree = ast.parse("import stages.train\nfrom stages import formulas\nfrom stages.report.tables import fmt\n"
-                     "def late():\n    from stages.export import run\n")
+    tree = ast.parse("import mlnseq.train\nfrom mlnseq import formulas\nfrom mlnseq.report import run\n"
+                     "def late():\n    from mlnseq.export import run\n")
     assert {stage_of(name) for name in imported_modules(tree)} >= {"train", "formulas", "report", "export"}

@@ -9,14 +9,15 @@ import polars as pl
 import pytest
 from scipy.special import expit
 
-from stages import artifacts, binarize
-from stages import learn_weights as stage
-from stages.errors import BadInput, StaleArtifact
-from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
-from stages.mln import bpll, cll, pracmln_compat
-from stages.mln.grounding import expand_templates
-from stages.mln.published_codes import desk_predicates, fetch_predicates, write_predicates
-from stages.mln.syntax import parse_mln
+from mlnseq.catalog import artifacts
+from mlnseq import binarize
+from mlnseq import learn_weights as stage
+from mlnseq.catalog.errors import BadInput, StaleArtifact
+from mlnseq.formulas import DEFAULT_SPEC, formulas_for, read_spec
+from mlnseq.mln import bpll, cll, pracmln_compat
+from mlnseq.mln.grounding import expand_templates
+from mlnseq.mln.published_codes import desk_predicates, fetch_predicates, write_predicates
+from mlnseq.mln.syntax import parse_mln
 
 PAPER = read_spec(DEFAULT_SPEC)
 DECLARED = "Has(word, page)\nTopic(class, page)\n"
@@ -159,7 +160,7 @@ def test_pracmln_imports_without_tk(tmp_path: Path) -> None:
 
     code = (
         "import sys; sys.modules['tkinter'] = None\n"
-        "from stages.mln import pracmln_compat\n"
+        "from mlnseq.mln import pracmln_compat\n"
         "print(pracmln_compat.learn_weights('Has(word, page)\\nTopic(class, page)\\n0.0 Has(+w,p) => Topic(+c,p)\\n',"
         " 'Has(\"a\",P0)\\nTopic(\"C0\",P0)\\nHas(\"b\",P1)\\nTopic(\"C1\",P1)\\n', [False]))"
     )

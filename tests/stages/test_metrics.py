@@ -4,7 +4,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import metrics as stage
+from mlnseq.timeline import metrics as stage
 
 
 @pytest.mark.parametrize(("length", "fraction", "frame"), [

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import linalg
 
-from stages.mln import blas
+from mlnseq.mln import blas
 
 
 def test_one_thread_sets_and_restores() -> None:

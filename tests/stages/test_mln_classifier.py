@@ -8,10 +8,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import learn_weights
-from stages.formulas import DEFAULT_SPEC, read_spec
-from stages.mln.classifier import HARD_WEIGHT, class_log_probs, class_scores, paper_prior
-from stages.mln.published_codes import desk_predicates
+from mlnseq import learn_weights
+from mlnseq.formulas import DEFAULT_SPEC, read_spec
+from mlnseq.mln.classifier import HARD_WEIGHT, class_log_probs, class_scores, paper_prior
+from mlnseq.mln.published_codes import desk_predicates
 
 
 def segment_frames(labels: np.ndarray) -> np.ndarray:

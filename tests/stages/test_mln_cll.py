@@ -8,14 +8,15 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, binarize
-from stages import learn_weights as stage
-from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
-from stages.mln import chain, cll
-from stages.mln.factors import MLNFactors
-from stages.mln.grounding import AtomSpace, class_constant, expand_templates
-from stages.mln.published_codes import desk_predicates
-from stages.mln.syntax import parse_mln
+from mlnseq.catalog import artifacts
+from mlnseq import binarize
+from mlnseq import learn_weights as stage
+from mlnseq.formulas import DEFAULT_SPEC, formulas_for, read_spec
+from mlnseq.mln import chain, cll
+from mlnseq.mln.factors import MLNFactors
+from mlnseq.mln.grounding import AtomSpace, class_constant, expand_templates
+from mlnseq.mln.published_codes import desk_predicates
+from mlnseq.mln.syntax import parse_mln
 
 TEMPORAL = Path(__file__).resolve().parents[2] / "examples" / "temporal.mln"
 

@@ -8,15 +8,15 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts
-from stages import learn_weights as stage
-from stages.errors import BadInput
-from stages.formulas import DEFAULT_SPEC, formulas_for, read_spec
-from stages.mln import chain
-from stages.mln.classifier import class_scores
-from stages.mln.factors import MLNFactors
-from stages.mln.published_codes import desk_predicates, fetch_predicates
-from stages.mln.syntax import parse_mln
+from mlnseq.catalog import artifacts
+from mlnseq import learn_weights as stage
+from mlnseq.catalog.errors import BadInput
+from mlnseq.formulas import DEFAULT_SPEC, formulas_for, read_spec
+from mlnseq.mln import chain
+from mlnseq.mln.classifier import class_scores
+from mlnseq.mln.factors import MLNFactors
+from mlnseq.mln.published_codes import desk_predicates, fetch_predicates
+from mlnseq.mln.syntax import parse_mln
 
 TEMPORAL = Path(__file__).resolve().parents[2] / "examples" / "temporal.mln"
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from stages.mln.syntax import And, Implies, MLNSyntaxError, Not, Or, Var, format_formula, format_weighted, parse_formula, parse_mln
+from mlnseq.mln.syntax import And, Implies, MLNSyntaxError, Not, Or, Var, format_formula, format_weighted, parse_formula, parse_mln
 
 # logic_constraints/taurus.mln of masud99r/prediction-with-logic-constraints, verbatim.
 AUTHORS_TAURUS_MLN = """//word = { arms_dist_0, arms_dist_1, arms_dist_3 }

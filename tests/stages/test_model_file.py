@@ -17,9 +17,10 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import export, model_file, train
-from stages.model_file import MANIFEST, NETWORK, SPEC, WEIGHTS
-from stages.recognizer import Recognizer
+from mlnseq import export, train
+from mlnseq.model import model_file
+from mlnseq.model.model_file import MANIFEST, NETWORK, SPEC, WEIGHTS
+from mlnseq.recognition.recognizer import Recognizer
 
 runner = CliRunner()
 BOMB_BYTES = 2 * 1024**3  # 2 GiB of spaces, deflated to about 2 MB

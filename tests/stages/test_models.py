@@ -3,10 +3,10 @@
 import pytest
 import torch
 
-from stages import networks
-from stages.errors import BadInput
-from stages.networks.classifier import SequenceClassifier
-from stages.networks.recurrent import Config as ModelConfig
+from mlnseq import networks
+from mlnseq.catalog.errors import BadInput
+from mlnseq.networks.classifier import SequenceClassifier
+from mlnseq.networks.recurrent import Config as ModelConfig
 
 
 @pytest.mark.parametrize("cell", networks.CELLS)
@@ -49,7 +49,7 @@ def test_an_option_of_another_network_type_is_refused():
 
 
 def test_the_tcn_sees_exactly_its_receptive_field():
-    from stages.networks.tcn import receptive_field
+    from mlnseq.networks.tcn import receptive_field
 
     torch.manual_seed(0)
     config = networks.make_config("tcn", n_features=3, n_classes=4, kernel_size=3, levels=3)

@@ -8,8 +8,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, export, metrics, predict
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq import export, predict
+from mlnseq.timeline import metrics
+from mlnseq.catalog.errors import BadInput
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +79,7 @@ def test_viterbi_decodes_a_filter_model_offline_and_refuses_an_undecoded_one(des
 
 def streamed(model: Path, frames: pl.DataFrame, episodes: list | None = None) -> list:
     """Recognizer.step over the frames, reset wherever ``episodes`` changes (the live loop)."""
-    from stages.recognizer import Recognizer
+    from mlnseq.recognition.recognizer import Recognizer
 
     recognizer = Recognizer.load(model)
     out, previous = [], None

@@ -12,10 +12,11 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import artifacts, collect, export, predict, train
-from stages.collect import DESK_CLASSES
-from stages.errors import BadInput
-from stages.table_import import TableColumns
+from mlnseq.catalog import artifacts
+from mlnseq import collect, export, predict, train
+from mlnseq.sources.desk import CLASSES as DESK_CLASSES
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.recording import TableColumns
 
 TRIAL = 1500  # frames per trial
 
@@ -107,9 +108,9 @@ def test_predict_through_the_cli_refuses_to_overwrite(model, recordings, tmp_pat
 
 @pytest.mark.parametrize("unit", ["frames", "seconds"])
 def test_predicted_intervals_read_back_as_labels_give_the_predicted_classes(model, recordings, tmp_path, unit):
-    from stages import sources
-    from stages.sources import SourceOptions
-    from stages.table_import import collect_frames
+    from mlnseq import sources
+    from mlnseq.sources import SourceOptions
+    from mlnseq.sources.table import collect_frames
 
     segments = tmp_path / f"segments-{unit}.csv"
     result = predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "p.parquet",

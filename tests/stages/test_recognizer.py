@@ -11,9 +11,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import artifacts, export, methods, model_file, recognizer
-from stages.errors import BadInput
-from stages.recognizer import Recognizer
+from mlnseq.catalog import artifacts, methods
+from mlnseq import export
+from mlnseq.model import model_file
+from mlnseq.recognition import recognizer
+from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition.recognizer import Recognizer
 
 STEPPED_FRAMES = 1500  # one frame at a time is checked on the first frames of the 20,924-frame recording
 
@@ -132,7 +135,7 @@ def test_a_segment_mode_network_is_exported_with_a_note(desk_full_workdir, tmp_p
 
 
 def test_decoding_refuses_an_unknown_kind(desk_stream_workdir):
-    from stages.mln import chain
+    from mlnseq.mln import chain
 
     factors = chain.ChainFactors(np.zeros((3, 2)), np.zeros((1, 2, 2)), np.array([-1, 0, 0]))
     assert recognizer.decode_chain("viterbi", factors).path.shape == (3,)

@@ -9,10 +9,11 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from stages import artifacts, conflate, methods, report, train
-from stages import eval as evaluation
-from stages.errors import BadInput
-from stages.report import claims, loading, tables
+from mlnseq.catalog import artifacts, methods
+from mlnseq import conflate, report, train
+from mlnseq import eval as evaluation
+from mlnseq.catalog.errors import BadInput
+from mlnseq.reporting import claims, loading, tables
 
 
 @pytest.fixture(scope="module")

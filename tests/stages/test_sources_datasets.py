@@ -10,11 +10,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-from stages import sources
-from stages.collect import DESK_CLASSES
-from stages.errors import BadInput
-from stages.sources import SourceOptions
-from stages.table_import import TableColumns, collect_frames
+from mlnseq import sources
+from mlnseq.sources.desk import CLASSES as DESK_CLASSES
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources import SourceOptions
+from mlnseq.sources.recording import Labels, TableColumns
+from mlnseq.sources.table import collect_frames
 
 LENGTHS = (240, 160)  # two episodes
 FPS = 30
@@ -154,8 +155,8 @@ def test_an_hdf5_file_gives_the_frames_of_the_same_csv(desk, labels, tmp_path):
     names = ["obs/eef_pos/0", "obs/eef_pos/1", "obs/eef_pos/2", "obs/gripper", *(f"actions/{k}" for k in range(7))]
     assert meta["features"] == names  # the image left out
     assert found.equals(expected(desk, tmp_path, names, lambda part: part[:, [0, 1, 2, 6, *range(7, 14)]]))
-    picked = sources.read("hdf5", source, TableColumns(features=("actions",)), SourceOptions(), label="none")
+    picked = sources.read("hdf5", source, TableColumns(features=("actions",)), SourceOptions(), label=Labels.NONE)
     assert picked[0].features.columns == [f"actions/{k}" for k in range(7)]
     with pytest.raises(BadInput, match=r"demos.hdf5:/data/demo_0: no dataset 'obs/joint_pos'; the demo's datasets "
                                        r"are actions, obs/agentview_image, obs/eef_pos, obs/gripper"):
-        sources.read("hdf5", source, TableColumns(features=("obs/joint_pos",)), SourceOptions(), label="none")
+        sources.read("hdf5", source, TableColumns(features=("obs/joint_pos",)), SourceOptions(), label=Labels.NONE)

@@ -10,11 +10,12 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from stages import collect, sources
-from stages.collect import DESK_CLASSES
-from stages.errors import BadInput
-from stages.sources import SourceOptions, jigsaws
-from stages.table_import import TableColumns, collect_frames
+from mlnseq import collect, sources
+from mlnseq.sources.desk import CLASSES as DESK_CLASSES
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources import SourceOptions, jigsaws
+from mlnseq.sources.recording import TableColumns
+from mlnseq.sources.table import collect_frames
 
 TRIALS = {"A": 400, "B": 300}
 

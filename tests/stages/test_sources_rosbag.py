@@ -15,11 +15,12 @@ from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from stages import sources  # noqa: E402
-from stages.collect import DESK_CLASSES  # noqa: E402
-from stages.errors import BadInput  # noqa: E402
-from stages.sources import SourceOptions  # noqa: E402
-from stages.table_import import TableColumns, collect_frames  # noqa: E402
+from mlnseq import sources  # noqa: E402
+from mlnseq.sources.desk import CLASSES as DESK_CLASSES  # noqa: E402
+from mlnseq.catalog.errors import BadInput  # noqa: E402
+from mlnseq.sources import SourceOptions  # noqa: E402
+from mlnseq.sources.recording import Labels, TableColumns
+from mlnseq.sources.table import collect_frames  # noqa: E402
 
 FRAMES, STEP = 500, 20_000_000  # 50 Hz joint states; the gripper at 10 Hz
 START = 1_700_000_000 * 10**9
@@ -133,7 +134,7 @@ def test_each_bag_format_gives_the_frames_of_the_same_csv(bags, as_csv, kind):
 
 
 def test_default_topics_rate_and_a_folder_of_bags(bags, desk, tmp_path):
-    recording = sources.read("rosbag", bags["sqlite3"], TableColumns(), SourceOptions(), label="none")[0]
+    recording = sources.read("rosbag", bags["sqlite3"], TableColumns(), SourceOptions(), label=Labels.NONE)[0]
     assert recording.resolved["topics"] == ["/gripper", "/joint_states"]  # every numeric topic, by name
     assert recording.resolved["rate"] == pytest.approx(10.0)  # the first topic's
     assert recording.resolved["skipped_topics"] == ["/phase"]
@@ -145,7 +146,7 @@ def test_default_topics_rate_and_a_folder_of_bags(bags, desk, tmp_path):
     table, meta = frames(folder)
     assert meta["episode_names"] == ["a", "b"] and table.group_by("episode").len().sort("episode")["len"].to_list() == [200, 300]
     faster = sources.read("rosbag", bags["ros1"], TableColumns(), SourceOptions(topics=("/joint_states",), rate=100),
-                          label="none")[0]
+                          label=Labels.NONE)[0]
     assert faster.features.height == 2 * FRAMES - 1  # a tick every 10 ms, each holding the last 20 ms message
     assert faster.features["/joint_states/position/j1"].to_numpy()[1::2].tolist() == desk[:-1, 0].tolist()
 
@@ -175,7 +176,7 @@ def test_a_model_from_a_bag_predicts_new_bags_read_the_same_way(bags, tmp_path):
     from typer.testing import CliRunner
 
     from mlnseq_cli.main import app
-    from stages import export, train
+    from mlnseq import export, train
 
     runner = CliRunner()
     work = tmp_path / "work"

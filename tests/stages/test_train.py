@@ -7,8 +7,11 @@ import polars as pl
 import pytest
 import torch
 
-from stages import artifacts, checkpoints, sequences, train
-from stages.errors import BadInput, MissingArtifact
+from mlnseq.catalog import artifacts
+from mlnseq.model import checkpoints
+from mlnseq.timeline import sequences
+from mlnseq import train
+from mlnseq.catalog.errors import BadInput, MissingArtifact
 
 
 @pytest.fixture

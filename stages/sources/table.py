@@ -1,6 +1,6 @@
 """Recordings as frames: a user's CSV/Parquet tables, and the one assembly every recording source goes through.
 
-A source (this module's table reader, or one in ``stages.sources``) turns its files into ``Recording``s:
+A source (this module's table reader, or one in ``mlnseq.sources``) turns its files into ``Recording``s:
 per file its features and, per row, the user's episode id, time and label. ``collect_frames`` (for
 ``collect``) and ``prediction_frames`` (for ``predict``) check and assemble them into frames.parquet's
 schema with one core: time rising within an episode, labels to class indices, the split, the metadata.
@@ -12,7 +12,6 @@ feature unless ``features`` lists them. A folder holds one episode per file, in 
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,46 +20,14 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from stages import artifacts
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 TABLE_SUFFIXES = (".csv", ".parquet")
 DEFAULT_TRAIN_SHARE = 0.7
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # features are stored as float32: a larger value would be inf
 
-
-@dataclass(frozen=True)
-class TableColumns:
-    """Which columns of the user's table are keys and which are features."""
-
-    label: str = "label"
-    episode: str | None = None  # default: a column named "episode" if present, else one episode per file
-    time: str | None = None  # default: a column named "frame" if present, else file order
-    features: tuple[str, ...] = ()  # default: every other numeric column
-    classes: tuple[str, ...] = ()  # class names in label order; default: from the labels
-
-
-@dataclass(frozen=True)
-class Recording:
-    """One file's frames as a source read them; rows are named in messages as ``where`` formats them."""
-
-    path: Path
-    features: pl.DataFrame  # one column per feature, in order, numeric and finite
-    episode: pl.Series  # the user's episode id per row (Int64 or String)
-    time: pl.Series  # rising within an episode
-    label: pl.Series | None = None  # class index or name per row; None: unlabelled
-    split: pl.Series | None = None  # train/test per row, if the source says
-    row: pl.Series | None = None  # the row number messages give (default: 0, 1, ...)
-    where: str = "{file} row {row}"  # "{file}:{row}" for a CSV's lines
-    resolved: dict[str, Any] = field(default_factory=dict)  # options the source chose (a bag's rate, topics)
-
-
-def row_where(recording: Recording, index: int) -> str:
-    row = int(recording.row[index]) if recording.row is not None else index
-    return recording.where.format(file=recording.path, row=row)
-
-
-# ---- the table reader ------------------------------------------------------------------------------------
 
 def table_files(source: Path) -> list[Path]:
     """The files to import: ``source`` itself, or the CSV/Parquet files of a folder in name order."""
@@ -157,18 +124,18 @@ def check_features(features: pl.DataFrame, path: Path, where: str = "{file} row 
     return pl.DataFrame(checked)
 
 
-def read_tables(source: Path, columns: TableColumns, label: str = "required") -> list[Recording]:
-    """A user's CSV/Parquet file or folder as recordings. ``label``: ``required`` (the label column must be
-    there), ``optional`` (read if the first file has it) or ``none``."""
+def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
+    """A user's CSV/Parquet file or folder as recordings; with ``Labels.OPTIONAL`` the label column is read if
+    the first file has it."""
     files = table_files(Path(source))
-    labelled = label == "required"
+    labelled = label is Labels.REQUIRED
     recordings = []
     for file_number, path in enumerate(files):
         table = read_one(path)
         is_csv = path.suffix.lower() == ".csv"
         episode_col = columns.episode or ("episode" if "episode" in table.columns else None)
         time_col = columns.time or ("frame" if "frame" in table.columns else None)
-        if label == "optional" and file_number == 0:
+        if label is Labels.OPTIONAL and file_number == 0:
             labelled = columns.label in table.columns
         label_col = columns.label if labelled else None
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
@@ -210,18 +177,21 @@ def read_tables(source: Path, columns: TableColumns, label: str = "required") ->
 
 def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = ()) -> tuple[pl.DataFrame, dict]:
     """Frames for ``collect``: every frame labelled, two classes or more, the split from the source or by position."""
-    table, meta, _ = _assemble(recordings, classes, for_prediction=False)
+    table, meta, _ = _assemble(recordings, classes, Labels.REQUIRED)
     return table, meta
 
 
 def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> tuple[pl.DataFrame, dict, np.ndarray]:
     """Frames for ``predict``: labels optional (absent: every label -1, ``labelled: false``), one class enough,
     every frame test; and each frame's time, row by row."""
-    return _assemble(recordings, classes, for_prediction=True)
+    return _assemble(recordings, classes, Labels.OPTIONAL)
 
 
 def _assemble(recordings: list[Recording], classes: tuple[str, ...],
-              for_prediction: bool) -> tuple[pl.DataFrame, dict, np.ndarray]:
+              labels_wanted: Labels) -> tuple[pl.DataFrame, dict, np.ndarray]:
+    """Labels.REQUIRED: frames to train on (labelled, two classes or more, the split from the source or by
+    position); Labels.OPTIONAL: frames to predict (one class enough, every frame test)."""
+    for_prediction = labels_wanted is Labels.OPTIONAL
     if not recordings:
         raise BadInput("no recording to read")
     feature_names = recordings[0].features.columns

@@ -11,11 +11,12 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts, sequences
-from stages.checkpoints import Checkpoint, load_checkpoint
-from stages.errors import BadInput, StaleArtifact
-from stages.folds import Folds
-from stages.notes import MISSING_INPUT, Note
+from mlnseq.catalog import artifacts
+from mlnseq.timeline import sequences
+from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
+from mlnseq.catalog.errors import BadInput, StaleArtifact
+from mlnseq.recognition.folds import Folds
+from mlnseq.catalog.notes import MISSING_INPUT, Note
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,7 @@ def read_mln(workdir: Path, frames: pl.DataFrame) -> tuple[pl.DataFrame, pl.Data
 
 def mln_class_scores(workdir: Path, frames: pl.DataFrame, classes: Sequence[str]) -> tuple[np.ndarray, list[Path]]:
     """Per-frame summed MLN formula weights per class, from predicates.parquet and weights.parquet."""
-    from stages.mln import classifier
+    from mlnseq.mln import classifier
 
     predicates, weights, inputs = read_mln(workdir, frames)
     return classifier.class_scores(predicates, weights, classes), inputs
@@ -120,8 +121,8 @@ class WorkdirInputs:
 def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
     """Frames, the MLN (when weights.parquet exists) and each of ``networks`` that is trained, run over all
     frames; what is absent is left out with a note. PriorLayer needs the MLN for its input."""
-    from stages.mln import classifier
-    from stages.recognizer import prior_input
+    from mlnseq.mln import classifier
+    from mlnseq.recognition.recognizer import prior_input
 
     workdir = Path(workdir)
     frames_path = workdir / artifacts.FRAMES
@@ -158,8 +159,8 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
 def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
     """The out-of-fold predictions of the networks trained with folds, and each fold's MLN; None when no network
     was. Networks with other folds than each other, or an out-of-fold file that is not its checkpoint's, are refused."""
-    from stages import folds as folding
-    from stages.mln import classifier
+    from mlnseq.recognition import folds as folding
+    from mlnseq.mln import classifier
 
     folded = {n: r for n, r in inputs.networks.items() if r.checkpoint.config.get("folds")}
     if not folded:

@@ -16,7 +16,7 @@ Predicates (paper section IV), each a one-hot group of columns named ``<predicat
   change test (default 1; the DESK spec sets 100, see ``stages/specs/desk.binarize.toml``).
 - ``pair``: the conjunction of two earlier predicates (``of``), one value per combination, first-major.
 
-stages/predicate_rules.py evaluates a spec (each rule once, for whole episodes and one frame at a time).
+stages/predicates/rules.py evaluates a spec (each rule once, for whole episodes and one frame at a time).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from stages import artifacts
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
 
 NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
@@ -39,7 +39,7 @@ VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
 
 def default_spec_path(source: str) -> Path:
     """The built-in spec of a frames source, shipped in the package: ``stages/specs/<source>.binarize.toml``."""
-    return Path(importlib.resources.files("stages") / "specs" / f"{source}.binarize.toml")
+    return Path(importlib.resources.files("mlnseq") / "specs" / f"{source}.binarize.toml")
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Reading a run folder of `make reproduce` into one :class:`Run` of tables (see ``stages.report``)."""
+"""Reading a run folder of `make reproduce` into one :class:`Run` of tables (see ``mlnseq.report``)."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput
-from stages.methods import NETWORKS
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.methods import NETWORKS
 
 PAPER_DATASETS = ("fetch", "desk")
 RICH, FRACTION_PREFIX = "fetch-rich", "fetch-fraction-"

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
@@ -29,7 +29,7 @@ class Folds:
 
     def record(self) -> dict:
         """The assignment as metadata: K, the kind and each fold's row spans."""
-        from stages import sequences
+        from mlnseq.timeline import sequences
 
         spans = [[s.start, s.stop] for s in sequences.runs(self.fold) if self.fold[s.start] >= 0]
         return {"k": self.k, "kind": self.kind, "spans": spans}
@@ -109,7 +109,7 @@ def out_of_fold_table(keys: pl.DataFrame, folds: Folds, log_probs: np.ndarray) -
 
 def fold_mln_scores(workdir: Path, folds: Folds, classes: Sequence[str]) -> tuple[list[np.ndarray], list[Path]]:
     """Each fold's per-frame MLN class scores, from weights.folds.parquet (checked to hold the same folds)."""
-    from stages.mln import classifier
+    from mlnseq.mln import classifier
 
     weights, path = fold_weights(workdir, folds)
     predicates, _ = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")

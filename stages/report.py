@@ -21,14 +21,14 @@ from pathlib import Path
 
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput
-from stages.report.figures import (
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.reporting.figures import (
     FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_timeline, figure_train_vs_test, pyplot,
 )
-from stages.report.loading import PAPER_DATASETS, Run, load_run, present, timeline
-from stages.report.rendering import render
-from stages.report.tables import deploy_choices, efficiency_points, method_name, summary
+from mlnseq.reporting.loading import PAPER_DATASETS, Run, load_run, present, timeline
+from mlnseq.reporting.rendering import render
+from mlnseq.reporting.tables import deploy_choices, efficiency_points, method_name, summary
 
 SUMMARY = "summary.json"
 

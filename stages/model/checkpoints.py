@@ -10,12 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stages import artifacts
-from stages.errors import BadInput, StaleArtifact
-from stages.networks.network import Network
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput, StaleArtifact
+from mlnseq.networks.network import Network
 
 if TYPE_CHECKING:
-    from stages.networks.classifier import SequenceClassifier
+    from mlnseq.networks.classifier import SequenceClassifier
 
 CHECKPOINT_FORMAT = 1
 

@@ -2,7 +2,7 @@
 that evaluate them: over whole episodes (numpy arrays: the binarize stage, the recogniser's ``predict``) and
 one frame at a time (plain floats: the recogniser's ``step``, a live stream).
 
-The rules (paper section IV; the spec language is in stages/predicate_spec.py): a value's code is the
+The rules (paper section IV; the spec language is in stages/predicates/spec.py): a value's code is the
 index into its predicate's ``values``.
 
 - ``bins`` (C1): how many of the ascending ``edges`` are at most x.
@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from stages.errors import BadInput
-from stages.predicate_spec import Bins, Change, Distance, Gripper, Pair, Predicate, PredicateSpec
+from mlnseq.catalog.errors import BadInput
+from mlnseq.predicates.spec import Bins, Change, Distance, Gripper, Pair, Predicate, PredicateSpec
 
 Test = tuple[bool, bool, float, int]  # (reads the change d rather than x, x or d above the bound (else below), bound, code)
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.report.claims import claims, deploy_sentence, efficiency_claim, rich_spec_claim, target_checks
-from stages.report.loading import PAPER_DATASETS, RICH, TEMPORAL, VARIANTS, Run, present
-from stages.report.tables import (
+from mlnseq.reporting.claims import claims, deploy_sentence, efficiency_claim, rich_spec_claim, target_checks
+from mlnseq.reporting.loading import PAPER_DATASETS, RICH, TEMPORAL, VARIANTS, Run, present
+from mlnseq.reporting.tables import (
     ablation_table, datasets_table, decoded_table, deploy_table, efficiency_points, efficiency_table,
     per_class_table, rich_spec_table, stream_table, table_iii, timings_table, wall_seconds, weights_table,
 )

@@ -18,13 +18,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from stages import artifacts
-from stages.errors import BadInput
-from stages import networks
-from stages.networks.network import Network
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq import networks
+from mlnseq.networks.network import Network
 
 if TYPE_CHECKING:
-    from stages.predicate_spec import PredicateSpec
+    from mlnseq.predicates.spec import PredicateSpec
 
 MODEL_FORMAT = 2  # 2: the manifest declares its members' sizes and digests and the number of formulas
 MODEL_SUFFIX = ".mlnseq"
@@ -308,7 +308,7 @@ def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
 
 def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpec:
     """The predicate spec, whose columns must be the manifest's predicates."""
-    from stages.predicate_spec import parse_spec
+    from mlnseq.predicates.spec import parse_spec
 
     try:
         text = data.decode()
@@ -331,7 +331,7 @@ def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFr
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from stages.mln.grounding import class_constant
+    from mlnseq.mln.grounding import class_constant
 
     limit = TABLE_OVERHEAD + FORMULA_BYTES * manifest["formulas"]
     try:

@@ -3,7 +3,7 @@ method with a decoding is named in predictions, metrics, model files and on the 
 
 from __future__ import annotations
 
-from stages.errors import BadInput
+from mlnseq.catalog.errors import BadInput
 
 NETWORKS = ("lstm", "priorlayer")
 METHODS = ("lstm", "mln", "priorlayer", "conflation", "combined")

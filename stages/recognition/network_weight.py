@@ -8,13 +8,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages import artifacts
-from stages.mln import chain
-from stages.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
-from stages.recognizer import chain_of, decode_chain
+from mlnseq.catalog import artifacts
+from mlnseq.mln import chain
+from mlnseq.catalog.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
+from mlnseq.recognition.recognizer import chain_of, decode_chain
 
 if TYPE_CHECKING:
-    from stages.mln.factors import MLNFactors
+    from mlnseq.mln.factors import MLNFactors
 
 NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
 

@@ -4,7 +4,7 @@ over the frame chain, and `Recognizer` (a model file: frames in, class probabili
 `conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
 frame at a time) and the Python API all call this module. The networks run in numpy
 (stages/networks/network.py), so a model file is recognised without torch. The method names are in
-stages/methods.py, the workdir's checkpoints in stages/checkpoints.py, the model file in stages/model_file.py.
+stages/catalog/methods.py, the workdir's checkpoints in stages/model/checkpoints.py, the model file in stages/model/model_file.py.
 """
 
 from __future__ import annotations
@@ -18,16 +18,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import polars as pl
 
-from stages import model_file, sequences
-from stages.errors import BadInput
-from stages.methods import DECODES, FUSED, METHODS, MLN_MODES, NETWORKS, PRIORS, decoded_name, needs_mln, network_of
-from stages.model_file import NETWORK, SPEC, WEIGHTS
-from stages.networks.network import StreamingNetwork
-from stages.mln import chain
+from mlnseq.model import model_file
+from mlnseq.timeline import sequences
+from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.methods import DECODES, FUSED, METHODS, MLN_MODES, NETWORKS, PRIORS, decoded_name, needs_mln, network_of
+from mlnseq.model.model_file import NETWORK, SPEC, WEIGHTS
+from mlnseq.networks.network import StreamingNetwork
+from mlnseq.mln import chain
 
 if TYPE_CHECKING:
-    from stages.predicate_spec import PredicateSpec
-    from stages.mln.factors import MLNFactors
+    from mlnseq.predicates.spec import PredicateSpec
+    from mlnseq.mln.factors import MLNFactors
 
 EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other exactly 1
 
@@ -37,7 +38,7 @@ EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other 
 
 def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
     """The c2c input of PriorLayer: the MLN class weights as the authors passed them, or log-probs."""
-    from stages.mln import classifier
+    from mlnseq.mln import classifier
 
     if kind == "paper":
         return np.asarray(classifier.paper_prior(scores, source), dtype=np.float32)
@@ -124,8 +125,8 @@ class Recognizer:
     """
 
     def __init__(self, entries: dict[str, bytes], where: str = "<model>"):
-        from stages.predicate_rules import StreamingBinarizer
-        from stages.mln.factors import MLNFactors, parse_weights
+        from mlnseq.predicates.rules import StreamingBinarizer
+        from mlnseq.mln.factors import MLNFactors, parse_weights
 
         model = model_file.parse_model(entries, where)
         self.manifest = manifest = model.manifest
@@ -225,8 +226,8 @@ class Recognizer:
 
     def _mln_of(self, evidence: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The MLN's per-frame class probabilities, PriorLayer input and chain factor of one evidence row."""
-        from stages.mln import classifier
-        from stages.mln.factors import frame_scores
+        from mlnseq.mln import classifier
+        from mlnseq.mln.factors import frame_scores
 
         row = np.frombuffer(evidence, dtype=bool)[None]
         scores = frame_scores(self._per_frame, row, self.columns, len(self.classes), classifier.HARD_WEIGHT)
@@ -236,7 +237,7 @@ class Recognizer:
 
     def _mln_outputs(self, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The MLN's class probabilities [n, C] from its class scores, and PriorLayer's input if the network has one."""
-        from stages.mln import classifier
+        from mlnseq.mln import classifier
 
         source = self.manifest.get("source", "")
         p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))
@@ -263,8 +264,8 @@ class Recognizer:
         starts = chain.chain_starts(episodes)
         p_mln = prior = evidence = None
         if self.spec is not None:
-            from stages import predicate_rules
-            from stages.mln import classifier
+            from mlnseq.predicates import rules as predicate_rules
+            from mlnseq.mln import classifier
 
             # binarized as frames.parquet holds them: float32
             evidence = predicate_rules.features_evidence(self.spec, self.features, features.astype(np.float32), starts)

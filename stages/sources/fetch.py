@@ -27,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from stages import artifacts
-from stages.errors import BadInput
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.recording import Collected, split_by_position
 
 ENV_ID = "FetchPickAndPlace-v4"
 EPISODE_STEPS = 50  # the environment's time limit; 25 steps per second
@@ -199,3 +200,41 @@ def _read_cache(path: Path) -> list[Demonstration]:
     except Exception as error:  # numpy raises several types for a damaged archive
         raise BadInput(f"{path} is not a readable episode cache ({error}); delete it to simulate again") from error
     return [Demonstration(o, g, y, bool(s)) for o, g, y, s in zip(*arrays)]
+
+
+def collect(options: Any, progress: Callable[[int, int], None] | None = None) -> Collected:
+    """Simulate ``options.episodes`` Fetch demonstrations (or read them from ``options.cache``); the first
+    ``options.train_frames`` frames form the train split, ``options.goals`` adds the goal values."""
+    controller = Controller()
+    demos = demonstrations(options.episodes, options.seed, progress, controller, options.cache)
+    steps = EPISODE_STEPS
+    n_frames = options.episodes * steps
+    train_frames = DEFAULT_TRAIN_FRAMES if options.train_frames is None else options.train_frames
+    values = np.concatenate([d.observations for d in demos])
+    features = list(OBSERVATION_FEATURES)
+    if options.goals:
+        values = np.concatenate([values, np.concatenate([d.goals for d in demos])], axis=1)
+        features += GOAL_FEATURES
+    frames = artifacts.frames_table(
+        {
+            "episode": np.repeat(np.arange(options.episodes), steps),
+            "frame": np.tile(np.arange(steps), options.episodes),
+            "label": np.concatenate([d.labels for d in demos]),
+            "split": split_by_position(n_frames, train_frames),
+        },
+        {name: values[:, i] for i, name in enumerate(features)},
+    )
+    successes = [d.success for d in demos]
+    meta = {
+        "source": "fetch",
+        "env_id": ENV_ID,
+        "versions": versions(),
+        "classes": list(CLASSES),
+        "features": features,
+        "train_frames": train_frames,
+        "episode_steps": steps,
+        "controller": asdict(controller),
+        "success_rate": float(np.mean(successes)),
+        "episode_success": successes,
+    }
+    return Collected(frames, meta)

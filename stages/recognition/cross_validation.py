@@ -3,7 +3,7 @@
 choice among methods, and the network factor's weight, are made on honest predictions and never on test.
 
 The network factor's weight of a decoded network method is learned by the chain's exact conditional
-likelihood (stages.mln.cll.network_weight) on out-of-fold network log-probabilities: per fold on its fit
+likelihood (mlnseq.mln.cll.network_weight) on out-of-fold network log-probabilities: per fold on its fit
 part, for the cross-validated figures; on the whole training split, for the model that decodes test.
 """
 
@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.methods import decoded_name, network_of
-from stages.mln import chain
-from stages.recognizer import chain_of, decode_chain, fuse
+from mlnseq.catalog.methods import decoded_name, network_of
+from mlnseq.mln import chain
+from mlnseq.recognition.recognizer import chain_of, decode_chain, fuse
 
 if TYPE_CHECKING:
-    from stages.mln.factors import MLNFactors
-    from stages.workdir_inputs import MLNInputs, WorkdirInputs
+    from mlnseq.mln.factors import MLNFactors
+    from mlnseq.recognition.workdir_inputs import MLNInputs, WorkdirInputs
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
 
@@ -44,7 +44,7 @@ def chains(mask: np.ndarray, episodes: np.ndarray, fold: np.ndarray) -> tuple[np
 def learned_weight(method: str, mln: MLNFactors, evidence: np.ndarray, rows: np.ndarray, starts: np.ndarray,
                    log_p: np.ndarray, labels: np.ndarray) -> float:
     """The network factor's weight of a decoded method learned by exact CLL on ``rows`` (out-of-fold ``log_p``)."""
-    from stages.mln import cll
+    from mlnseq.mln import cll
 
     base = chain_of(method, mln, evidence[rows], starts, log_p[rows], 0.0)
     return cll.network_weight(base, log_p[rows], labels[rows])
@@ -53,7 +53,7 @@ def learned_weight(method: str, mln: MLNFactors, evidence: np.ndarray, rows: np.
 def figures_of(predicted: np.ndarray, labels: np.ndarray, starts: np.ndarray, n_classes: int,
                segmental: bool) -> dict[str, float]:
     """Segment and frame accuracy (%), edit and F1@50 of predictions over chains cut at ``starts``."""
-    from stages.metrics import score_method
+    from mlnseq.timeline.metrics import score_method
 
     scored = score_method(predicted, labels, np.cumsum(starts), n_classes, 0.5, segmental)
     return {"segment_accuracy": 100 * scored["segment_accuracy"], "frame_accuracy": 100 * scored["frame_accuracy"],
@@ -70,8 +70,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                    fixed_weight: float | None = None) -> CrossValidated:
     """Every method (with each decoding in ``decodes``) predicted on each fold by what was fitted without it;
     its figures over the whole training split. Methods whose network has no out-of-fold predictions are left out."""
-    from stages.mln import classifier
-    from stages.mln.factors import MLNFactors
+    from mlnseq.mln import classifier
+    from mlnseq.mln.factors import MLNFactors
 
     cv, data, folds = inputs.folds, inputs.data, inputs.folds.folds
     n_classes = len(inputs.classes)

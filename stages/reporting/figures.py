@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from stages.report.loading import NETWORKS, PAPER_DATASETS, Run, present
-from stages.report.tables import METHOD_NAMES, confusion_matrix, log_epoch_stats, lookup, method_stats
+from mlnseq.reporting.loading import NETWORKS, PAPER_DATASETS, Run, present
+from mlnseq.reporting.tables import METHOD_NAMES, confusion_matrix, log_epoch_stats, lookup, method_stats
 
 FIGURES = {  # figure key -> its file name beside REPORT.md
     "fig7": "fig7_test_accuracy.png",

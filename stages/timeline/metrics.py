@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from stages import sequences
+from mlnseq.timeline import sequences
 
 EARLY_FRACTIONS = tuple(round(0.1 * i, 1) for i in range(1, 10))
 OVERLAPS = (0.10, 0.25, 0.50)

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from stages.methods import DECODES, METHODS, decoded_name
-from stages.report.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TCN, TEMPORAL, VARIANTS, Run, present
+from mlnseq.catalog.methods import DECODES, METHODS, decoded_name
+from mlnseq.reporting.loading import FRACTION_PREFIX, PAPER_DATASETS, RICH, TCN, TEMPORAL, VARIANTS, Run, present
 
 # Table III of the paper: segment accuracy (%) at half of each segment.
 PAPER_TABLE_III = {
@@ -193,7 +193,7 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     score (``cross_validation.choice_score`` of the means; ties: the first in that order and METHODS order, the
     others listed under ``ties``); the test split is never looked at for the choice. ``best_on_test`` per metric
     is shown beside it, marked optimistic."""
-    from stages.cross_validation import choice_score
+    from mlnseq.recognition.cross_validation import choice_score
 
     stats, cv = sequence_stats(run), cv_stats(run)
     candidates = []
@@ -312,7 +312,7 @@ def combined_gain(by_method: dict[str, dict[str, Any]]) -> float | None:
 
 def weights_table(run: Run, dataset: str, per_class: int = 3) -> list[list[str]]:
     """Table II style: the strongest learned formulas of each class."""
-    from stages.mln.weights_table import strongest
+    from mlnseq.mln.weights_table import strongest
 
     classes = run.datasets[dataset]["classes"]
     rows = []

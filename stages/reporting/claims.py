@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from stages.methods import METHODS
-from stages.report.loading import NETWORKS, PAPER_DATASETS, RICH, Run, present
-from stages.report.tables import (
+from mlnseq.catalog.methods import METHODS
+from mlnseq.reporting.loading import NETWORKS, PAPER_DATASETS, RICH, Run, present
+from mlnseq.reporting.tables import (
     METHOD_NAMES, PAPER_TABLE_III, combined_gain, deploy_choices, fmt, lookup, method_name, method_stats,
 )
 
@@ -137,7 +137,7 @@ def deploy_sentence(run: Run, dataset: str) -> str | None:
 def target_checks(run: Run) -> list[str]:
     """The targets on this run, stream mode, test split: the online and offline methods chosen by cross-validation
     and the stream LSTM; beside them, marked optimistic, each metric's best decoded method on test."""
-    from stages.report.tables import sequence_stats
+    from mlnseq.reporting.tables import sequence_stats
 
     stats = sequence_stats(run)
     lines = []

@@ -24,7 +24,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from stages.errors import BadInput, MissingArtifact, StaleArtifact
+from mlnseq.catalog.errors import BadInput, MissingArtifact, StaleArtifact
 
 SCHEMA_VERSION = 1
 META_KEY = b"mlnseq"

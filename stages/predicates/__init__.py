@@ -1,0 +1,1 @@
+"""The predicate spec and its rules (batch and streaming, written once)."""

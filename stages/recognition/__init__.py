@@ -1,0 +1,1 @@
+"""Fusion and decoding, the network weight, folds and cross-validation, and `Recognizer`."""

@@ -1,0 +1,1 @@
+"""The report's pieces: loading runs, tables, figures, claims and rendering."""

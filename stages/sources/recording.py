@@ -1,0 +1,74 @@
+"""What every recording reader makes: ``Recording``s of one file each, read with ``TableColumns``, and whether
+the recordings' own labels are read (``Labels``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+
+class Labels(Enum):
+    """Whether a reader reads the recordings' own labels."""
+
+    REQUIRED = "required"  # collect: every recording is labelled
+    OPTIONAL = "optional"  # predict: read where the recordings carry them (then all must)
+    NONE = "none"  # not read: ``--labels`` intervals give them, or there are none
+
+
+@dataclass(frozen=True)
+class TableColumns:
+    """Which columns of the user's table are keys and which are features."""
+
+    label: str = "label"
+    episode: str | None = None  # default: a column named "episode" if present, else one episode per file
+    time: str | None = None  # default: a column named "frame" if present, else file order
+    features: tuple[str, ...] = ()  # default: every other numeric column
+    classes: tuple[str, ...] = ()  # class names in label order; default: from the labels
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One file's frames as a source read them; rows are named in messages as ``where`` formats them."""
+
+    path: Path
+    features: pl.DataFrame  # one column per feature, in order, numeric and finite
+    episode: pl.Series  # the user's episode id per row (Int64 or String)
+    time: pl.Series  # rising within an episode
+    label: pl.Series | None = None  # class index or name per row; None: unlabelled
+    split: pl.Series | None = None  # train/test per row, if the source says
+    row: pl.Series | None = None  # the row number messages give (default: 0, 1, ...)
+    where: str = "{file} row {row}"  # "{file}:{row}" for a CSV's lines
+    resolved: dict[str, Any] = field(default_factory=dict)  # options the source chose (a bag's rate, topics)
+
+
+def row_where(recording: Recording, index: int) -> str:
+    row = int(recording.row[index]) if recording.row is not None else index
+    return recording.where.format(file=recording.path, row=row)
+
+
+# ---- the table reader ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Collected:
+    """What a collection made: the frames table, its metadata and the files it was read from."""
+
+    frames: pl.DataFrame
+    meta: dict[str, Any]
+    inputs: tuple[Path, ...] = ()
+    class_order: str = "the dataset's own order"  # how the classes got their label order, in words
+
+    @property
+    def classes_line(self) -> str:
+        """The classes in label order (label 0 first) and how that order was chosen: one line for the user."""
+        return f"classes in label order ({self.class_order}): {', '.join(self.meta['classes'])}"
+
+
+def split_by_position(n_frames: int, train_frames: int) -> np.ndarray:
+    """The first ``train_frames`` frames train, the rest test."""
+    return np.where(np.arange(n_frames) < train_frames, "train", "test")

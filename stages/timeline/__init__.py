@@ -1,0 +1,1 @@
+"""Frames in time: cutting them into episodes, segments and windows, and scoring predicted sequences."""
