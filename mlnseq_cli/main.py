@@ -37,6 +37,8 @@ COMMANDS = {
     "conflate": Command("conflate", "conflate",
                         "Run every trained model and the MLN on all frames and combine them: "
                         "WORKDIR/predictions.parquet."),
+    "fit": Command("fit", "fit", "Your recordings to a model file in one command: every stage, with folds, choosing by "
+                   "cross-validation."),
     "eval": Command("eval", "evaluate", "Score the predictions on the test split: WORKDIR/metrics.parquet."),
     "report": Command("report", "report", "The paper's tables and figures from a `make reproduce` run: REPORT.md."),
     "export": Command("export", "export", "Gather a trained method into one model file: WORKDIR/METHOD.mlnseq."),

@@ -28,10 +28,17 @@ class BinarizeOptions:
     """Options of `mlnseq binarize`."""
 
     spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
+    suggest: Path | None = None  # write a starter spec from the frames here (stages/predicates/suggest.py), then use it
+    replace: bool = False  # --suggest may overwrite an existing file
 
     def validate(self) -> None:
+        if self.spec is not None and self.suggest is not None:
+            raise BadInput("--spec and --suggest: give one (--suggest writes a spec from the data, --spec reads yours)")
         if self.spec is not None and not Path(self.spec).is_file():
             raise BadInput(f"--spec {self.spec} not found: point it at a .binarize.toml file")
+        if self.suggest is not None and Path(self.suggest).exists() and not self.replace:
+            raise BadInput(f"{self.suggest} exists (your edits?): binarize with it by --spec {self.suggest}, or "
+                           "remove it to suggest again")
 
 
 @dataclass(frozen=True)
@@ -85,9 +92,16 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     frames_path = Path(workdir) / artifacts.FRAMES
     frames, frames_meta = artifacts.read_table(frames_path, "frames")
     source = frames_meta.get("source", "")
-    spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
+    if options.suggest is not None:
+        from mlnseq.predicates.suggest import suggest_spec
+
+        artifacts.write_text(Path(options.suggest), suggest_spec(frames, source))
+        spec_path = Path(options.suggest)
+    else:
+        spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
     if options.spec is None and not spec_path.is_file():
-        raise BadInput(f"no built-in spec for frames of source {source!r} ({spec_path} not found); pass --spec FILE")
+        raise BadInput(f"no built-in spec for frames of source {source!r}: pass --spec FILE, or --suggest to write a "
+                       "starter spec from these frames (`mlnseq binarize --suggest`)")
     spec = load_spec(spec_path)
     predicates = binarize(frames, spec)
     meta = {
@@ -95,7 +109,8 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
         "spec": {"path": str(spec_path.resolve()), "text": spec.text},
         "classes": frames_meta.get("classes", []),
         "source": source,
-        "options": {"spec": str(options.spec) if options.spec is not None else None},
+        "options": {"spec": str(options.spec) if options.spec is not None else None,
+                    "suggest": str(options.suggest) if options.suggest is not None else None},
     }
     path = artifacts.write_table(
         predicates, Path(workdir) / artifacts.PREDICATES, "predicates", meta, inputs=[frames_path, spec_path]
