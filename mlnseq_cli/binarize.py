@@ -69,10 +69,11 @@ def print_class_table(predicates, columns: dict[str, list[str]], classes: list[s
     for column in shown.columns[1:]:
         column.justify = "right"
     console.print(shown)
-    if headings != shares.classes:
-        console.print("classes: " + ", ".join(f"{h} = {n}" for h, n in zip(headings, shares.classes)), highlight=False)
-    console.print("marks each class best (true in its frames, rarely in another's): a body for Has(...) => Topic(...)")
-    for k, name in enumerate(shares.classes):
+    if headings != [name.split()[0] if name.split() else name for name in shares.classes]:
+        for heading, name in zip(headings, shares.classes):
+            console.print(f"{heading} = {name}", highlight=False)
+    console.print("marks each class (% of its frames true; for Has(...) => Topic(...)):")
+    for k, heading in enumerate(headings):
         column, inside, elsewhere = shares.marker(k)
-        console.print(f"  {name}: {column} ({inside:.0%} of its frames, at most {elsewhere:.0%} of another class's)",
+        console.print(f"  {heading}: {column} ({inside:.0%}; other classes at most {elsewhere:.0%})",
                       highlight=False)

@@ -17,6 +17,7 @@ import typer
 from rich.markup import escape
 
 from mlnseq_cli import collect as collect_cli
+from mlnseq.catalog.errors import BadInput
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 
 SUGGESTED_SPEC = "suggested.binarize.toml"
@@ -98,8 +99,18 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     result = conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
     console.print(f"[green]conflate[/]: {len(result.methods)} methods, every decoder: {', '.join(result.methods)}",
                   highlight=False)
-    method = "auto" if k else "conflation"
+    exported = export_chosen(k, own, workdir)
+    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest['method']}, decode {own['decode']}); "
+                  f"next: `mlnseq predict {exported.path} --source NEW` or `mlnseq stream {exported.path}`",
+                  highlight=False)
+
+
+def export_chosen(k: int, own: dict[str, Any], workdir: Path) -> Any:
+    """export --method auto (conflation without folds), its choice said, then the test split's figures."""
+    from mlnseq import eval as evaluation, export
+
     output = own["output"] or workdir / "model.mlnseq"
+    method = "auto" if k else "conflation"
     exported = export.run(workdir, export.ExportOptions(method=method, decode=own["decode"], output=output))
     chosen = exported.manifest.get("chosen_by_cross_validation")
     if chosen:
@@ -112,9 +123,14 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     else:
         console.print("chose conflation (network and MLN): too few training frames for folds, so nothing to choose "
                       "on", highlight=False)
-    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest['method']}, decode {own['decode']}); "
-                  f"next: `mlnseq predict {exported.path} --source NEW` or `mlnseq stream {exported.path}`",
-                  highlight=False)
+    name = chosen["name"] if chosen else f"conflation+{own['decode']}"
+    try:
+        scored = evaluation.run(workdir, evaluation.EvalOptions(method=name)).results[name]
+    except BadInput:  # no test split: nothing held out to score
+        return exported
+    console.print(f"test split (held out of everything above): {name} frame accuracy {scored['frame_accuracy']:.1%}, "
+                  f"segment accuracy {scored['segment_accuracy']:.1%}", highlight=False)
+    return exported
 
 
 def _joined() -> inspect.Signature:
