@@ -21,6 +21,9 @@ def conflate(
     with reported_errors():
         options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
                                         network_weight=stage.parse_network_weight(network_weight))
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.folds import describe
+
     with reported_errors():
         result = stage.run(workdir, options)
     for note in result.notes:
@@ -30,4 +33,6 @@ def conflate(
             console.print(f"{name}: network factor weight {choice.weight:.3g} (learned on out-of-fold predictions)")
         elif choice.accuracy is not None:
             console.print(f"{name}: network factor weight {choice.weight:g} (validation frame accuracy {choice.accuracy:.1%})")
-    console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)})")
+    cross = artifacts.read_metadata(result.path).get("cross_validation")
+    said = f"; cross-validated figures over {describe(cross['folds'])}" if cross else ""
+    console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)}){said}")

@@ -52,5 +52,11 @@ def learn_weights(
         for row in transitions.iter_rows(named=True):
             table.add_row("hard" if row["hard"] else f"{row['weight']:.3f}", row["formula"])
         console.print(table)
+    also = ""
+    if folds:
+        from mlnseq.recognition.folds import describe
+
+        record = artifacts.read_metadata(path.parent / artifacts.FOLD_WEIGHTS, "fold_weights")["folds"]
+        also = f", and {artifacts.FOLD_WEIGHTS} ({describe(record)}: each fold's weights learned without it)"
     console.print(f"[green]learn-weights[/] ({engine}, {learned.objective}, l2 {learned.l2:g}): wrote {path} "
-                  f"({counted(learned.weights.height, 'formula')}) and {artifacts.LEARNED_MLN}")
+                  f"({counted(learned.weights.height, 'formula')}) and {artifacts.LEARNED_MLN}{also}")

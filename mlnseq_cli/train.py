@@ -52,7 +52,20 @@ def train(
     console.print(
         f"[green]train[/]: wrote {result.checkpoint} ({method}, {counted(trained.n_train_units, 'training sequence')}, "
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
+        + _folds_said(result.checkpoint, folds)
     )
+
+
+def _folds_said(checkpoint, asked: Optional[int]) -> str:
+    """With folds: which, and where they came from (asked, or inherited from learn-weights)."""
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.folds import describe
+
+    oof = artifacts.out_of_fold_path(checkpoint.parent.parent, checkpoint.stem)
+    if not oof.exists():
+        return ""
+    how = "" if asked is not None else f", as learn-weights cut them ({artifacts.FOLD_WEIGHTS})"
+    return f"; with {describe(artifacts.read_metadata(oof)['folds'])}{how}: out-of-fold predictions {oof}"
 
 
 @contextlib.contextmanager

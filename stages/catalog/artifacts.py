@@ -291,9 +291,9 @@ def check_fresh(path: Path, meta: dict[str, Any]) -> None:
         except OSError as error:
             raise BadInput(f"cannot read {source}, an input of {path}: {error.strerror or error}") from error
         if changed:
-            raise StaleArtifact(
-                f"{path} was made from an older {source.name}; rerun `mlnseq {producer_of(path)}`"
-            )
+            from mlnseq.catalog.rerun import for_artifact
+
+            raise StaleArtifact(f"{path} was made from an older {source.name}; rerun `{for_artifact(path, meta)}`")
 
 
 def _require(path: Path) -> None:

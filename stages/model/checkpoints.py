@@ -65,5 +65,8 @@ def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | No
     for name, digest in config["inputs"].items():
         source = workdir / name
         if source.exists() and artifacts.file_digest(source) != digest:
-            raise StaleArtifact(f"{path} was trained on an older {name}; rerun `mlnseq train --method {method}`")
+            from mlnseq.catalog.rerun import command
+
+            raise StaleArtifact(f"{path} was trained on an older {name}; rerun "
+                                f"`{command('train', config.get('options'))}`")
     return Checkpoint(Network.from_state(config["model"], saved["state_dict"], config["mean"], config["std"]), config)

@@ -36,11 +36,16 @@ class Folds:
 
     def describe(self) -> str:
         """What was cut, for summaries: ``4 folds by episode`` or ``5 folds by block``."""
-        return f"{self.k} folds by {'episode' if self.kind == 'episodes' else 'block'}"
+        return describe(self.record())
 
     def splits(self, k: int) -> np.ndarray:
         """The splits with fold ``k``'s rows marked ``heldout``: what a fold's network and MLN are fitted without."""
         return np.where(self.fold == k, "heldout", np.where(self.fold >= 0, "train", "test"))
+
+
+def describe(record: dict) -> str:
+    """A recorded assignment (Folds.record) in words: ``4 folds by episode`` or ``5 folds by block``."""
+    return f"{record['k']} folds by {'episode' if record['kind'] == 'episodes' else 'block'}"
 
 
 def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
@@ -66,9 +71,10 @@ def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--fo
     most = largest(episodes, splits)
     if k < 2 or k > most:
         good = suggested(episodes, splits)
+        n_episodes = len(np.unique(episodes[train]))
         raise BadInput(f"{option} {k}: cross-validation needs at least 2 folds and this training split allows at "
-                       f"most {most}; use {option} {good}" + (" (whole episodes)" if good <= len(
-                           np.unique(episodes[train])) else "") if most >= 2 else
+                       f"most {most}; use {option} {good} ({good} folds by "
+                       f"{'episode' if n_episodes >= good else 'block'}, as `mlnseq fit` cuts)" if most >= 2 else
                        f"{option} {k}: this training split is too small for 2 folds; use {option} 0")
     rows = np.flatnonzero(train)
     fold = np.full(len(episodes), -1, dtype=np.int64)

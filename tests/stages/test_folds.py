@@ -43,7 +43,7 @@ def test_folds_are_whole_episodes_when_there_are_enough():
 @pytest.mark.parametrize("k", [1, 71])
 def test_a_k_the_split_cannot_make_names_the_largest(desk_frames_workdir, k):
     episodes, splits = desk_keys(desk_frames_workdir)
-    with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 70"):
+    with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 5 \\(5 folds by block"):
         folds.assign(episodes, splits, k)
 
 
@@ -137,6 +137,6 @@ def test_a_fold_lacking_a_class_is_a_warning_naming_fold_and_class():
 def test_train_refuses_a_bad_k_before_training(desk_frames_workdir, tmp_path):
     shutil.copy(desk_frames_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
     for k in (1, 71):
-        with pytest.raises(BadInput, match=f"--folds {k}: .* use --folds 70"):
+        with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 5"):
             train.run(tmp_path, train.TrainOptions(mode="stream", epochs=1, folds=k))
     assert not (tmp_path / artifacts.MODELS_DIR).exists()
