@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
+from mlnseq_cli.headings import legend, short_names
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, fail, reported_errors
 from mlnseq import binarize as stage
 
@@ -42,13 +43,6 @@ def binarize(
         print_class_table(binarized.predicates, columns, list(binarized.meta["classes"]))
 
 
-def short_names(classes: list[str]) -> list[str]:
-    """Column headings for the classes: their first words where those are short and distinct, else c0, c1, ..."""
-    first = [name.split()[0] if name.split() else name for name in classes]
-    return first if len(set(first)) == len(first) and all(len(f) <= 6 for f in first) else \
-        [f"c{k}" for k in range(len(classes))]
-
-
 def print_class_table(predicates, columns: dict[str, list[str]], classes: list[str]) -> None:
     """The predicate values' shares of frames true (all frames, then per class on the training split), readable
     at 80 columns, then the value that most marks each class."""
@@ -69,9 +63,8 @@ def print_class_table(predicates, columns: dict[str, list[str]], classes: list[s
     for column in shown.columns[1:]:
         column.justify = "right"
     console.print(shown)
-    if headings != [name.split()[0] if name.split() else name for name in shares.classes]:
-        for heading, name in zip(headings, shares.classes):
-            console.print(f"{heading} = {name}", highlight=False)
+    for line in legend(headings, shares.classes):
+        console.print(line, highlight=False)
     console.print("marks each class (% of its frames true; for Has(...) => Topic(...)):")
     for k, heading in enumerate(headings):
         column, inside, elsewhere = shares.marker(k)

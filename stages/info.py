@@ -30,6 +30,7 @@ def describe(manifest: dict[str, Any], entries: dict[str, bytes], path: Path) ->
         ("classes", ", ".join(manifest["classes"])),
         ("features", ", ".join(manifest["features"])),
         ("source", manifest.get("source", "")),
+        *reading_rows(manifest.get("reading") or {}),
     ]
     chosen = manifest.get("chosen_by_cross_validation")
     if chosen:
@@ -56,6 +57,24 @@ def describe(manifest: dict[str, Any], entries: dict[str, bytes], path: Path) ->
     rows += [("written by", f"mlnseq {manifest['mlnseq_version']}, {manifest['created']}, format {manifest['format']}"),
              ("inputs", ", ".join(f"{k} {v}" for k, v in manifest["inputs"].items()))]
     return rows
+
+
+def reading_rows(reading: dict[str, Any]) -> list[tuple[str, str]]:
+    """How the model's recordings were read, as `predict` will read new ones (the manifest's ``reading``)."""
+    said = [f"--env {reading['env']}"] if reading.get("env") else []
+    if reading.get("topics"):
+        said.append(f"topics {', '.join(reading['topics'])}")
+    if reading.get("rate"):
+        said.append(f"at {reading['rate']:g} Hz")
+    if reading.get("label_topic"):
+        said.append(f"labels from {reading['label_topic']}")
+    elif reading.get("label_column") and reading.get("env") not in ("rosbag", "fetch", "desk"):
+        said.append(f"label column {reading['label_column']}")
+    said += [f"{key.split('_')[0]} column {reading[key]}" for key in ("episode_column", "time_column")
+             if reading.get(key)]
+    if reading.get("labels_unit"):
+        said.append(f"intervals in {reading['labels_unit']}")
+    return [("reading", "; ".join(said))] if said else []
 
 
 def run(path: Path) -> ModelInfo:

@@ -245,9 +245,16 @@ class Recognizer:
 
     # -- whole recordings --------------------------------------------------------------------------
 
+    def predict_names(self, features: np.ndarray, episodes: np.ndarray | None = None,
+                      decode: str | None = None) -> tuple[np.ndarray, list[str]]:
+        """As :meth:`predict`, with the predicted classes by name: (probabilities [T, C], class names [T])."""
+        probabilities, predicted = self.predict(features, episodes, decode)
+        return probabilities, [self.classes[int(k)] for k in predicted]
+
     def predict(self, features: np.ndarray, episodes: np.ndarray | None = None,
                 decode: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
+        """(class probabilities [T, C], predicted class indices [T] into ``self.classes``: names by
+        :meth:`predict_names`) of recordings given as raw features [T, F] in the
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
