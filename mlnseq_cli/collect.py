@@ -24,7 +24,7 @@ def collect(
     label_column: Annotated[str, typer.Option(help="table: the label column (class index or name).")] = "label",
     episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
-    classes: Annotated[Optional[str], typer.Option(help="table: class names in label order, comma-separated.")] = None,
+    classes: Annotated[Optional[str], typer.Option(help="Class names in label order, comma-separated (any source with named labels: a table's label column, a bag's label topic, --labels) \\[default: sorted by name, or a numeric label's own order].")] = None,
     features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column]; hdf5: dataset paths in a demo (obs/joint_pos, actions).")] = None,
     labels: Annotated[Optional[Path], typer.Option(help="Labels as intervals: a CSV/TSV of episode,start,end,label (every recording env).", dir_okay=False)] = None,
     labels_unit: Annotated[Optional[str], typer.Option(help="--labels' start and end: seconds or frames \\[default: seconds for rosbag, frames otherwise].")] = None,

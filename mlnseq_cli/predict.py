@@ -15,7 +15,7 @@ from mlnseq import predict as stage
 def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
-    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: SOURCE-NAME.predictions.parquet here].", dir_okay=False)] = None,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option(help="Overwrite the output files if they exist.")] = False,
     decode: Annotated[Optional[str], typer.Option(help="none, filter or viterbi \\[default: the model's]; viterbi decodes a filter model offline.")] = None,
     env: Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")] = None,

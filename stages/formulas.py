@@ -14,6 +14,7 @@ from pathlib import Path
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.formula_spec import formulas_for, read_spec
+from mlnseq.mln import source_lines
 from mlnseq.mln.grounding import shown
 from mlnseq.mln.syntax import MLN, format_weighted
 
@@ -53,7 +54,8 @@ def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...
         "",
         *(f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items()),
         "",
-        *(format_weighted(replace(item, formula=shown(item.formula, class_names))) for item in mln.formulas),
+        *(line for item in mln.formulas for line in (
+            source_lines.mark(spec, item.line), format_weighted(replace(item, formula=shown(item.formula, class_names))))),
     ]
     return "\n".join(lines) + "\n"
 

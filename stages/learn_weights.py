@@ -251,13 +251,16 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
+    from mlnseq.mln import source_lines
+
+    mln, where = source_lines.to_source(mln, formulas_path.read_text(encoding="utf-8"), formulas_path)  # user's lines
     folds = None
     if options.folds:
         from mlnseq.recognition import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
-    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
-                    list(classes))
+    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes))
+    learned.warnings[:] = source_lines.located(learned.warnings, where)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
@@ -265,8 +268,9 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     if folds is not None:
         for k in range(folds.k):
             held_out = predicates.with_columns(pl.Series("split", folds.splits(k)))
-            fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
+            fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
                          list(classes))
+            fold.warnings[:] = source_lines.located(fold.warnings, where)
             per_fold.append(fold.weights.with_columns(pl.lit(k, dtype=pl.Int32).alias("fold")))
             learned.warnings.extend(f"fold {k}: {w}" for w in fold.warnings if w not in learned.warnings)
     with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # all or none

@@ -133,8 +133,8 @@ def run(options: PredictOptions) -> Predicted:
     if options.intervals is not None:
         segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
                                       table["class"].to_list(), source_options.unit(env))
-        with artifacts.atomic_path(Path(options.intervals)) as tmp:
-            segments.write_csv(tmp)
+        with artifacts.atomic_path(Path(options.intervals)) as tmp:  # seconds to the nanosecond, never 1e-06
+            segments.with_columns(pl.col(pl.Float64).round(9)).write_csv(tmp, float_scientific=False)
         written.append(Path(options.intervals))
     if options.rerun is not None:
         from mlnseq.sources import rerun

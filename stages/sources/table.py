@@ -203,7 +203,9 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...],
         if (recording.label is not None) != labelled:
             raise BadInput(f"{recording.path}: {'has no' if labelled else 'has'} labels, unlike {recordings[0].path}")
     if not labelled and not for_prediction:
-        raise BadInput(f"{recordings[0].path}: no labels; give a label column, or label intervals with --labels")
+        how = ("name a std_msgs/String topic of phase names with --label-topic" if "rate" in recordings[0].resolved
+               else "give a label column")  # a bag's reader resolves its clock
+        raise BadInput(f"{recordings[0].path}: no labels; {how}, or label intervals with --labels")
     episode_ids = _common_dtype([r.episode for r in recordings])
     labels = _common_dtype([r.label for r in recordings]) if labelled else None
     where = {str(r.path): r.where for r in recordings}
