@@ -46,19 +46,25 @@ def held_out_frame_accuracy(bags, model, tmp_path) -> float:
     return float(np.mean(truth == predictions["class"].to_numpy()))
 
 
-def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags, tmp_path):
-    said = fit(bags, tmp_path / "suggested")
-    assert "6 episodes" in said and "7 features" not in said
+@pytest.fixture(scope="module")
+def fitted(bags, tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("suggested")
+    return workdir, fit(bags, workdir)
+
+
+def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags, fitted, tmp_path):
+    workdir, said = fitted
+    assert "6 episodes" in said
     assert "folds: 4 folds by episode (4 training episodes" in said
     assert "from the spec suggested from the training split" in said
     chosen = re.search(r"chose (\S+): the best segment accuracy by 4-fold cross-validation", said)
     assert chosen and re.search(rf"test split \(held out of everything above\): {re.escape(chosen[1])} frame", said)
-    spec = (tmp_path / "suggested" / "suggested.binarize.toml").read_text()
+    spec = (workdir / "suggested.binarize.toml").read_text()
     assert 'kind = "gripper"' in spec and 'of = ["left_gripper", "right_gripper"]' in spec
     for stage_file in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS,
                        artifacts.PREDICTIONS, artifacts.METRICS):
-        assert (tmp_path / "suggested" / stage_file).exists()  # every stage's file: each can be rerun on its own
-    ours = held_out_frame_accuracy(bags, tmp_path / "suggested" / "arm.mlnseq", tmp_path)
+        assert (workdir / stage_file).exists()  # every stage's file: each can be rerun on its own
+    ours = held_out_frame_accuracy(bags, workdir / "arm.mlnseq", tmp_path)
     (tmp_path / "hand.binarize.toml").write_text(desk_bags.HAND_SPEC)
     said = fit(bags, tmp_path / "hand", "--spec", str(tmp_path / "hand.binarize.toml"))
     assert "from your spec" in said
@@ -67,12 +73,63 @@ def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags,
     assert abs(ours - hand) <= 0.10, (ours, hand)
 
 
-def test_binarize_table_fits_80_columns(bags, tmp_path, monkeypatch):
+def test_the_model_says_how_it_reads_names_its_classes_and_writes_plain_intervals(bags, fitted, tmp_path):
+    from mlnseq.recognition.recognizer import Recognizer
+
+    workdir, _ = fitted
+    shown = runner.invoke(app, ["info", str(workdir / "arm.mlnseq")])
+    assert shown.exit_code == 0 and re.search(r"reading +--env rosbag; topics /joint_states; at 50 Hz; labels from "
+                                              r"/phase", shown.output), shown.output
+    model = Recognizer.load(workdir / "arm.mlnseq")
+    frames = pl.read_parquet(workdir / artifacts.FRAMES).filter(pl.col("split") == "test")
+    features, episodes = frames.select(model.features).to_numpy(), frames["episode"].to_numpy()
+    probabilities, indices = model.predict(features, episodes)
+    same, names = model.predict_names(features, episodes)
+    assert np.array_equal(probabilities, same) and names == [model.classes[k] for k in indices]
+    assert set(names) <= set(model.classes) and len(set(names)) > 2
+    _, heldout = bags
+    out = tmp_path / "i.csv"
+    result = runner.invoke(app, ["predict", str(workdir / "arm.mlnseq"), "--source", str(heldout / "trial_7"),
+                                 "-o", str(tmp_path / "p.parquet"), "--intervals", str(out)])
+    assert result.exit_code == 0, result.output
+    intervals = pl.read_csv(out)
+    assert "e-" not in out.read_text() and intervals["start"][0] == 0 and intervals["end"][0] > 0
+    assert intervals.height > 5 and set(intervals["label"]) <= set(model.classes)
+
+
+def test_a_bag_without_labels_says_label_topic_and_a_stale_input_gives_the_full_rerun(bags, fitted, tmp_path):
+    folder, _ = bags
+    result = runner.invoke(app, ["collect", "--env", "rosbag", "--source", str(folder), "-w", str(tmp_path)])
+    assert result.exit_code == 2 and "no labels; name a std_msgs/String topic of phase names with --label-topic" \
+        in result.stderr
+    workdir, _ = fitted
+    for name in (artifacts.FRAMES, artifacts.FORMULAS, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS, artifacts.LEARNED_MLN):
+        (tmp_path / name).write_bytes((workdir / name).read_bytes())
+    spec = tmp_path / "edited.binarize.toml"
+    spec.write_text(desk_bags.HAND_SPEC)  # the user's own spec now
+    assert runner.invoke(app, ["binarize", "--spec", str(spec), "-w", str(tmp_path)]).exit_code == 0
+    result = runner.invoke(app, ["train", "--mode", "stream", "--epochs", "1", "-w", str(tmp_path)])
+    assert result.exit_code == 2 and "rerun `mlnseq learn-weights --folds 4`" in result.stderr, result.output
+
+
+def test_eval_all_fits_80_columns(fitted, monkeypatch):
     from mlnseq_cli.console import console
 
-    fit(bags, tmp_path)
+    workdir, _ = fitted
     monkeypatch.setattr(console, "width", 80)
-    result = runner.invoke(app, ["binarize", "-w", str(tmp_path), "--spec", str(tmp_path / "suggested.binarize.toml"),
+    result = runner.invoke(app, ["eval", "--method", "all", "-w", str(workdir)])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()[:-1]  # the summary line names a path
+    assert all(len(line) <= 80 for line in lines) and "…" not in result.output
+    assert any(line.startswith("conflation+viterbi") for line in lines)
+
+
+def test_binarize_table_fits_80_columns(fitted, monkeypatch):
+    from mlnseq_cli.console import console
+
+    workdir, _ = fitted
+    monkeypatch.setattr(console, "width", 80)
+    result = runner.invoke(app, ["binarize", "-w", str(workdir), "--spec", str(workdir / "suggested.binarize.toml"),
                                  "--table"])
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
