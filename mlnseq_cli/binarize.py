@@ -58,7 +58,8 @@ def print_class_table(predicates, columns: dict[str, list[str]], classes: list[s
     for i, name in enumerate(names):
         row = shares.shares[i]
         per_class = [f"{100 * v:.0f}" for v in row] if wide else [
-            f"{headings[int(row.argmax())]} {100 * row.max():.0f}", f"{headings[int(row.argmin())]} {100 * row.min():.0f}"]
+            f"{headings[int(row.argmax())]} {100 * row.max():.0f}",
+            f"{headings[int(row.argmin())]} {100 * row.min():.0f}"]
         shown.add_row(name, f"{shares.overall[i]:.1%}", *per_class, f"{100 * shares.spread[i]:.0f}")
     for column in shown.columns[1:]:
         column.justify = "right"

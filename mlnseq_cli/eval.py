@@ -50,7 +50,7 @@ def print_tables(result: stage.EvalResult, fraction: float) -> None:
         summary.add_row(method_name, result.modes[method_name], f"{r['segment_accuracy']:.1%}",
                         f"{r['frame_accuracy']:.1%}", f"{r['macro_f1']:.3f}", *extra)
     console.print(summary)
-    headings = short_names(list(result.classes))
+    headings = short_names(list(result.classes), room=56)
     per_class = table("segment accuracy per class (%)", *headings)
     for method_name, r in result.results.items():
         per_class.add_row(method_name, *(f"{100 * r['per_class'][k]:.0f}" for k in range(len(result.classes))))

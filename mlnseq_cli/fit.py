@@ -89,7 +89,8 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     _, learned = learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=written.path, folds=k))
     for warning in learned.warnings:
         console.print(f"[yellow]warning[/]: {escape(warning)}")
-    console.print(f"[green]learn-weights[/]: {counted(learned.weights.height, 'formula')} weighted ({learned.objective})"
+    console.print(f"[green]learn-weights[/]: {counted(learned.weights.height, 'formula')} weighted "
+                  f"({learned.objective})"
                   + (f", and each of the {k} folds' without it" if k else ""), highlight=False)
     options = train.TrainOptions(mode="stream", folds=k, epochs=own["epochs"])
     with epoch_progress("lstm (stream mode)" + (f", then {k} fold networks" if k else ""), own["epochs"]) as progress:

@@ -291,9 +291,10 @@ def check_fresh(path: Path, meta: dict[str, Any]) -> None:
         except OSError as error:
             raise BadInput(f"cannot read {source}, an input of {path}: {error.strerror or error}") from error
         if changed:
-            from mlnseq.catalog.rerun import for_artifact
+            from mlnseq.catalog.rerun import command
 
-            raise StaleArtifact(f"{path} was made from an older {source.name}; rerun `{for_artifact(path, meta)}`")
+            remake = command(producer_of(path).replace(" --folds K", ""), meta.get("options"))  # with its options
+            raise StaleArtifact(f"{path} was made from an older {source.name}; rerun `{remake}`")
 
 
 def _require(path: Path) -> None:

@@ -34,11 +34,3 @@ def command(stage: str, options: dict[str, Any] | None, workdir: Path | None = N
     if workdir is not None:
         words += ["-w", str(workdir)]
     return " ".join(shlex.quote(w) for w in words)
-
-
-def for_artifact(path: Path, meta: dict[str, Any] | None) -> str:
-    """The command that remakes ``path`` (a workdir artifact) with the options it was made with (the user's -w
-    is theirs to repeat)."""
-    from mlnseq.catalog.artifacts import producer_of
-
-    return command(producer_of(Path(path)).replace(" --folds K", ""), (meta or {}).get("options"))

@@ -127,7 +127,8 @@ def suggest_spec(frames: pl.DataFrame, source: str = "") -> str:
     a few episodes, overfit (measured on DESK bags by cross-validation: docs/first-day.md)."""
     features = artifacts.feature_columns(frames)
     if frames.height == 0 or not features:
-        raise BadInput("frames.parquet holds no frames or no features to suggest predicates for; rerun `mlnseq collect`")
+        raise BadInput("frames.parquet holds no frames or no features to suggest predicates for; "
+                       "rerun `mlnseq collect`")
     frames = frames.sort("episode", "frame", maintain_order=True)
     splits = frames["split"].to_numpy()
     train = splits == "train" if (splits == "train").any() else np.ones(frames.height, dtype=bool)

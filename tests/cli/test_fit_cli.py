@@ -103,7 +103,8 @@ def test_a_bag_without_labels_says_label_topic_and_a_stale_input_gives_the_full_
     assert result.exit_code == 2 and "no labels; name a std_msgs/String topic of phase names with --label-topic" \
         in result.stderr
     workdir, _ = fitted
-    for name in (artifacts.FRAMES, artifacts.FORMULAS, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS, artifacts.LEARNED_MLN):
+    for name in (artifacts.FRAMES, artifacts.FORMULAS, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS,
+                 artifacts.LEARNED_MLN):
         (tmp_path / name).write_bytes((workdir / name).read_bytes())
     spec = tmp_path / "edited.binarize.toml"
     spec.write_text(desk_bags.HAND_SPEC)  # the user's own spec now
