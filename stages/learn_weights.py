@@ -239,6 +239,17 @@ def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engi
     return "\n".join(lines) + "\n"
 
 
+def with_episode_names(predicates: pl.DataFrame, workdir: Path) -> pl.DataFrame:
+    """``predicates`` with each episode named as frames.parquet's recordings name it (a bag's folder, a file),
+    where the workdir's frames record the names; else as it is."""
+    path = Path(workdir) / artifacts.FRAMES
+    names = artifacts.read_metadata(path, "frames").get("episode_names") if path.exists() else None
+    index = predicates["episode"]
+    if not names or index.min() < 0 or index.max() >= len(names) or len(set(map(str, names))) != len(names):
+        return predicates
+    return predicates.with_columns(pl.Series("episode", [str(n) for n in names]).gather(index))
+
+
 def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     """Read predicates.parquet and the formulas; write weights.parquet and learned.mln."""
     options.validate()
@@ -259,7 +270,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
         from mlnseq.recognition import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
-    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes))
+    named = with_episode_names(predicates, workdir)  # messages name episodes as the recordings do
+    learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes))
     learned.warnings[:] = source_lines.located(learned.warnings, where)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
@@ -267,7 +279,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     per_fold = []
     if folds is not None:
         for k in range(folds.k):
-            held_out = predicates.with_columns(pl.Series("split", folds.splits(k)))
+            held_out = named.with_columns(pl.Series("split", folds.splits(k)))
             fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
                          list(classes))
             fold.warnings[:] = source_lines.located(fold.warnings, where)
