@@ -138,3 +138,16 @@ def test_binarize_table_fits_80_columns(fitted, monkeypatch):
     rows = [line for line in table if line.startswith("grippers_")]
     assert len(rows) == 25 and all(len(line) <= 80 for line in table)
     assert re.search(r"S5: grippers_closed_closed \(\d+%; other classes at most 0%\)", result.output)
+
+
+def test_learn_weights_names_the_users_file_line_and_episodes(fitted, tmp_path):
+    workdir, _ = fitted
+    for name in (artifacts.FRAMES, artifacts.PREDICATES):
+        (tmp_path / name).write_bytes((workdir / name).read_bytes())
+    spec = tmp_path / "mine.mln"
+    spec.write_text('Has(word, page)\nTopic(class, page)\n\n// open grippers only when approaching\n'
+                    'Has("grippers_open_open", p) => Topic("S1 approach peg", p).\n')
+    assert runner.invoke(app, ["formulas", "--spec", str(spec), "-w", str(tmp_path)]).exit_code == 0
+    result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
+    assert result.exit_code == 2 and result.stderr.startswith(f"error: {spec}:5: hard formula"), result.stderr
+    assert re.search(r"training frame\(s\): episode trial_\d frame \d+", result.stderr)
