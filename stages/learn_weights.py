@@ -291,5 +291,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                                      inputs=[predicates_path, formulas_path])
         if folds is not None:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
-                                  {**table_meta, "folds": folds.record()}, inputs=[predicates_path, formulas_path, path])
+                                  {**table_meta, "folds": folds.record(), "training_episodes": int(
+                                      predicates.filter(pl.col("split") == "train")["episode"].n_unique())},
+                                  inputs=[predicates_path, formulas_path, path])
     return path, learned

@@ -151,3 +151,14 @@ def test_learn_weights_names_the_users_file_line_and_episodes(fitted, tmp_path):
     result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
     assert result.exit_code == 2 and result.stderr.startswith(f"error: {spec}:5: hard formula"), result.stderr
     assert re.search(r"training frame\(s\): episode trial_\d frame \d+", result.stderr)
+
+
+def test_learn_weights_says_which_folds_it_cut(fitted, tmp_path):
+    workdir, _ = fitted
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.FORMULAS):
+        (tmp_path / name).write_bytes((workdir / name).read_bytes())
+    said = runner.invoke(app, ["learn-weights", "--folds", "5", "-w", str(tmp_path)])
+    assert said.exit_code == 0 and ("weights.folds.parquet (5 folds by block across episodes: the training split has 4 "
+                                    "and `--folds 4` cuts whole ones;") in " ".join(said.output.split()), said.output
+    said = runner.invoke(app, ["learn-weights", "--folds", "4", "-w", str(tmp_path)])
+    assert "weights.folds.parquet (4 folds by episode; each fold's" in " ".join(said.output.split())
