@@ -73,6 +73,9 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
         console.print(f"folds: {folds.describe()} ({counted(episodes, 'training episode')}"
                       + ("" if own["folds"] is not None else "; fit's default: one per episode, at most 5")
                       + "): cross-validation chooses the network's weight and the method", highlight=False)
+    else:
+        console.print("folds: none (" + ("--folds 0" if own["folds"] == 0 else "a training split too small for 2")
+                      + "): nothing is chosen by cross-validation", highlight=False)
     return {"k": k}
 
 
@@ -95,6 +98,8 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     options = train.TrainOptions(mode="stream", folds=k, epochs=own["epochs"])
     with epoch_progress("lstm (stream mode)" + (f", then {k} fold networks" if k else ""), own["epochs"]) as progress:
         trained = train.run(workdir, options, progress)
+    for warning in trained.trained.warnings:
+        console.print(f"[yellow]warning[/]: {escape(warning)}")
     console.print(f"[green]train[/]: {trained.checkpoint} (stream mode: whole episodes, as live frames come"
                   + (f"; {k} fold networks for out-of-fold predictions" if k else "") + ")", highlight=False)
     result = conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
@@ -122,8 +127,9 @@ def export_chosen(k: int, own: dict[str, Any], workdir: Path) -> Any:
         console.print(f"chose {chosen['name']}: the best {score} by {chosen['folds']}-fold cross-validation on the "
                       "training split (the test split unread)", highlight=False)
     else:
-        console.print("chose conflation (network and MLN): too few training frames for folds, so nothing to choose "
-                      "on", highlight=False)
+        why = "--folds 0" if own["folds"] == 0 else "a training split too small for 2 folds"
+        console.print(f"chose conflation (network and MLN) without cross-validation ({why}): nothing to choose on",
+                      highlight=False)
     name = chosen["name"] if chosen else f"conflation+{own['decode']}"
     try:
         scored = evaluation.run(workdir, evaluation.EvalOptions(method=name)).results[name]
