@@ -18,8 +18,8 @@ SUGGESTED = "suggested.binarize.toml"  # --suggest's spec in the workdir
 def binarize(
     spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: the built-in spec of the frames' source, stages/specs/<source>.binarize.toml].", dir_okay=False)] = None,
     suggest: Annotated[bool, typer.Option("--suggest", help="Write a starter spec from these frames (thresholds from the training split, change predicates per channel, grippers where the data looks like one), commented, to --output; then binarize with it.")] = False,
-    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/suggested.binarize.toml]; an existing one is kept unless --force.", dir_okay=False)] = None,
-    force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output if it exists.")] = False,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/suggested.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output even if edited by hand.")] = False,
     table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
@@ -27,7 +27,7 @@ def binarize(
     if output is not None and not suggest:
         raise fail("--output names the spec --suggest writes: add --suggest", 2)
     suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
-    options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force or output is None)
+    options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force)
     with reported_errors():
         path, binarized = stage.run(workdir, options)
     if suggested is not None:

@@ -57,7 +57,7 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
     path, collected = collect.run(workdir, collect_options)
     collect_cli.print_collected(path, collected)
     suggested = None if own["spec"] is not None else workdir / SUGGESTED_SPEC
-    _, binarized = binarize.run(workdir, binarize.BinarizeOptions(spec=own["spec"], suggest=suggested, replace=True))
+    _, binarized = binarize.run(workdir, binarize.BinarizeOptions(spec=own["spec"], suggest=suggested))
     columns = binarized.meta["predicates"]
     said = (f"the spec suggested from the training split, {suggested} (copy and edit it, then --spec)"
             if suggested else f"your spec {own['spec']}")

@@ -29,16 +29,14 @@ class BinarizeOptions:
 
     spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
     suggest: Path | None = None  # write a starter spec from the frames here (stages/predicates/suggest.py), then use it
-    replace: bool = False  # --suggest may overwrite an existing file
+    replace: bool = False  # --suggest may overwrite a file edited by hand
 
     def validate(self) -> None:
         if self.spec is not None and self.suggest is not None:
             raise BadInput("--spec and --suggest: give one (--suggest writes a spec from the data, --spec reads yours)")
         if self.spec is not None and not Path(self.spec).is_file():
             raise BadInput(f"--spec {self.spec} not found: point it at a .binarize.toml file")
-        if self.suggest is not None and Path(self.suggest).exists() and not self.replace:
-            raise BadInput(f"{self.suggest} exists (your edits?): binarize with it by --spec {self.suggest}, or "
-                           "remove it to suggest again")
+
 
 
 @dataclass(frozen=True)
@@ -93,8 +91,11 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     frames, frames_meta = artifacts.read_table(frames_path, "frames")
     source = frames_meta.get("source", "")
     if options.suggest is not None:
-        from mlnseq.predicates.suggest import suggest_spec
+        from mlnseq.predicates.suggest import edited, suggest_spec
 
+        if not options.replace and edited(Path(options.suggest), Path(workdir)):
+            raise BadInput(f"{options.suggest} was edited since it was suggested: binarize with it by --spec "
+                           f"{options.suggest}, or remove it (or --force) to suggest again")
         artifacts.write_text(Path(options.suggest), suggest_spec(frames, source))
         spec_path = Path(options.suggest)
     else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -192,3 +193,26 @@ def unique(name: str, taken: set[str]) -> str:
         name, k = f"{base}_{k}", k + 1
     taken.add(name)
     return name
+
+
+def edited(path: Path, workdir: Path) -> bool:
+    """Whether a suggested spec at ``path`` was edited by hand: it is neither the spec the workdir's predicates were
+    last made from nor what its frames suggest now (an unreadable workdir: edited, to be safe)."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    if not path.exists():
+        return False
+    text = path.read_text(encoding="utf-8")
+    try:  # the recorded spec as written, stale or not
+        made = json.loads(pq.read_schema(workdir / artifacts.PREDICATES).metadata[artifacts.META_KEY]).get("spec", {})
+        if made.get("path") == str(path.resolve()) and made.get("text") == text:
+            return False
+    except Exception:  # no predicates yet, or not ours
+        pass
+    try:
+        frames = workdir / artifacts.FRAMES
+        return text != suggest_spec(pl.read_parquet(frames), artifacts.read_metadata(frames).get("source", ""))
+    except Exception:  # no frames, or not ours: nothing says the file is a suggestion
+        return True

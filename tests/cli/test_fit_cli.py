@@ -16,6 +16,7 @@ pytest.importorskip("rosbags", reason="the [recordings] extra is not installed")
 import desk_bags  # noqa: E402  (tests/cli/desk_bags.py)
 from mlnseq_cli.main import app  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
+from mlnseq_cli.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402
 
 runner = CliRunner()
 
@@ -162,3 +163,17 @@ def test_learn_weights_says_which_folds_it_cut(fitted, tmp_path):
                                     "and `--folds 4` cuts whole ones;") in " ".join(said.output.split()), said.output
     said = runner.invoke(app, ["learn-weights", "--folds", "4", "-w", str(tmp_path)])
     assert "weights.folds.parquet (4 folds by episode; each fold's" in " ".join(said.output.split())
+
+
+def test_fit_keeps_a_suggested_spec_edited_by_hand(bags, fitted, tmp_path):
+    workdir, _ = fitted
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, SUGGESTED):
+        (tmp_path / name).write_bytes((workdir / name).read_bytes())
+    spec = tmp_path / SUGGESTED
+    spec.write_text(spec.read_text() + "# my edit\n")
+    folder, _ = bags
+    result = runner.invoke(app, ["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase",
+                                 "-w", str(tmp_path), "--epochs", "1"])
+    assert result.exit_code == 2 and f"{spec} was edited since it was suggested: binarize with it by --spec {spec}" \
+        in result.stderr, result.output
+    assert spec.read_text().endswith("# my edit\n")

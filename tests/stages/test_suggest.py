@@ -61,8 +61,13 @@ def test_binarize_suggest_writes_the_spec_and_uses_it_and_the_class_table_marks_
     assert made.meta["spec"]["path"] == str(written.resolve()) and written.read_text() == made.meta["spec"]["text"]
     _, again = binarize.run(kinematics, binarize.BinarizeOptions(spec=written))
     assert again.predicates.equals(made.predicates)
-    with pytest.raises(binarize.BadInput, match="exists"):  # the user's edits are never overwritten silently
+    binarize.run(kinematics, binarize.BinarizeOptions(suggest=written))  # a suggestion as it was: made again
+    written.write_text(written.read_text() + "# my note\n")
+    with pytest.raises(binarize.BadInput, match="was edited since it was suggested"):  # edits are never lost silently
         binarize.run(kinematics, binarize.BinarizeOptions(suggest=written))
+    assert written.read_text().endswith("# my note\n")
+    binarize.run(kinematics, binarize.BinarizeOptions(suggest=written, replace=True))  # --force
+    assert "# my note" not in written.read_text()
     columns = [c for group in made.meta["predicates"].values() for c in group]
     shares = separation.class_shares(made.predicates, columns, made.meta["classes"])
     assert shares.shares.shape == (len(columns), 7)
