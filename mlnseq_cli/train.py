@@ -42,7 +42,7 @@ def train(
     )
     with reported_errors():
         options.validate()
-        with epoch_progress(f"{method} ({mode} mode)", epochs) as progress:
+        with epoch_progress(f"{method} ({mode} mode)" + _then_folds(workdir, options), epochs) as progress:
             result = stage.run(workdir, options, progress)
     trained = result.trained
     for warning in trained.warnings:
@@ -54,6 +54,17 @@ def train(
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
         + _folds_said(result.checkpoint, folds)
     )
+
+
+def _then_folds(workdir, options: stage.TrainOptions) -> str:
+    """What trains after the bar's epochs: K fold networks (asked for, or as learn-weights cut them), or nothing."""
+    from mlnseq.catalog import artifacts
+
+    k = options.folds
+    path = workdir / artifacts.FOLD_WEIGHTS
+    if k is None and options.mode == "stream" and options.select == "none" and path.exists():
+        k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
+    return f", then {k} fold networks" if k else ""
 
 
 def _folds_said(checkpoint, asked: Optional[int]) -> str:
