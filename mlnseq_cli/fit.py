@@ -26,7 +26,7 @@ DECODES = ("filter", "viterbi")
 
 
 def fit_options(
-    spec: Annotated[Optional[Path], typer.Option(help="Your predicate spec \\[default: one suggested from the training split, written to WORKDIR/suggested.binarize.toml].", dir_okay=False)] = None,
+    spec: Annotated[Optional[Path], typer.Option(help="Your predicate spec \\[default: one suggested from the training split, written to suggested.binarize.toml in the workdir].", dir_okay=False)] = None,
     formulas: Annotated[Optional[Path], typer.Option(help="Your formulas (.mln) \\[default: every predicate value => every class, plus learned transitions between classes].", dir_okay=False)] = None,
     folds: Annotated[Optional[int], typer.Option(help="Cross-validation folds \\[default: one per training episode, at most 5; blocks of frames with a single episode].", show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help="The network's passes over the training split.")] = 100,
