@@ -19,7 +19,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 
-GRIPPER_WORDS = re.compile(r"grip|finger|claw|jaw")
+GRIPPER_WORDS = re.compile(r"gripper|finger|claw|jaw")
+NOT_A_LEVEL = re.compile(r"vel|speed|acc|effort|force|torque|current")  # rates and loads, not an opening
+NOT_A_POINT = re.compile(r"rot|quat|orient|ang|vel|acc|rel|force|torque|effort")  # triples that are not positions
 AXIS = re.compile(r"^(?P<prefix>.*?)[/_.]?(?P<axis>[xyz])$", re.IGNORECASE)
 END_SHARE = 0.7  # a gripper spends at least this share of frames near its two extreme levels
 MAX_DISTANCES = 3  # distance channels between the first points found
@@ -67,13 +69,16 @@ def names_for(columns: list[str]) -> dict[str, str]:
 
 
 def looks_like_gripper(channel: Channel) -> bool:
+    """An opening (never negative, not a rate nor an axis of a point): named so (gripper, finger, claw, jaw), or
+    unnamed but mostly at its two extreme levels."""
+    name = channel.column.lower()
     low, high = np.quantile(channel.values, [0.02, 0.98])
-    if high <= low:
+    if high <= low or channel.values.min() < 0 or NOT_A_LEVEL.search(name) or AXIS.match(channel.column):
         return False
     near = (channel.values - low) / (high - low)
     at_ends, at_low, at_high = np.mean((near < 0.15) | (near > 0.85)), np.mean(near < 0.15), np.mean(near > 0.85)
     by_data = at_ends >= END_SHARE and min(at_low, at_high) >= 0.1
-    return by_data or (bool(GRIPPER_WORDS.search(channel.column.lower())) and at_ends >= 0.5)
+    return by_data or bool(GRIPPER_WORDS.search(name))
 
 
 def points(columns: list[str]) -> list[tuple[str, tuple[str, str, str]]]:
@@ -81,7 +86,7 @@ def points(columns: list[str]) -> list[tuple[str, tuple[str, str, str]]]:
     axes: dict[str, dict[str, str]] = {}
     for column in columns:
         match = AXIS.match(column)
-        if match and match["prefix"]:
+        if match and match["prefix"] and not NOT_A_POINT.search(match["prefix"].lower()):
             axes.setdefault(match["prefix"], {})[match["axis"].lower()] = column
     return [(prefix, (a["x"], a["y"], a["z"])) for prefix, a in axes.items() if set(a) == {"x", "y", "z"}]
 

@@ -74,3 +74,14 @@ def test_binarize_suggest_writes_the_spec_and_uses_it_and_the_class_table_marks_
     exchange = shares.classes.index("S5 transfer peg: exchange")
     column, inside, elsewhere = shares.marker(exchange)
     assert column == "grippers_closed_closed" and inside > 0.3 and elsewhere == 0.0  # only S5 closes both
+
+
+@pytest.mark.mujoco
+def test_fetch_grippers_are_the_finger_openings_not_their_rates_and_points_are_positions(fetch_frames_workdir, tmp_path):
+    frames = pl.read_parquet(fetch_frames_workdir / artifacts.FRAMES)
+    spec = parse_spec(suggest.suggest_spec(frames, "fetch"), tmp_path / "s.toml")
+    assert [(type(p), getattr(p, "channel", None)) for p in spec.predicates] == [
+        (Gripper, "gripper_state_right"), (Gripper, "gripper_state_left"),
+        (Change, "between_grip_pos_and_object_pos"), (Pair, None)]
+    assert [(c.start, c.end) for c in spec.channels] == [
+        (("grip_pos_x", "grip_pos_y", "grip_pos_z"), ("object_pos_x", "object_pos_y", "object_pos_z"))]
