@@ -105,7 +105,7 @@ class Objective:
         unary = frame_counts(per_frame, hard[~temporal].tolist(), rows, _subspace(space, frame_columns))
         pairwise = pair_counts(between, hard[temporal].tolist(), *pair_columns.rows(pairs),
                                _subspace(space, pair_columns.read))
-        self.unary_counts, self.pairwise_counts = unary.matrix, pairwise.matrix
+        self.unary_counts, self.pairwise_counts = unary.sparse(), pairwise.sparse()
         self.unary_forbidden = unary.forbidden.reshape(self.data.n_rows, n_classes)
         self.pairwise_forbidden = pairwise.forbidden.reshape(self.data.n_pairs, n_classes, n_classes)
         data = self.data
