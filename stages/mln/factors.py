@@ -62,7 +62,8 @@ def frame_space(columns: Sequence[str], n_classes: int) -> AtomSpace:
     return AtomSpace(tuple(columns), tuple(class_constant(k) for k in range(n_classes)))
 
 
-def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...], hard_weight: float | None) -> np.ndarray:
+def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...],
+            hard_weight: float | None) -> np.ndarray:
     weights = np.array([0.0 if f.hard and hard_weight is None else (hard_weight if f.hard else f.weight)
                         for f in formulas])
     scores = counts.dot(weights).reshape(shape)

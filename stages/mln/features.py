@@ -100,9 +100,8 @@ def pair_counts(formulas: Sequence[Formula], hard: Sequence[bool], previous: np.
     before, before_none = _configurations(previous.astype(bool), n_classes)
     after, after_none = _configurations(current.astype(bool), n_classes)
     pairs = len(previous)
-    rows = np.concatenate([np.repeat(before, n_classes, axis=0),
-                           np.tile(after.reshape(pairs, n_classes, -1), (1, n_classes, 1)).reshape(pairs * n_classes ** 2, -1)],
-                          axis=1)
+    after_each = np.tile(after.reshape(pairs, n_classes, -1), (1, n_classes, 1)).reshape(pairs * n_classes ** 2, -1)
+    rows = np.concatenate([np.repeat(before, n_classes, axis=0), after_each], axis=1)
     baseline = np.concatenate([before_none, after_none], axis=1)
     if not formulas:
         return _counts([], [], space, rows, baseline, n_classes ** 2)
@@ -121,7 +120,8 @@ def _read(formula: Formula, columns: Sequence[str], frame: str | None) -> set[in
     """The columns of the formula's Has atoms (on frame variable ``frame`` only, unless None)."""
     read: set[int] = set()
     for atom in atoms(formula):
-        if atom.predicate != EVIDENCE or (frame is not None and atom.args[-1].name != frame):  # type: ignore[union-attr]
+        if atom.predicate != EVIDENCE or (frame is not None
+                                          and atom.args[-1].name != frame):  # type: ignore[union-attr]
             continue
         if isinstance(atom.args[0], Var):
             return set(range(len(columns)))
