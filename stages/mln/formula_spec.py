@@ -16,7 +16,9 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.grounding import (
     CLASS, EVIDENCE, NEXT, class_aliases, default_declarations, holds_without_next, name_classes, show,
 )
-from mlnseq.mln.syntax import MLN, Atom, Const, MLNSyntaxError, Var, WeightedFormula, format_formula, parse_mln
+from mlnseq.mln.syntax import (
+    MLN, Atom, Const, MLNSyntaxError, Var, WeightedFormula, atoms, format_formula, parse_mln,
+)
 
 
 def read_spec(path: Path) -> MLN:
