@@ -24,11 +24,11 @@ def info(
         described = info_stage.run(model)
     manifest = described.manifest
     if as_json:
-        print(json.dumps(manifest, indent=1, sort_keys=True))
+        print(json.dumps(manifest.to_dict(), indent=1, sort_keys=True))
         return
     table = Table(title=f"{model}", box=None, show_header=False)
     for name, value in described.rows:
         table.add_row(name, escape(value))
     console.print(table)
-    for note in manifest.get("notes", []):
+    for note in manifest.notes:
         console.print(f"[yellow]note[/]: {escape(note)}")

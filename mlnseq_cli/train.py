@@ -20,7 +20,9 @@ Defaults = stage.TrainOptions
 
 
 def train(
-    method: Annotated[str, typer.Option(help="lstm, or priorlayer (needs predicates.parquet and weights.parquet).")] = Defaults.method,
+    method: Annotated[str, typer.Option(help="network: the network alone, of any --cell (also written lstm, its name in "
+                                             "the workdir: models/lstm.pt); or priorlayer: the network with the MLN's "
+                                             "PriorLayer input (needs predicates.parquet and weights.parquet).")] = "network",
     seed: Annotated[int, typer.Option(help="Seed of initial weights and batch order.")] = Defaults.seed,
     epochs: Annotated[int, typer.Option(help="Passes over the training sequences.")] = Defaults.epochs,
     mode: Annotated[str, typer.Option(help="segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.")] = Defaults.mode,
@@ -33,12 +35,19 @@ def train(
     batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
     window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
     smoothing: Annotated[float, typer.Option(help="tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.")] = Defaults.smoothing,
+    paper_floor: Annotated[Optional[str], typer.Option(help="How the authors' code made the MLN's per-class sums "
+                                                           "non-negative (PriorLayer's paper input, conflate's "
+                                                           "mln-mode paper): clamp (negative sums to 0, their DESK "
+                                                           "code) or shift (by each frame's minimum, their Fetch "
+                                                           "code). Default: shift for --env fetch recordings, else "
+                                                           "clamp. Recorded in the checkpoint.",
+                                                      show_default=False)] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch, split, accuracy, loss)."""
     options = stage.TrainOptions(
         method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, folds=folds, device=device,
-        train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing,
+        train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing, paper_floor=paper_floor,
     )
     with reported_errors():
         options.validate()
