@@ -51,7 +51,8 @@ def train(
     )
     with reported_errors():
         options.validate()
-        with epoch_progress(f"{method} ({mode} mode)", epochs) as progress:
+        what = options.cell if options.method == "lstm" else str(options.method)  # the network alone: its cell
+        with epoch_progress(f"{what} ({mode} mode)", epochs) as progress:
             result = stage.run(workdir, options, progress)
     trained = result.trained
     for warning in trained.warnings:
@@ -59,7 +60,7 @@ def train(
     last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
     shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
     console.print(
-        f"[green]train[/]: wrote {result.checkpoint} ({method}, {counted(trained.n_train_units, 'training sequence')}, "
+        f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
     )
 

@@ -18,6 +18,7 @@ MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.pa
 AGAIN = "export the model again with `mlnseq export`"
 NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
 MODES = ("segment", "stream")  # the network's training mode (timeline.sequences.MODES)
+KIND_WORDS = {"int": "an integer", "float": "a number >= 0", "bool": "true or false", "str": "a string"}
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # cross-validated figures (cross_validation)
 
 
@@ -177,7 +178,7 @@ class NetworkEntry:
             ok = {"int": _integer(value), "bool": isinstance(value, bool), "str": isinstance(value, str),
                   "float": _number(value) and math.isfinite(value) and value >= 0}.get(kind, False)
             if not ok:
-                refuse(f"its network's {key} is {value!r}, not {'a number >= 0' if kind == 'float' else f'a {kind}'}")
+                refuse(f"its network's {key} is {value!r}, not {KIND_WORDS.get(kind, kind)}")
         if not config["prior_layer"] == (self.prior is not None):
             refuse(f"its network's prior_layer ({config['prior_layer']!r}) and PriorLayer input ({self.prior!r}) "
                    "disagree")
