@@ -17,7 +17,8 @@ def info(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     as_json: Annotated[bool, typer.Option("--json", help="Print the manifest as JSON.")] = False,
 ) -> None:
-    """Read MODEL (.mlnseq); print its method and decoding, classes, features, network, MLN formulas, notes, the mlnseq version that wrote it and the digests of the workdir files it came from."""
+    """Read MODEL (.mlnseq); print its method and decoding, classes, features, network, MLN formulas, notes, the mlnseq
+    version that wrote it and the digests of the workdir files it came from."""
     from mlnseq import info as info_stage
 
     with reported_errors():

@@ -1,4 +1,5 @@
-"""train: fit a network (LSTM, GRU or causal TCN: stages/networks/), alone or with the MLN PriorLayer, on the training split.
+"""train: fit a network (LSTM, GRU or causal TCN: stages/networks/), alone or with the MLN PriorLayer, on the
+training split.
 
 The core (:func:`fit`) works on arrays; :func:`run` reads ``frames.parquet`` (and, for PriorLayer,
 ``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log.
