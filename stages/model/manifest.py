@@ -7,17 +7,17 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields
 from enum import Enum
-from typing import Any
+from typing import Any, NoReturn
 
 from mlnseq import networks
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import DECODES, NETWORKS, MLNMode, Method, PaperFloor, Prior, WeightSource, network_of
+from mlnseq.timeline.sequences import MODES
 
 MODEL_FORMAT = 3  # 3: the paper floor of the MLN's sums; 2: members' sizes and digests, the number of formulas
 MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
 AGAIN = "export the model again with `mlnseq export`"
 NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
-MODES = ("segment", "stream")  # the network's training mode (timeline.sequences.MODES)
 KIND_WORDS = {"int": "an integer", "float": "a number >= 0", "bool": "true or false", "str": "a string"}
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # cross-validated figures (cross_validation)
 
@@ -42,7 +42,7 @@ class Fields:
         if not isinstance(self.values, dict):
             self.refuse(f"{self.what} is not an object")
 
-    def refuse(self, text: str) -> None:
+    def refuse(self, text: str) -> NoReturn:
         raise BadInput(f"{self.where}: {text}: {AGAIN}")
 
     def get(self, key: str) -> Any:
