@@ -86,7 +86,7 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
 def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
     """The env, columns and source options to read new recordings with: the model's, overridden by options;
     and whether labels are required (a named label column) or optional."""
-    kept = model.manifest.get("reading") or {}
+    kept = model.manifest.reading or {}
     env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
     same = env == kept.get("env")
     pick = lambda given, key, default=None: (  # noqa: E731

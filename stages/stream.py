@@ -165,7 +165,7 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``."""
     options.validate()
     model = Recognizer.load(options.model)
-    for note in model.manifest.get("notes", []):
+    for note in model.manifest.notes:
         warn(f"note: {note}")
     if model.decode == "viterbi":
         warn("note: viterbi needs a whole recording; a stream filters online with the same factors")
