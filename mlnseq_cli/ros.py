@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from mlnseq_cli.console import reported_errors
+from mlnseq_cli.console import counted, reported_errors
 from mlnseq import ros as stage
 
 
@@ -25,4 +25,4 @@ def ros(
 
     with reported_errors():
         summary = stage.run(options, warn)
-    warn(f"ros: stopped after {summary.frames:,} frames ({summary.errors:,} bad messages)")
+    warn(f"ros: stopped after {counted(summary.frames, 'frame')} ({counted(summary.errors, 'bad message')})")

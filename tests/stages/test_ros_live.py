@@ -1,0 +1,91 @@
+"""`rostopic echo -p /joint_states` into stream (no ROS needed): the rows are put on the model's clock as collect
+put the training bag on it, so a 1 kHz feed and a 100 Hz feed both give predict's frames on a bag of the same
+messages; each answer carries its frame's time; bad rows are one line each and the stream goes on."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import polars as pl
+import pytest
+
+pytest.importorskip("rosbags", reason="the [recordings] extra is not installed")
+
+import ros_episode  # noqa: E402
+from mlnseq import predict, stream  # noqa: E402
+from mlnseq.catalog import artifacts  # noqa: E402
+from mlnseq.catalog.errors import BadInput  # noqa: E402
+from mlnseq.recognition import live  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def expected(joint_state_model, tmp_path_factory) -> pl.DataFrame:
+    """predict on a ROS 1 bag of the live rows at 100 Hz."""
+    folder = tmp_path_factory.mktemp("live-bag")
+    bag = ros_episode.write_bag(folder / "live.bag", joint_state_model["live"])
+    options = predict.PredictOptions(model=joint_state_model["model"], source=bag, output=folder / "p.parquet")
+    return predict.run(options).table
+
+
+def run_stream(model, lines: list[str], **options) -> tuple[list[dict], list[str]]:
+    out, err = [], []
+    source = io.BytesIO(("\n".join(lines) + "\n").encode())
+    stream.run(stream.StreamOptions(model=model, **options), source, out.append, err.append)
+    return [json.loads(line) for line in out], err
+
+
+@pytest.mark.parametrize("repeat", [1, 10])
+def test_a_100_hz_and_a_1_khz_feed_give_predicts_frames_on_the_bag(joint_state_model, expected, repeat):
+    rows = joint_state_model["live"]
+    answers, notes = run_stream(joint_state_model["model"], ros_episode.echo_csv(rows, repeat))
+    assert len(answers) == expected.height == len(rows)
+    assert [a["class"] for a in answers] == expected["class"].to_list()
+    classes = list(answers[0]["probabilities"])
+    got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
+    want = expected.select(artifacts.class_probability_column(c) for c in classes).to_numpy()
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    warned = [n for n in notes if n.startswith("warning:")]
+    assert warned == ([] if repeat == 1 else
+                      ["warning: /joint_states arrives at 1000 Hz, the model's clock is 100 Hz (more than 2x apart): "
+                       "each frame holds the last message at its tick, as collect read the bags"])
+
+
+def test_bad_rows_are_one_line_each_and_the_stream_goes_on(joint_state_model, expected):
+    lines = ros_episode.echo_csv(joint_state_model["live"][:6])
+    header, good = lines[0], lines[1:]
+    no_time = good[1].split(",")
+    no_time[0] = no_time[2] = "0"
+    other_joint = good[2].replace("panda_joint3", "elbow")
+    back = good[0]  # the first message again, after the fourth: back in time
+    text = good[3].split(",")
+    text[-1] = "nan?"
+    feed = [header, good[0], ",".join(no_time), good[1], other_joint, good[2], good[3], back, ",".join(text),
+            "1,2", good[4], good[5]]
+    answers, notes = run_stream(joint_state_model["model"], feed)
+    assert [a["class"] for a in answers] == expected["class"].to_list()[:6]
+    errors = [n for n in notes if n.startswith("error:")]
+    assert [e.split(":")[1].strip() for e in errors] == ["line 3", "line 5", "line 8", "line 9", "line 10"]
+    assert "no time" in errors[0] and "no position of joint 'panda_joint3'" in errors[1]
+    assert "goes back in time" in errors[2] and "'nan?', not a number" in errors[3] and "2 fields" in errors[4]
+    with pytest.raises(stream.InputLine, match="line 3: no time"):
+        run_stream(joint_state_model["model"], feed, strict=True)
+
+
+def test_a_feed_of_another_topic_or_type_is_refused_at_the_start(joint_state_model):
+    model = joint_state_model["model"]
+    with pytest.raises(BadInput, match=r"--topic /odom: the model was trained on /joint_states"):
+        run_stream(model, ros_episode.echo_csv(joint_state_model["live"][:3]), topic="/odom")
+    with pytest.raises(BadInput, match=r"the feed has no joint names \(field.name0 ...\) for the model.s feature ./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
+        run_stream(model, ["%time,field.data", "1700000000000000000,1.5"])
+
+
+def test_a_model_not_read_from_bags_knows_no_topics(joint_state_model):
+    from mlnseq.recognition.recognizer import Recognizer
+
+    model = Recognizer.load(joint_state_model["model"])
+    model.manifest["reading"] = {"env": "table"}
+    with pytest.raises(BadInput, match="read with --env table, not from ROS bags"):
+        live.LiveRecognizer(model, print)
