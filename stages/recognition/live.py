@@ -147,6 +147,10 @@ class MessageFeed:
     def topics(self) -> list[str]:
         return self.live.topics
 
+    @property
+    def classes(self) -> list[str]:
+        return self.live.model.classes
+
     def receive(self, topic: str, message: Any, received: int) -> list[LiveFrame]:
         """One message: its header stamp as its time, else ``received`` (ns)."""
         try:
