@@ -236,15 +236,20 @@ def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterabl
         raise BadInput(f"--topic {topic}: the model was trained on {', '.join(live.topics)}")
     summary = StreamSummary(episodes=1)
     with answering_before_interrupt() as busy:
-        for _, answer in ros_live.feed_echo(live, topic, lines, header):
-            busy(True)
-            if isinstance(answer, BadInput):
-                summary.skipped += 1
-                if options.strict:
-                    raise InputLine(str(answer))
-                warn(f"error: {answer}")
-            else:
-                emit(answer.json(model.classes))
-                summary.frames += 1
-            busy(False)
+        try:
+            for _, answer in ros_live.feed_echo(live, topic, lines, header):
+                busy(True)
+                if isinstance(answer, BadInput):
+                    summary.skipped += 1
+                    if options.strict:
+                        raise InputLine(str(answer))
+                    warn(f"error: {answer}")
+                else:
+                    emit(answer.json(model.classes))
+                    summary.frames += 1
+                busy(False)
+        except KeyboardInterrupt:  # Ctrl-C: the ticks up to the last message read are answered too
+            for frame in live.finish():
+                emit(frame.json(model.classes))
+            raise
     return summary

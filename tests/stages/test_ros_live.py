@@ -89,3 +89,25 @@ def test_a_model_not_read_from_bags_knows_no_topics(joint_state_model):
     model.manifest["reading"] = {"env": "table"}
     with pytest.raises(BadInput, match="read with --env table, not from ROS bags"):
         live.LiveRecognizer(model, print)
+
+
+def test_ctrl_c_answers_the_ticks_up_to_the_last_row_read(joint_state_model):
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    lines = ros_episode.echo_csv(joint_state_model["live"][:5])
+    process = subprocess.Popen([str(Path(sys.executable).parent / "mlnseq"), "stream", str(joint_state_model["model"])],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        process.stdin.write("\n".join(lines) + "\n")
+        process.stdin.flush()
+        answers = [json.loads(process.stdout.readline()) for _ in range(4)]  # a tick waits for a later message
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    answers += [json.loads(line) for line in out.splitlines()]
+    assert process.returncode == 130, err
+    assert [a["frame"] for a in answers] == [0, 1, 2, 3, 4]
