@@ -109,7 +109,8 @@ def stream_pipe(model_path: Path, rows: np.ndarray, folder: Path) -> None:
     feed.write_text("\n".join(lines) + "\n")
     mlnseq = str(Path(sys.executable).parent / "mlnseq")
     begin = time.perf_counter()
-    subprocess.run([mlnseq, "stream", str(model_path)], input=(lines[0] + "\n").encode(), capture_output=True, check=True)
+    subprocess.run([mlnseq, "stream", str(model_path)], input=(lines[0] + "\n").encode(), capture_output=True,
+                   check=True)
     startup = time.perf_counter() - begin
     begin = time.perf_counter()
     with open(feed, "rb") as source:

@@ -54,7 +54,8 @@ def rospy_modules() -> tuple[Any, Any, Any]:
         from roslib import message as roslib_message
         from std_msgs.msg import String
     except ImportError as error:
-        raise BadInput(f"mlnseq ros needs ROS 1's rospy ({error.name or error} is missing): source your ROS setup.bash, "
+        raise BadInput(f"mlnseq ros needs ROS 1's rospy ({error.name or error} is missing): source your ROS "
+                       "setup.bash, "
                        f"or on Debian `apt-get install {ROS_PACKAGES}` (scripts/setup.sh does it)") from None
     return rospy, roslib_message, String
 
@@ -67,7 +68,8 @@ def check_master() -> str:
     try:
         rosgraph.Master("/mlnseq").getPid()
     except Exception:  # socket errors, refused connections: no master there
-        raise BadInput(f"no ROS master answers at {uri} (ROS_MASTER_URI): start roscore, or set ROS_MASTER_URI") from None
+        raise BadInput(f"no ROS master answers at {uri} (ROS_MASTER_URI): start roscore, "
+                       "or set ROS_MASTER_URI") from None
     return uri
 
 
@@ -84,7 +86,7 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
     rospy.init_node(options.node_name, disable_signals=True)
     activity = rospy.Publisher(options.activity_topic, String, queue_size=QUEUE)
     framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String, queue_size=QUEUE)
-    lock, classes, types = threading.Lock(), {}, {}
+    lock, classes = threading.Lock(), {}
 
     def publish(frames: list[LiveFrame]) -> None:
         for frame in frames:
@@ -100,7 +102,6 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
                 feed.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
         if classes[kind] is None:
             return
-        types[topic] = kind
         with lock:
             publish(feed.receive(topic, classes[kind]().deserialize(raw._buff), received))
 

@@ -168,8 +168,9 @@ def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="session")
 def joint_state_model(tmp_path_factory, shared_data) -> dict:
-    """An lstm (stream mode, 40 epochs: six classes on the live rows) trained on a ROS 1 bag of DESK's arm as /joint_states at 100 Hz (the first
-    1,000 frames, tests/ros_episode.py) and exported: {model, live} with ``live`` the other 405 frames' rows."""
+    """An lstm (stream mode, 40 epochs: six classes on the live rows) trained on a ROS 1 bag of DESK's arm as
+    /joint_states at 100 Hz (the first 1,000 frames, tests/ros_episode.py) and exported: {model, live}, with
+    ``live`` the other 405 frames' rows."""
     import ros_episode
     from mlnseq import export, train
     from mlnseq.sources import SourceOptions

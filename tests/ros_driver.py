@@ -1,7 +1,7 @@
 """The ROS 1 test's publisher and recorder (rospy), run as their own processes against the test's master.
 
-    python tests/ros_driver.py publish ROWS.npy SUBSCRIBERS   # /joint_states at 100 Hz, stamped, once SUBSCRIBERS listen
-    python tests/ros_driver.py record TOPIC FILE               # every std_msgs/String's data, a line each; "ready" on stdout
+    python tests/ros_driver.py publish ROWS.npy SUBSCRIBERS  # /joint_states at 100 Hz, stamped, once they listen
+    python tests/ros_driver.py record TOPIC FILE              # each std_msgs/String's data a line; "ready" on stdout
 """
 
 from __future__ import annotations

@@ -81,8 +81,9 @@ class EchoCsv:
             path = feature[len(self.topic) + 1:].split("/")
             if len(path) == 2 and path[0] in JOINT_ARRAYS and not path[1].isdigit():
                 if not self.names:
-                    raise BadInput(f"the feed has no joint names (field.name0 ...) for the model's feature {feature!r}: "
-                                   f"is it `rostopic echo -p {self.topic}`, a sensor_msgs/JointState topic?")
+                    raise BadInput(f"the feed has no joint names (field.name0 ...) for the model's feature "
+                                   f"{feature!r}: is it `rostopic echo -p {self.topic}`, a sensor_msgs/JointState "
+                                   "topic?")
                 self.joints[feature] = (path[0], path[1])
             elif _column(path) in self.index:
                 self.plain[feature] = self.index[_column(path)]

@@ -84,8 +84,8 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
         start(["rosmaster", "--core", "-p", str(port)], stdout=logs["master"], stderr=subprocess.STDOUT)
         wait_for(lambda: master_up(uri), "the master")
         node = start([MLNSEQ, "ros", model], stdout=logs["node"], stderr=subprocess.STDOUT)
-        recorder = start([sys.executable, str(DRIVER), "record", "/mlnseq/activity/frame", str(tmp_path / "node.jsonl")],
-                         stdout=subprocess.PIPE, text=True)
+        recorder = start([sys.executable, str(DRIVER), "record", "/mlnseq/activity/frame",
+                          str(tmp_path / "node.jsonl")], stdout=subprocess.PIPE, text=True)
         echo = start(["rostopic", "echo", "-p", "/joint_states"], stdout=subprocess.PIPE, stderr=logs["echo"])
         stream = start([MLNSEQ, "stream", model], stdin=echo.stdout, stdout=streamed, stderr=logs["stream"])
         echo.stdout.close()

@@ -78,7 +78,8 @@ def test_a_feed_of_another_topic_or_type_is_refused_at_the_start(joint_state_mod
     model = joint_state_model["model"]
     with pytest.raises(BadInput, match=r"--topic /odom: the model was trained on /joint_states"):
         run_stream(model, ros_episode.echo_csv(joint_state_model["live"][:3]), topic="/odom")
-    with pytest.raises(BadInput, match=r"the feed has no joint names \(field.name0 ...\) for the model.s feature ./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
+    with pytest.raises(BadInput, match=r"the feed has no joint names \(field.name0 ...\) for the model.s feature "
+                       r"./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
         run_stream(model, ["%time,field.data", "1700000000000000000,1.5"])
 
 
@@ -111,3 +112,51 @@ def test_ctrl_c_answers_the_ticks_up_to_the_last_row_read(joint_state_model):
     answers += [json.loads(line) for line in out.splitlines()]
     assert process.returncode == 130, err
     assert [a["frame"] for a in answers] == [0, 1, 2, 3, 4]
+
+
+def test_two_topics_on_the_clock_as_collect_reads_their_bag(joint_state_model, tmp_path):
+    """/joint_states at 100 Hz and /gripper at 20 Hz from 55 ms on (the clock starts there), as a bag read by
+    collect at 100 Hz and as messages through HoldLast one at a time, the gripper also sent at 1 kHz."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from mlnseq import sources
+    from mlnseq.sources import SourceOptions, rostopic
+    from mlnseq.sources.recording import Labels, TableColumns
+
+    rows = joint_state_model["live"][:200]
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Float64 = store.types["sensor_msgs/msg/JointState"], store.types["std_msgs/msg/Float64"]
+    Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    start, step = ros_episode.START, ros_episode.STEP
+    messages = [(start + k * step, "/joint_states", row[:7]) for k, row in enumerate(rows)]
+    messages += [(start + 55_000_000 + k * 50_000_000, "/gripper", np.array([float(k)])) for k in range(39)]
+    messages.sort(key=lambda m: (m[0], m[1] != "/joint_states"))
+    with Writer(tmp_path / "two.bag") as writer:
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        gripper = writer.add_connection("/gripper", Float64.__msgtype__, typestore=store)
+        for t, topic, values in messages:
+            if topic == "/gripper":
+                writer.write(gripper, t, store.serialize_ros1(Float64(data=values[0]), Float64.__msgtype__))
+            else:
+                stamp = Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="")
+                message = JointState(header=stamp, name=ros_episode.JOINTS, position=values.copy(),
+                                     velocity=np.zeros(0), effort=np.zeros(0))
+                writer.write(joints, t, store.serialize_ros1(message, JointState.__msgtype__))
+    recording = sources.read("rosbag", tmp_path / "two.bag", TableColumns(),
+                             SourceOptions(topics=("/joint_states", "/gripper"), rate=100), label=Labels.NONE)[0]
+    names = recording.features.columns
+    slots = rostopic.features_by_topic(names, ["/joint_states", "/gripper"])
+    thousand = sorted([*(m for m in messages if m[1] == "/joint_states"),
+                       *((t + j * 1_000_000, topic, values) for t, topic, values in messages if topic == "/gripper"
+                         for j in range(50))], key=lambda m: (m[0], m[1] != "/joint_states"))
+    for fast, feed in ((False, messages), (True, thousand)):
+        clock, ticks = rostopic.HoldLast(slots, len(names), 100), []
+        for t, topic, values in feed:
+            ticks += clock.push(topic, t, values)
+        ticks += clock.finish()
+        times, got = np.array([t for t, _ in ticks]), np.array([r for _, r in ticks])
+        expected = recording.features.to_numpy()
+        assert times[0] == start + 55_000_000 and len(ticks) == len(expected) + fast  # 1 kHz: 14 ms more, one tick
+        np.testing.assert_array_equal(got[:len(expected)], expected)
+        np.testing.assert_allclose(times[:len(expected)], start + recording.time.to_numpy() * 1e9, rtol=0, atol=1)
