@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -18,10 +18,9 @@ def stream(
     strict: Annotated[bool, typer.Option(help="Stop at the first bad input line (exit 2) instead of skipping it.")] = False,
     max_line_bytes: Annotated[int, typer.Option(
         help="The longest input line read; a longer one is counted, not held, and reported and skipped.")] = stage.MAX_LINE_BYTES,
-    topic: Annotated[Optional[str], typer.Option(help="A `rostopic echo -p` feed's topic \\[default: the model's only topic].")] = None,
 ) -> None:
-    """Read frames from stdin, one per line: JSON objects of feature name -> value (an "episode" key, when its value changes, starts a new episode), or CSV rows after a header line. Or `rostopic echo -p TOPIC` for a model trained on ROS bags: its rows are put on the model's clock as collect put the bags on it. Write one JSON line per frame at once: {"episode", "frame", "class", "probabilities"} (and "time" for a ROS feed). A bad line (over --max-line-bytes too) is reported on stderr with its number and skipped (--strict: exit 2). Ctrl-C: exit 130, every frame read so far answered."""
-    options = stage.StreamOptions(model=model, strict=strict, max_line_bytes=max_line_bytes, topic=topic)
+    """Read frames from stdin, one per line: JSON objects of feature name -> value (an "episode" key, when its value changes, starts a new episode), or CSV rows after a header line. Or `rostopic echo -p TOPIC` for a model trained on one ROS topic: its rows are put on the model's clock as collect put the bags on it. Write one JSON line per frame at once: {"episode", "frame", "class", "probabilities"} (and "time" for a ROS feed). A bad line (over --max-line-bytes too) is reported on stderr with its number and skipped (--strict: exit 2). Ctrl-C: exit 130, every frame read so far answered."""
+    options = stage.StreamOptions(model=model, strict=strict, max_line_bytes=max_line_bytes)
 
     def emit(line: str) -> None:
         sys.stdout.write(line + "\n")

@@ -45,7 +45,6 @@ class StreamOptions:
     model: Path
     strict: bool = False
     max_line_bytes: int = MAX_LINE_BYTES
-    topic: str | None = None  # a `rostopic echo -p` feed's topic; default: the model's only topic
 
     def validate(self) -> None:
         if self.max_line_bytes < 1:
@@ -228,12 +227,7 @@ def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterabl
           emit: Callable[[str], None], warn: Callable[[str], None]) -> StreamSummary:
     """A `rostopic echo -p` feed: its rows on the model's clock, one answer per tick with its time."""
     live = ros_live.LiveRecognizer(model, warn)
-    if options.topic is None and len(live.topics) > 1:
-        raise BadInput(f"the model reads {len(live.topics)} topics ({', '.join(live.topics)}): name this feed's with "
-                       "--topic, or run the node `mlnseq ros` for all of them")
-    topic = options.topic or live.topics[0]
-    if topic not in live.topics:
-        raise BadInput(f"--topic {topic}: the model was trained on {', '.join(live.topics)}")
+    topic = ros_live.echo_topic(live)
     summary = StreamSummary(episodes=1)
     with answering_before_interrupt() as busy:
         try:

@@ -109,6 +109,15 @@ class LiveRecognizer:
                       "collect read the bags")
 
 
+def echo_topic(live: LiveRecognizer) -> str:
+    """The topic a `rostopic echo -p` feed stands for: the model's only one. One echo shows one topic, and a frame
+    needs every topic's values, so a model of several topics is refused."""
+    if len(live.topics) > 1:
+        raise BadInput(f"the model reads {len(live.topics)} topics ({', '.join(live.topics)}) and `rostopic echo -p` "
+                       "shows one: run the node `mlnseq ros MODEL`, which subscribes to all of them")
+    return live.topics[0]
+
+
 def feed_echo(live: LiveRecognizer, topic: str, lines: Iterable[tuple[int, str | BadInput]],
               header: str) -> Iterable[tuple[int, LiveFrame | BadInput]]:
     """`rostopic echo -p` rows (numbered lines after ``header``) through ``live``: every recognised tick, or

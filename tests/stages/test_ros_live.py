@@ -74,13 +74,18 @@ def test_bad_rows_are_one_line_each_and_the_stream_goes_on(joint_state_model, ex
         run_stream(joint_state_model["model"], feed, strict=True)
 
 
-def test_a_feed_of_another_topic_or_type_is_refused_at_the_start(joint_state_model):
+def test_a_feed_of_another_type_or_a_model_of_two_topics_is_refused_at_the_start(joint_state_model):
+    from mlnseq.recognition.recognizer import Recognizer
+
     model = joint_state_model["model"]
-    with pytest.raises(BadInput, match=r"--topic /odom: the model was trained on /joint_states"):
-        run_stream(model, ros_episode.echo_csv(joint_state_model["live"][:3]), topic="/odom")
     with pytest.raises(BadInput, match=r"the feed has no joint names \(field.name0 ...\) for the model.s feature "
                        r"./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
         run_stream(model, ["%time,field.data", "1700000000000000000,1.5"])
+    two = Recognizer.load(model)
+    two.manifest["reading"] = {**two.manifest["reading"], "topics": ["/joint_states", "/gripper"]}
+    with pytest.raises(BadInput, match=r"reads 2 topics \(/joint_states, /gripper\) and `rostopic echo -p` shows one: "
+                       r"run the node `mlnseq ros MODEL`"):
+        live.echo_topic(live.LiveRecognizer(two, print))
 
 
 def test_a_model_not_read_from_bags_knows_no_topics(joint_state_model):
