@@ -135,7 +135,8 @@ def real_master(model_path: Path, rows: np.ndarray, folder: Path) -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1",
-           "ROS_HOME": str(folder / "ros"), "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(REPO / "tests")}
+           "ROS_HOME": str(folder / "ros"), "PYTHONUNBUFFERED": "1",
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO / "tests"), os.environ.get("PYTHONPATH")]))}
     count = 2_000
     np.save(folder / "rows.npy", np.concatenate([rows] * (count // len(rows) + 1))[:count])
     record, started = folder / "node.jsonl", []

@@ -67,8 +67,9 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
     ros_or_skip()
     port = free_port()
     uri = f"http://127.0.0.1:{port}"
+    path = os.pathsep.join(filter(None, [str(DRIVER.parent), os.environ.get("PYTHONPATH")]))  # a ROS setup.bash's too
     env = {**os.environ, "ROS_MASTER_URI": uri, "ROS_IP": "127.0.0.1", "ROS_HOME": str(tmp_path / "ros"),
-           "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(DRIVER.parent)}
+           "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
     rows = joint_state_model["live"]
     np.save(tmp_path / "rows.npy", rows)
     model = str(joint_state_model["model"])
