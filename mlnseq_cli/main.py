@@ -44,6 +44,7 @@ COMMANDS = {
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
+    "ros": Command("ros", "ros", "A ROS 1 node recognising the model's topics live: the activity on a topic."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
 }
 GLOBAL_FLAGS = ("--verbose",)
