@@ -42,7 +42,7 @@ class LiveFrame:
 
 def model_topics(model: Recognizer) -> tuple[list[str], float]:
     """The topics and rate the model's frames were read with; refuses a model not read from ROS bags."""
-    reading = model.manifest.get("reading") or {}
+    reading = model.manifest.reading or {}
     if reading.get("env") != "rosbag" or not reading.get("topics") or not reading.get("rate"):
         raise BadInput(f"the model's frames were read with --env {reading.get('env') or '?'}, not from ROS bags, so it "
                        "knows no topics: feed it frames by feature name (JSON or CSV lines)")

@@ -4,6 +4,8 @@ messages; each answer carries its frame's time; bad rows are one line each and t
 
 from __future__ import annotations
 
+import dataclasses
+
 import io
 import json
 
@@ -82,7 +84,8 @@ def test_a_feed_of_another_type_or_a_model_of_two_topics_is_refused_at_the_start
                        r"./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
         run_stream(model, ["%time,field.data", "1700000000000000000,1.5"])
     two = Recognizer.load(model)
-    two.manifest["reading"] = {**two.manifest["reading"], "topics": ["/joint_states", "/gripper"]}
+    two.manifest = dataclasses.replace(two.manifest, reading={**two.manifest.reading,
+                                                               "topics": ["/joint_states", "/gripper"]})
     with pytest.raises(BadInput, match=r"reads 2 topics \(/joint_states, /gripper\) and `rostopic echo -p` shows one: "
                        r"run the node `mlnseq ros MODEL`"):
         live.echo_topic(live.LiveRecognizer(two, print))
@@ -92,7 +95,7 @@ def test_a_model_not_read_from_bags_knows_no_topics(joint_state_model):
     from mlnseq.recognition.recognizer import Recognizer
 
     model = Recognizer.load(joint_state_model["model"])
-    model.manifest["reading"] = {"env": "table"}
+    model.manifest = dataclasses.replace(model.manifest, reading={"env": "table"})
     with pytest.raises(BadInput, match="read with --env table, not from ROS bags"):
         live.LiveRecognizer(model, print)
 
