@@ -106,7 +106,7 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     console.print(f"[green]conflate[/]: {len(result.methods)} methods, every decoder: {', '.join(result.methods)}",
                   highlight=False)
     exported = export_chosen(k, own, workdir)
-    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest['method']}, decode {own['decode']}); "
+    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest.method}, decode {own['decode']}); "
                   f"next: `mlnseq predict {exported.path} --source NEW` or `mlnseq stream {exported.path}`",
                   highlight=False)
 
@@ -118,19 +118,19 @@ def export_chosen(k: int, own: dict[str, Any], workdir: Path) -> Any:
     output = own["output"] or workdir / "model.mlnseq"
     method = "auto" if k else "conflation"
     exported = export.run(workdir, export.ExportOptions(method=method, decode=own["decode"], output=output))
-    chosen = exported.manifest.get("chosen_by_cross_validation")
+    chosen = exported.manifest.chosen_by_cross_validation
     if chosen:
-        for name, figures in sorted(chosen["candidates"].items(), key=lambda item: -item[1]["segment_accuracy"]):
+        for name, figures in sorted(chosen.candidates.items(), key=lambda item: -item[1]["segment_accuracy"]):
             console.print(f"  {name:<22} cross-validated: segment {figures['segment_accuracy']:5.1f} %, frame "
                           f"{figures['frame_accuracy']:5.1f} %, edit {figures['edit']:5.1f}", highlight=False)
         score = "segment accuracy" if own["decode"] == "filter" else "mean of segment accuracy and edit"
-        console.print(f"chose {chosen['name']}: the best {score} by {chosen['folds']}-fold cross-validation on the "
+        console.print(f"chose {chosen.name}: the best {score} by {chosen.folds}-fold cross-validation on the "
                       "training split (the test split unread)", highlight=False)
     else:
         why = "--folds 0" if own["folds"] == 0 else "a training split too small for 2 folds"
         console.print(f"chose conflation (network and MLN) without cross-validation ({why}): nothing to choose on",
                       highlight=False)
-    name = chosen["name"] if chosen else f"conflation+{own['decode']}"
+    name = chosen.name if chosen else f"conflation+{own['decode']}"
     try:
         scored = evaluation.run(workdir, evaluation.EvalOptions(method=name)).results[name]
     except BadInput:  # no test split: nothing held out to score

@@ -86,10 +86,11 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
 def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
     """The env, columns and source options to read new recordings with: the model's, overridden by options;
     and whether labels are required (a named label column) or optional."""
-    kept = model.manifest.get("reading") or {}
+    kept = model.manifest.reading or {}
     env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
     same = env == kept.get("env")
-    pick = lambda given, key, default=None: given if given is not None else (kept.get(key, default) if same else default)  # noqa: E731
+    pick = lambda given, key, default=None: (  # noqa: E731
+        given if given is not None else (kept.get(key, default) if same else default))
     columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
                            episode=pick(options.episode_column, "episode_column"),
                            time=pick(options.time_column, "time_column"),

@@ -11,12 +11,16 @@ its line number and skipped; with ``strict`` it stops the stream (exit 2). Keys 
 timestamp, say) are ignored, and said once. Input is read in chunks, and a line longer than
 ``max_line_bytes`` is never held: it is counted to its end, reported with its length and skipped (with
 ``strict``, the stream stops as soon as the line passes the limit).
+
+`rostopic echo -p TOPIC` (a CSV whose header starts with ``%time``) is read as the model's topic and put on its
+clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import itertools
 import json
 import signal
 from collections.abc import Callable, Iterable, Iterator
@@ -25,7 +29,9 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition import live as ros_live
 from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.sources import rostopic
 
 EPISODE = "episode"
 MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes
@@ -165,16 +171,25 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``."""
     options.validate()
     model = Recognizer.load(options.model)
-    for note in model.manifest.get("notes", []):
+    for note in model.manifest.notes:
         warn(f"note: {note}")
     if model.decode == "viterbi":
         warn("note: viterbi needs a whole recording; a stream filters online with the same factors")
+    lines = lines_of(source, options.max_line_bytes, stop_early=options.strict)
+    head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
+    for line in lines:
+        head.append(line)
+        if not isinstance(line, str) or line.strip():
+            break
+    if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
+        return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
+    lines = itertools.chain(head, lines)
     used = set(model.features) | {EPISODE}
     ignored: set[str] = set()
     summary = StreamSummary()
     episode: Any = None
     with answering_before_interrupt() as busy:
-        for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
+        for number, frame in frames_of(lines):
             busy(True)
             try:
                 if isinstance(frame, InputLine):
@@ -205,4 +220,30 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
             }))
             summary.frames += 1
             busy(False)
+    return summary
+
+
+def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterable[tuple[int, str | InputLine]],
+          emit: Callable[[str], None], warn: Callable[[str], None]) -> StreamSummary:
+    """A `rostopic echo -p` feed: its rows on the model's clock, one answer per tick with its time."""
+    live = ros_live.LiveRecognizer(model, warn)
+    topic = ros_live.echo_topic(live)
+    summary = StreamSummary(episodes=1)
+    with answering_before_interrupt() as busy:
+        try:
+            for _, answer in ros_live.feed_echo(live, topic, lines, header):
+                busy(True)
+                if isinstance(answer, BadInput):
+                    summary.skipped += 1
+                    if options.strict:
+                        raise InputLine(str(answer))
+                    warn(f"error: {answer}")
+                else:
+                    emit(answer.json(model.classes))
+                    summary.frames += 1
+                busy(False)
+        except KeyboardInterrupt:  # Ctrl-C: the ticks up to the last message read are answered too
+            for frame in live.finish():
+                emit(frame.json(model.classes))
+            raise
     return summary

@@ -64,7 +64,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
     if columns.features:
         missing = [n for n in columns.features if n not in features]
         if missing:
-            raise BadInput(f"{source}/meta/info.json: no feature {missing[0]!r}; its features are {', '.join(features)}")
+            raise BadInput(f"{source}/meta/info.json: no feature {missing[0]!r}; its features are "
+                           f"{', '.join(features)}")
         chosen = list(columns.features)
     if not chosen:
         raise BadInput(f"{source}/meta/info.json: no numeric feature ({', '.join(features)})")
@@ -99,7 +100,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                     flat[feature] = elements.get(k)
             else:
                 flat[names[0]] = column
-        time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
+        time = (table["timestamp"] if "timestamp" in table.columns
+                else table["frame_index"] / float(info.get("fps") or 1))
         labelled = label is not Labels.NONE and columns.label in table.columns
         recordings.append(Recording(
             path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),

@@ -1,4 +1,4 @@
-"""`mlnseq fit` on a user's folder of 6 ROS 2 bags with a /phase topic (the real DESK trials, tests/cli/desk_bags.py):
+"""`mlnseq fit` on a user's folder of 6 ROS 2 bags with a /phase topic (the real DESK trials, tests/desk_bags.py):
 one command to a model file with no spec written by hand, as good on a held-out bag as the paper's hand-written
 predicates (within 10 points here, at 3 epochs; the full-size figure is in docs/first-day.md)."""
 
@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 pytest.importorskip("rosbags", reason="the [recordings] extra is not installed")
 
-import desk_bags  # noqa: E402  (tests/cli/desk_bags.py)
+import desk_bags  # noqa: E402  (tests/desk_bags.py)
 from mlnseq_cli.main import app  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
 from mlnseq_cli.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402

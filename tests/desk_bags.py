@@ -1,9 +1,9 @@
 """A user's folder of ROS 2 bags made from the real DESK Taurus kinematics: one bag per trial (a trial starts
 where the surgeme returns to S1), /joint_states of both arms (x, y, z, three angles, gripper opening, as
 `left_x` ... `right_gripper`) at 50 Hz and a /phase std_msgs/String topic of the surgeme's name. Written with
-rosbags' own writer, as tests/stages/test_sources_rosbag.py does.
+rosbags' own writer, as tests/stages/sources/test_rosbag.py does.
 
-Run as a script to write them: ``python tests/cli/desk_bags.py FOLDER`` (the first 6 trials into FOLDER, the
+Run as a script to write them: ``python tests/desk_bags.py FOLDER`` (the first 6 trials into FOLDER, the
 7th and the partial 8th into FOLDER-heldout).
 """
 
@@ -99,5 +99,5 @@ def write_folders(desk: np.ndarray, folder: Path, heldout: Path, every: int = 1)
 
 if __name__ == "__main__":
     out = Path(sys.argv[1])
-    data = Path(__file__).resolve().parents[3] / "shared" / "data" / "desk-taurus" / "taurus_kinematics_train.txt"
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "desk-taurus" / "taurus_kinematics_train.txt"
     write_folders(np.loadtxt(data), out, out.with_name(out.name + "-heldout"))
