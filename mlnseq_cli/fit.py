@@ -25,20 +25,35 @@ FORMULAS = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")
 DECODES = ("filter", "viterbi")
 
 
+HELP = {
+    "spec": "Your predicate spec \\[default: one suggested from the training split, written to "
+            "suggested.binarize.toml in the workdir].",
+    "formulas": "Your formulas (.mln) \\[default: every predicate value => every class, plus learned transitions "
+                "between classes].",
+    "folds": "Cross-validation folds \\[default: one per training episode, at most 5; blocks of frames with a "
+             "single episode].",
+    "decode": "filter: online, for live use (predict, stream); viterbi: offline, whole recordings.",
+}
+
+
 def fit_options(
-    spec: Annotated[Optional[Path], typer.Option(help="Your predicate spec \\[default: one suggested from the training split, written to suggested.binarize.toml in the workdir].", dir_okay=False)] = None,
-    formulas: Annotated[Optional[Path], typer.Option(help="Your formulas (.mln) \\[default: every predicate value => every class, plus learned transitions between classes].", dir_okay=False)] = None,
-    folds: Annotated[Optional[int], typer.Option(help="Cross-validation folds \\[default: one per training episode, at most 5; blocks of frames with a single episode].", show_default=False)] = None,
+    spec: Annotated[Optional[Path], typer.Option(help=HELP["spec"], dir_okay=False)] = None,
+    formulas: Annotated[Optional[Path], typer.Option(help=HELP["formulas"], dir_okay=False)] = None,
+    folds: Annotated[Optional[int], typer.Option(help=HELP["folds"], show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help="The network's passes over the training split.")] = 100,
-    decode: Annotated[str, typer.Option(help="filter: online, for live use (predict, stream); viterbi: offline, whole recordings.")] = "filter",
-    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The model file \\[default: WORKDIR/model.mlnseq].", dir_okay=False)] = None,
+    decode: Annotated[str, typer.Option(help=HELP["decode"])] = "filter",
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The model file \\[default: "
+                                                   "WORKDIR/model.mlnseq].", dir_okay=False)] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """fit's own options (their signature joins collect's below)."""
 
 
 def fit(**flags: Any) -> None:
-    """Recordings to a model file in one command: collect (the same source options), binarize (the spec suggested from the training split, or --spec), formulas (or --formulas), learn-weights and train in stream mode with K folds, conflate with every decoder, export --method auto into MODEL; prints what it chose and why. Every stage's files stay in WORKDIR, so any stage can be rerun on its own."""
+    """Recordings to a model file in one command: collect (the same source options), binarize (the spec suggested
+    from the training split, or --spec), formulas (or --formulas), learn-weights and train in stream mode with K
+    folds, conflate with every decoder, export --method auto into MODEL; prints what it chose and why. Every
+    stage's files stay in WORKDIR, so any stage can be rerun on its own."""
     own = {name: flags.pop(name) for name in inspect.signature(fit_options).parameters}
     workdir = Path(own["workdir"])
     if own["decode"] not in DECODES:
@@ -106,7 +121,8 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     console.print(f"[green]conflate[/]: {len(result.methods)} methods, every decoder: {', '.join(result.methods)}",
                   highlight=False)
     exported = export_chosen(k, own, workdir)
-    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest.method}, decode {own['decode']}); "
+    why = "online, as live frames come" if own["decode"] == "filter" else "offline, over whole recordings"
+    console.print(f"[green]fit[/]: wrote {exported.path} ({exported.manifest.method}, decode {own['decode']}: {why}); "
                   f"next: `mlnseq predict {exported.path} --source NEW` or `mlnseq stream {exported.path}`",
                   highlight=False)
 
