@@ -111,6 +111,7 @@ def run(options: PredictOptions) -> Predicted:
     table, predicted = predict(model, frames, options.decode)
     names = meta["episode_names"]
     table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
+    table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
