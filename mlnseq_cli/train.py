@@ -83,6 +83,9 @@ def train(
     )
 
 
+FOLD_NETWORKS = "fold networks"  # named in the bar's label when they train after its epochs
+
+
 def _then_folds(workdir, options: stage.TrainOptions) -> str:
     """What trains after the bar's epochs: K fold networks (asked for, or as learn-weights cut them), or nothing."""
     from mlnseq.catalog import artifacts
@@ -91,7 +94,7 @@ def _then_folds(workdir, options: stage.TrainOptions) -> str:
     path = workdir / artifacts.FOLD_WEIGHTS
     if k is None and options.mode == "stream" and options.select == "none" and path.exists():
         k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
-    return f", then {k} fold networks" if k else ""
+    return f", then {k} {FOLD_NETWORKS}" if k else ""
 
 
 def _folds_said(checkpoint, asked: Optional[int]) -> str:
@@ -115,14 +118,17 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
                    TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
         with Progress(*columns, console=console, transient=True) as bar:
             task = bar.add_task(what, total=epochs, scores="")
-            yield lambda done: bar.update(task, completed=done.epoch, scores=_scores(done), refresh=True)
+            yield lambda done: bar.update(task, completed=done.epoch, refresh=True, scores=_scores(done) + (
+                "; now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else ""))
         return
     started = time.monotonic()
 
     def line(done: stage.EpochDone) -> None:
         if done.epoch == done.epochs or 10 * done.epoch // done.epochs > 10 * (done.epoch - 1) // done.epochs:
             left = (time.monotonic() - started) / done.epoch * (done.epochs - done.epoch)
-            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {left:.0f} s left",
+            then = "now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else \
+                f"{left:.0f} s left"
+            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {then}",
                           soft_wrap=True, highlight=False)
 
     yield line
