@@ -102,6 +102,7 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
     period = 1e9 / rate
     wanted = set(candidates) | ({label_topic} if label_topic else set())
     connections = [c for c in reader.connections if c.topic in wanted]
+    joint_states = _joint_states(reader, path, [c for c in connections if c.msgtype == JOINT_STATE])
 
     extractors: dict[str, Callable[[Any], np.ndarray]] = {}
     names: dict[str, list[str]] = {}
@@ -134,8 +135,10 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         if topic not in extractors:
             if topic in skipped:
                 continue
-            fields = _leaves(message, topic, connection.msgtype)
-            if not fields:
+            fields = _leaves(message, topic, connection.msgtype) if topic not in joint_states else []
+            if topic in joint_states and joint_states[topic].names:  # read by joint name, not by position
+                names[topic], extractors[topic] = joint_states[topic].names, joint_states[topic]
+            elif not fields:
                 if named:
                     raise BadInput(f"{path}: topic {topic!r} ({connection.msgtype}) has no numeric field")
                 skipped.append(topic)
@@ -146,6 +149,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         if topic in extractors:
             try:
                 values = extractors[topic](message)
+            except _JointMismatch as error:
+                raise BadInput(f"{path}: topic {topic!r} at {(timestamp - start) / 1e9:.6f} s: {error}") from None
             except ValueError:
                 raise BadInput(f"{path}: topic {topic!r} changes its number of values at "
                                f"{(timestamp - start) / 1e9:.6f} s; a topic's fields must keep their length") from None
@@ -153,7 +158,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
                 a, b = offsets[topic]
                 row[a:b] = values
                 continue
-            current[topic] = values
+            if getattr(extractors[topic], "complete", True):  # a JointState topic: once every joint has a value
+                current[topic] = values
         if row is None and candidates and all(t in current for t in candidates):
             position = 0
             for t in candidates:
@@ -197,6 +203,63 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         row=pl.Series(rows), where="{file} frame {row}",
         resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
     )
+
+
+class _JointMismatch(ValueError):
+    """A JointState message whose arrays do not match its joint names."""
+
+
+JOINT_FIELDS = ("position", "velocity", "effort")
+
+
+class _JointState:
+    """A ``sensor_msgs/JointState`` topic read by joint name: every (field, joint) that any message of the
+    topic carries is one feature, so several publishers (an arm and a gripper) merge by name on one clock;
+    each message updates the joints it names and the others keep their last value."""
+
+    def __init__(self, topic: str, columns: list[tuple[str, str]]):
+        self.index = {column: k for k, column in enumerate(columns)}
+        self.names = [f"{topic}/{field}/{joint}" for field, joint in columns]
+        self.values, self.seen = np.zeros(len(columns)), np.zeros(len(columns), dtype=bool)
+        self.complete = not columns
+
+    def __call__(self, message: Any) -> np.ndarray:
+        for field, joint, value in _joint_values(message):
+            k = self.index[(field, joint)]
+            self.values[k], self.seen[k] = value, True
+        self.complete = self.complete or bool(self.seen.all())
+        return self.values
+
+
+def _joint_values(message: Any):
+    """(field, joint, value) of every non-empty array of a JointState message, by the message's own names."""
+    joints = list(message.name)
+    if len(set(joints)) != len(joints):
+        raise _JointMismatch(f"JointState names a joint twice ({', '.join(joints)})")
+    for field in JOINT_FIELDS:
+        values = np.asarray(getattr(message, field))
+        if values.size and values.size != len(joints):
+            raise _JointMismatch(f"JointState {field} holds {values.size} values for {len(joints)} joint names")
+        if values.size:
+            yield from ((field, joint, float(v)) for joint, v in zip(joints, values))
+
+
+def _joint_states(reader, path: Path, connections) -> dict[str, _JointState]:
+    """Each JointState topic's (field, joint) columns in order (field, then first-seen joint), from one pass
+    over its messages, so that joints a second publisher sends later are not read by position."""
+    columns: dict[str, dict[tuple[str, str], None]] = {c.topic: {} for c in connections}
+    if not connections:
+        return {}
+    for connection, timestamp, raw in reader.messages(connections=connections):
+        try:
+            found = _joint_values(reader.deserialize(raw, connection.msgtype))
+            for field, joint, _ in found:
+                columns[connection.topic].setdefault((field, joint), None)
+        except _JointMismatch as error:
+            raise BadInput(f"{path}: topic {connection.topic!r} at {(timestamp - reader.start_time) / 1e9:.6f} s: "
+                           f"{error}") from None
+    return {topic: _JointState(topic, sorted(found, key=lambda c: JOINT_FIELDS.index(c[0])))
+            for topic, found in columns.items()}
 
 
 class _Blocks:
