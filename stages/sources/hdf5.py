@@ -35,6 +35,18 @@ def _datasets(group, prefix: str = "") -> list[str]:
     return found
 
 
+def _datasets_of(requested: list[str], present: list[str]) -> tuple[list[str], list[str] | None]:
+    """The datasets to read for ``requested`` names, each a dataset or one element ``PATH/K`` of a vector
+    dataset as collect names it (as a model remembers it); and the feature names to keep (None: all)."""
+    if all(name in present for name in requested):
+        return requested, None
+    chosen = []
+    for name in requested:
+        parent, _, index = name.rpartition("/")
+        chosen.append(parent if name not in present and index.isdigit() and parent in present else name)
+    return list(dict.fromkeys(chosen)), list(requested)
+
+
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     try:
         import h5py
@@ -64,6 +76,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                           and group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
                 if not chosen:
                     raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
+            chosen, wanted = _datasets_of(chosen, present)
             missing = [p for p in chosen if p not in present]
             if missing:
                 raise BadInput(f"{where}: no dataset {missing[0]!r}; the demo's datasets are {', '.join(present)}")
@@ -81,6 +94,11 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                     flat[path] = values
                 else:
                     flat.update({f"{path}/{k}": values[:, k] for k in range(values.shape[1])})
+            if wanted is not None:
+                absent = [name for name in wanted if name not in flat]
+                if absent:
+                    raise BadInput(f"{where}: no feature {absent[0]!r}; the demo gives {', '.join(flat)}")
+                flat = {name: flat[name] for name in wanted}
             labels = None
             if label is not Labels.NONE and columns.label in present:
                 raw = np.asarray(group[columns.label])

@@ -54,6 +54,25 @@ def element_names(column: str, spec: dict[str, Any]) -> list[str]:
     return [column] if size == 1 else [f"{column}/{k}" for k in range(size)]
 
 
+def requested_features(requested: tuple[str, ...], features: dict[str, Any], source: Path) -> tuple[list[str], list[str]]:
+    """The info.json features to read for ``requested`` names, each a feature or one element of a vector
+    feature as collect names it (``observation.state/panda_joint1``, as a model remembers it); and the
+    element names to keep, in order."""
+    owner = {element: name for name, spec in features.items() if isinstance(spec, dict)
+             for element in element_names(name, spec)}
+    chosen, wanted = [], []
+    for name in requested:
+        if name in features:
+            chosen.append(name)
+            wanted += element_names(name, features[name])
+        elif name in owner:
+            chosen.append(owner[name])
+            wanted.append(name)
+        else:
+            raise BadInput(f"{source}/meta/info.json: no feature {name!r}; its features are {', '.join(features)}")
+    return list(dict.fromkeys(chosen)), wanted
+
+
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     source = Path(source)
     info = info_of(source)
@@ -61,11 +80,9 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
     chosen = [name for name, spec in features.items()
               if name not in KEYS and name != columns.label and spec.get("dtype") in NUMERIC]
     skipped = [name for name, spec in features.items() if spec.get("dtype") in ("image", "video")]
+    wanted = None  # the features to keep, by the names collect gives (one per element of a vector feature)
     if columns.features:
-        missing = [n for n in columns.features if n not in features]
-        if missing:
-            raise BadInput(f"{source}/meta/info.json: no feature {missing[0]!r}; its features are {', '.join(features)}")
-        chosen = list(columns.features)
+        chosen, wanted = requested_features(columns.features, features, source)
     if not chosen:
         raise BadInput(f"{source}/meta/info.json: no numeric feature ({', '.join(features)})")
     pattern = "episode_*.parquet" if info["codebase_version"].startswith("v2") else "file-*.parquet"
@@ -99,6 +116,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                     flat[feature] = elements.get(k)
             else:
                 flat[names[0]] = column
+        if wanted is not None:
+            flat = {name: flat[name] for name in wanted}
         time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
         labelled = label is not Labels.NONE and columns.label in table.columns
         recordings.append(Recording(

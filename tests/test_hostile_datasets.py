@@ -1,0 +1,98 @@
+"""LeRobot datasets and robomimic HDF5 files (written with polars and h5py from the real DESK kinematics): a
+model trained on one predicts on it, and damaged ones are refused in one line naming the file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from mlnseq import collect, export, predict, sources, train
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources import SourceOptions
+from mlnseq.sources.recording import Labels, TableColumns
+
+LENGTHS = (240, 160)
+JOINTS = [f"panda_joint{i}" for i in range(1, 8)]
+
+
+@pytest.fixture(scope="module")
+def desk(shared_data) -> np.ndarray:
+    return np.loadtxt(shared_data / "desk-taurus" / "taurus_kinematics_train.txt")[:sum(LENGTHS)]
+
+
+def parts(desk: np.ndarray):
+    start = 0
+    for index, n in enumerate(LENGTHS):
+        yield index, desk[start:start + n]
+        start += n
+
+
+def write_lerobot(root: Path, desk: np.ndarray, info_features: dict | None = None, shuffle: bool = False) -> Path:
+    """A LeRobot v2.1 dataset: observation.state a 7-vector named by joint, phase the DESK label."""
+    features = info_features or {
+        "observation.state": {"dtype": "float32", "shape": [7], "names": JOINTS},
+        "phase": {"dtype": "int64", "shape": [1], "names": None},
+        **{k: {"dtype": d, "shape": [1], "names": None} for k, d in (
+            ("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"))}}
+    (root / "meta").mkdir(parents=True)
+    (root / "data" / "chunk-000").mkdir(parents=True)
+    (root / "meta" / "info.json").write_text(json.dumps({"codebase_version": "v2.1", "fps": 30, "features": features}))
+    for index, part in parts(desk):
+        n = len(part)
+        table = pl.DataFrame({"observation.state": part[:, :7].astype(np.float32).tolist(),
+                              "phase": part[:, -1].astype(np.int64), "timestamp": (np.arange(n) / 30).astype(np.float32),
+                              "frame_index": np.arange(n), "episode_index": [index] * n},
+                             schema_overrides={"observation.state": pl.Array(pl.Float32, 7)})
+        if shuffle:
+            table = table.sample(fraction=1.0, shuffle=True, seed=index)
+        table.write_parquet(root / "data" / "chunk-000" / f"episode_{index:06d}.parquet")
+    return root
+
+
+def write_hdf5(path: Path, desk: np.ndarray, change=None) -> Path:
+    """A robomimic-style file: data/demo_N/obs/joint_pos (7-vector), obs/gripper (scalar), phase (text)."""
+    import h5py
+
+    with h5py.File(path, "w") as handle:
+        for index, part in parts(desk):
+            demo = handle.create_group(f"data/demo_{index}")
+            demo["obs/joint_pos"] = part[:, :7]
+            demo["obs/gripper"] = part[:, 13]
+            demo["phase"] = np.array([f"S{int(k)}".encode() for k in part[:, -1]])
+        if change is not None:
+            change(handle)
+    return path
+
+
+def train_and_predict(workdir: Path, env: str, source: Path, label: str, out: Path) -> predict.Predicted:
+    collect.run(workdir, collect.CollectOptions(env=env, source=source, columns=TableColumns(label=label)))
+    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=1))
+    model = export.run(workdir, export.ExportOptions(method="lstm")).path
+    return predict.run(predict.PredictOptions(model=model, source=source, output=out))
+
+
+def test_predict_reads_the_lerobot_dataset_its_model_was_trained_on(desk, tmp_path):
+    dataset = write_lerobot(tmp_path / "lerobot", desk)
+    predicted = train_and_predict(tmp_path / "work", "lerobot", dataset, "phase", tmp_path / "p.parquet")
+    assert predicted.table.height == sum(LENGTHS) and predicted.metrics is not None
+    assert predicted.table["episode"].unique().sort().to_list() == [0, 1]
+
+
+def test_predict_reads_the_hdf5_file_its_model_was_trained_on(desk, tmp_path):
+    pytest.importorskip("h5py")
+    path = write_hdf5(tmp_path / "demos.hdf5", desk)
+    predicted = train_and_predict(tmp_path / "work", "hdf5", path, "phase", tmp_path / "p.parquet")
+    assert predicted.table.height == sum(LENGTHS) and predicted.metrics is not None
+    assert predicted.table["episode"].unique().sort().to_list() == ["demo_0", "demo_1"]
+
+
+def test_a_split_feature_name_reads_only_that_element(desk, tmp_path):
+    dataset = write_lerobot(tmp_path / "lerobot", desk)
+    (recording, _) = sources.read("lerobot", dataset, TableColumns(features=("observation.state/panda_joint3",)),
+                                  SourceOptions(), Labels.NONE)
+    assert recording.features.columns == ["observation.state/panda_joint3"]
+    np.testing.assert_allclose(recording.features[:, 0].to_numpy(), desk[:240, 2].astype(np.float32))
