@@ -26,6 +26,7 @@ from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 TABLE_SUFFIXES = (".csv", ".parquet")
 DEFAULT_TRAIN_SHARE = 0.7
+MAX_CLASSES = int(np.iinfo(np.int16).max) + 1  # frames.parquet keeps a label as Int16: 0 .. 32,767
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # features are stored as float32: a larger value would be inf
 
 
@@ -290,6 +291,15 @@ def _check_time(frames: pl.DataFrame, at) -> None:
         raise BadInput(f"{at(first)}: time {what}; each episode's frames must rise strictly")
 
 
+def _check_class_count(frames: pl.DataFrame, values: np.ndarray, at) -> None:
+    """A numeric label is a class index: refuse one past the classes mlnseq stores before naming them all."""
+    bad = np.flatnonzero(values >= MAX_CLASSES)
+    if bad.size:
+        row = frames.row(int(bad[0]), named=True)
+        raise BadInput(f"{at(row)}: label {row['label']} is not a class index below {MAX_CLASSES:,}, the most "
+                       "classes mlnseq stores (labels are 16-bit); give the classes as text, or renumber them")
+
+
 def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
     labels = frames["label"]
     if labels.is_null().any():
@@ -300,6 +310,7 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_class
         if not np.all(values == np.round(values)) or values.min() < 0:
             bad = frames.row(int(np.flatnonzero((values != np.round(values)) | (values < 0))[0]), named=True)
             raise BadInput(f"{at(bad)}: label {bad['label']:g} is not a class index 0, 1, ...")
+        _check_class_count(frames, values, at)
         indices = values.astype(np.int64)
         names = list(classes) or [str(k) for k in range(int(indices.max()) + 1)]
         if indices.max() >= len(names):
@@ -308,6 +319,9 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_class
     else:
         text = labels.cast(pl.String).to_list()
         names = list(classes) or sorted(set(text))
+        if len(names) > MAX_CLASSES:
+            raise BadInput(f"{at(frames.row(0, named=True))}: the labels hold {len(names):,} classes; mlnseq stores "
+                           f"at most {MAX_CLASSES:,} (labels are 16-bit class indices)")
         lookup = {name: i for i, name in enumerate(names)}
         unknown = [i for i, t in enumerate(text) if t not in lookup]
         if unknown:
