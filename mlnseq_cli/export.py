@@ -19,10 +19,11 @@ def export(
     decode: Annotated[str, typer.Option(help="none (per frame), filter (online chain decoding) or viterbi (offline; stream filters).")] = Defaults.decode,
     mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper or exact (as conflate --mln-mode).")] = Defaults.mln_mode,
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The model file \\[default: WORKDIR/METHOD[+DECODE].mlnseq].", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --output file.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR's frames.parquet, predicates.parquet, weights.parquet and models/*.pt; write one model file (.mlnseq) holding the features and their standardisation, the predicate spec, the MLN weights, the network, the fusion and decoding (its network factor weight learned on the out-of-fold predictions of networks trained with --folds, else chosen on the validation part), the classes and the input digests, for `mlnseq predict`, `mlnseq stream` and the Python API."""
-    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output)
+    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output, force=force)
     with reported_errors():
         exported = stage.run(workdir, options)
     for note in exported.manifest["notes"]:

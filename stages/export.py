@@ -34,6 +34,7 @@ class ExportOptions:
     decode: str = "none"
     mln_mode: str = "paper"
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
+    force: bool = False  # overwrite an existing --output (the default output, a workdir artifact, is replaced)
 
     def validate(self) -> None:
         check_choice("method", self.method, (*METHODS, AUTO))
@@ -59,6 +60,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
     workdir = Path(workdir)
+    check_output(options, workdir)
     chosen = None
     if options.method == AUTO:
         chosen = choose_method(workdir, options.decode)
@@ -117,6 +119,18 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
     return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
+
+
+def check_output(options: ExportOptions, workdir: Path) -> None:
+    """Refuse an --output that exists (without --force), or that is one of the workdir's other files (its
+    frames, predicates, weights, checkpoints...), even with --force."""
+    path = options.output_path(workdir)
+    folders = (workdir.resolve(), (workdir / artifacts.MODELS_DIR).resolve())
+    if path.is_file() and path.resolve().parent in folders and path.suffix != model_file.MODEL_SUFFIX:
+        raise BadInput(f"--output {path} is {workdir}'s own {path.name}, which the model is made from; name a "
+                       f"{model_file.MODEL_SUFFIX} file")
+    if options.output is not None and path.exists() and not options.force:
+        raise BadInput(f"{path} exists; pass --force to overwrite it, or name another file")
 
 
 def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
