@@ -96,3 +96,62 @@ def test_a_split_feature_name_reads_only_that_element(desk, tmp_path):
                                   SourceOptions(), Labels.NONE)
     assert recording.features.columns == ["observation.state/panda_joint3"]
     np.testing.assert_allclose(recording.features[:, 0].to_numpy(), desk[:240, 2].astype(np.float32))
+
+
+def refused_read(env: str, source: Path, *needles: str) -> None:
+    with pytest.raises(BadInput) as error:
+        sources.read(env, source, TableColumns(label="phase"), SourceOptions())
+    for needle in needles:
+        assert needle in str(error.value), (needle, str(error.value))
+
+
+def test_a_label_shorter_than_its_demo_is_refused(desk, tmp_path):
+    pytest.importorskip("h5py")
+
+    def shorten(handle):
+        del handle["data/demo_1/phase"]
+        handle["data/demo_1/phase"] = np.array([b"S1"] * 100)
+    refused_read("hdf5", write_hdf5(tmp_path / "d.hdf5", desk, shorten), "d.hdf5:/data/demo_1/phase",
+                 "100 labels", "for 160 frames")
+
+
+def test_a_scalar_obs_dataset_is_left_out_and_refused_when_named(desk, tmp_path):
+    pytest.importorskip("h5py")
+
+    def scalar(handle):
+        handle["data/demo_0/obs/robot_id"] = 7
+        handle["data/demo_1/obs/robot_id"] = 7
+    path = write_hdf5(tmp_path / "d.hdf5", desk, scalar)
+    (first, _) = sources.read("hdf5", path, TableColumns(label="phase"), SourceOptions())
+    assert "obs/robot_id" not in first.features.columns and first.features.width == 8
+    with pytest.raises(BadInput, match=r"d.hdf5:/data/demo_0/obs/robot_id: int64 of shape \(\) is not one value"):
+        sources.read("hdf5", path, TableColumns(label="phase", features=("obs/robot_id",)), SourceOptions())
+
+
+def test_a_demo_that_is_a_dataset_is_refused(desk, tmp_path):
+    pytest.importorskip("h5py")
+
+    def flat(handle):
+        handle["data/demo_2"] = desk[:10, :7]
+    refused_read("hdf5", write_hdf5(tmp_path / "d.hdf5", desk, flat), "d.hdf5:/data/demo_2 is a dataset, not a demo group")
+
+
+def test_a_label_that_is_not_utf8_is_refused(desk, tmp_path):
+    pytest.importorskip("h5py")
+
+    def latin1(handle):
+        labels = handle["data/demo_0/phase"][()].astype("S16")
+        labels[5] = "S1 \u00e9paule".encode("latin-1")
+        del handle["data/demo_0/phase"]
+        handle["data/demo_0/phase"] = labels
+    refused_read("hdf5", write_hdf5(tmp_path / "d.hdf5", desk, latin1), "d.hdf5:/data/demo_0/phase frame 5",
+                 "not UTF-8")
+
+
+@pytest.mark.parametrize("spec", [["float32", 7], {"dtype": "float32", "shape": ["two"]}, "observation"],
+                         ids=["a list", "shape of text", "a string"])
+def test_a_lerobot_feature_spec_that_is_not_an_object_with_a_shape_is_refused(desk, tmp_path, spec):
+    dataset = write_lerobot(tmp_path / "lerobot", desk, info_features={
+        "observation.state": spec, "phase": {"dtype": "int64", "shape": [1]},
+        "frame_index": {"dtype": "int64", "shape": [1]}, "episode_index": {"dtype": "int64", "shape": [1]}})
+    refused_read("lerobot", dataset, "meta/info.json", "feature 'observation.state'", "'shape' of whole numbers")

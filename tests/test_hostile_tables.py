@@ -65,3 +65,9 @@ def test_source_without_env_is_refused_rather_than_simulating_fetch(motion, tmp_
     source = table(motion, [0, 1] * 50, tmp_path / "mine.csv")
     refused("collect", "--source", source, "-w", tmp_path / "work", needles=("--source", "--env table", "fetch"))
     assert not (tmp_path / "work").exists()
+
+
+def test_a_project_file_nested_fifty_thousand_deep_is_one_line_naming_it(tmp_path):
+    config = tmp_path / "mlnseq.toml"
+    config.write_text("[collect]\nepisodes = " + "[" * 50_000 + "]" * 50_000 + "\n")
+    refused("--config", config, "collect", "-w", tmp_path / "work", needles=("mlnseq.toml", "nested too deep"))

@@ -47,6 +47,22 @@ def _datasets_of(requested: list[str], present: list[str]) -> tuple[list[str], l
     return list(dict.fromkeys(chosen)), list(requested)
 
 
+def _labels(group, name: str, where: str, length: int) -> pl.Series:
+    """A demo's label dataset: one UTF-8 text or number per frame."""
+    raw = np.asarray(group[name])
+    if raw.ndim != 1 or len(raw) != length:
+        raise BadInput(f"{where}/{name}: {raw.shape[0] if raw.ndim else 0} labels of shape {raw.shape} for {length} "
+                       "frames; give one label a frame")
+    values = raw.tolist()
+    for k, value in enumerate(values):
+        if isinstance(value, bytes):
+            try:
+                values[k] = value.decode()
+            except UnicodeDecodeError:
+                raise BadInput(f"{where}/{name} frame {k}: label {value[:40]!r} is not UTF-8 text") from None
+    return pl.Series("label", values)
+
+
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     try:
         import h5py
@@ -70,10 +86,12 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         for demo in demos:
             group = handle["data"][demo]
             where = f"{source}:/data/{demo}"
+            if not isinstance(group, h5py.Group):
+                raise BadInput(f"{where} is a dataset, not a demo group (robomimic layout: data/demo_N/obs, actions)")
             present = _datasets(group)
             if chosen is None:
                 chosen = [p for p in present if p.startswith("obs/") and group[p].dtype.kind in "biuf"
-                          and group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
+                          and 1 <= group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
                 if not chosen:
                     raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
             chosen, wanted = _datasets_of(chosen, present)
@@ -84,7 +102,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
             length = None
             for path in chosen:
                 values = np.asarray(group[path])
-                if values.ndim > 2 or values.dtype.kind not in "biuf":
+                if not 1 <= values.ndim <= 2 or values.dtype.kind not in "biuf":
                     raise BadInput(f"{where}/{path}: {values.dtype} of shape {values.shape} is not one value or "
                                    "one vector a frame")
                 if length is not None and len(values) != length:
@@ -101,8 +119,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                 flat = {name: flat[name] for name in wanted}
             labels = None
             if label is not Labels.NONE and columns.label in present:
-                raw = np.asarray(group[columns.label])
-                labels = pl.Series("label", [v.decode() if isinstance(v, bytes) else v for v in raw.tolist()])
+                labels = _labels(group, columns.label, where, length)
             recordings.append(Recording(
                 path=source, features=check_features(pl.DataFrame(flat), Path(where), "{file} frame {row}"),
                 episode=pl.Series([demo] * length), time=pl.int_range(length, eager=True), label=labels,

@@ -32,11 +32,19 @@ def info_of(source: Path) -> dict[str, Any]:
         info = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BadInput(f"{path}: cannot read it as JSON ({error})") from error
+    if not isinstance(info, dict):
+        raise BadInput(f"{path}: expected a JSON object (LeRobot's meta/info.json)")
     version = str(info.get("codebase_version"))
     if version not in VERSIONS:
         raise BadInput(f"{path}: codebase_version {version!r} is not supported; mlnseq reads {', '.join(VERSIONS)}")
     if not isinstance(info.get("features"), dict):
         raise BadInput(f"{path}: no 'features' table")
+    for name, spec in info["features"].items():
+        shape = (spec.get("shape") or [1]) if isinstance(spec, dict) else None
+        if not isinstance(spec, dict) or not isinstance(shape, list) or not all(
+                isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape):
+            raise BadInput(f"{path}: feature {name!r} is {json.dumps(spec)[:80]}; a feature is an object with "
+                           "a 'dtype' and a 'shape' of whole numbers")
     return info
 
 
