@@ -155,3 +155,11 @@ def test_a_lerobot_feature_spec_that_is_not_an_object_with_a_shape_is_refused(de
         "observation.state": spec, "phase": {"dtype": "int64", "shape": [1]},
         "frame_index": {"dtype": "int64", "shape": [1]}, "episode_index": {"dtype": "int64", "shape": [1]}})
     refused_read("lerobot", dataset, "meta/info.json", "feature 'observation.state'", "'shape' of whole numbers")
+
+
+def test_lerobot_rows_out_of_frame_order_are_ordered_by_frame_index(desk, tmp_path):
+    ordered = sources.read("lerobot", write_lerobot(tmp_path / "a", desk), TableColumns(label="phase"), SourceOptions())
+    shuffled = sources.read("lerobot", write_lerobot(tmp_path / "b", desk, shuffle=True), TableColumns(label="phase"),
+                            SourceOptions())
+    for a, b in zip(ordered, shuffled):
+        assert a.features.equals(b.features) and a.time.equals(b.time) and a.label.equals(b.label)

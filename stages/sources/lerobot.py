@@ -106,6 +106,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         missing = [n for n in ("episode_index", "frame_index", *chosen) if n not in table.columns]
         if missing:
             raise BadInput(f"{path}: no column {missing[0]!r}; columns are {', '.join(table.columns)}")
+        table = table.sort("episode_index", "frame_index", maintain_order=True)  # rows in any order: as documented
         flat = {}
         for name in chosen:
             names = element_names(name, features[name])

@@ -55,7 +55,28 @@ def column_names(path: Path) -> list[str]:
         return []  # unreadable: read_one names the problem
 
 
+def _check_utf8(path: Path) -> None:
+    """polars replaces bytes that are not UTF-8 without a word (a Latin-1 header becomes mojibake): refuse them."""
+    import codecs
+
+    decoder, line, chunk = codecs.getincrementaldecoder("utf-8")(), 1, b""
+    try:
+        with open(path, "rb") as handle:
+            while chunk := handle.read(1 << 20):
+                decoder.decode(chunk)
+                line += chunk.count(b"\n")
+            decoder.decode(b"", final=True)
+    except UnicodeDecodeError as error:
+        line += error.object[:error.start].count(b"\n")
+        raise BadInput(f"{path}:{line}: not UTF-8 text (byte {error.object[error.start]:#x}); save the file as "
+                       "UTF-8, e.g. iconv -f latin1 -t utf-8") from None
+    except OSError:
+        return  # unreadable: read_one names the problem
+
+
 def read_one(path: Path) -> pl.DataFrame:
+    if path.suffix.lower() == ".csv":
+        _check_utf8(path)
     names = column_names(path)
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -170,6 +191,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
             label=table[label_col] if label_col else None,
             split=table["split"].cast(pl.String) if "split" in table.columns else None,
             row=rows, where=where,
+            resolved={"empty_columns": [c for c in table.columns if c not in keys and c not in names
+                                        and table[c].null_count() == table.height]},
         ))
     return recordings
 
