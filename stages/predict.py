@@ -135,6 +135,8 @@ def _run(options: PredictOptions, stage) -> Predicted:
     table, predicted = predict(model, frames, options.decode)
     names = meta["episode_names"]
     table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
+    if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
+        table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),

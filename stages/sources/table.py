@@ -163,7 +163,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
         if missing:
-            raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}")
+            raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}"
+                           + _without_hint(missing, episode_col, time_col))
         keys = {columns.label, episode_col, time_col, "split"} - {None}  # never a feature, even when absent
         names = list(columns.features) or [
             c for c in table.columns if c not in keys and table[c].dtype.is_numeric()
@@ -195,6 +196,12 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                                         and table[c].null_count() == table.height]},
         ))
     return recordings
+
+
+def _without_hint(missing: list[str], episode: str | None, time: str | None) -> str:
+    """How to read a table without the episode or time column a model remembers (or an option named)."""
+    flags = [flag for flag, name in (("--episode-column", episode), ("--time-column", time)) if name in missing]
+    return f"; to read it without, pass {' '.join(f'{flag} ' + repr('') for flag in flags)}" if flags else ""
 
 
 # ---- the one assembly --------------------------------------------------------------------------------------
