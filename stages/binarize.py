@@ -17,7 +17,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.predicates import rules as predicate_rules
 from mlnseq.catalog.errors import BadInput
-from mlnseq.predicates.spec import MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
+from mlnseq.predicates.spec import (
+    MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec,
+)
 
 __all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
            "parse_spec", "run", "true_shares"]

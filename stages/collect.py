@@ -77,7 +77,8 @@ def collect_recordings(options: CollectOptions) -> Collected:
     meta["reading"] = reading_record(options.env, options.columns, **{**options.recordings.record(options.env), **resolved})
     meta["notes"] = list(dict.fromkeys(
         f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
-        for key, what in (("skipped_topics", "topics without a numeric field"), ("skipped_features", "image and video features"),
+        for key, what in (("skipped_topics", "topics without a numeric field"),
+                          ("skipped_features", "image and video features"),
                           ("empty_columns", "columns without a value"))
         if r.resolved.get(key)))
     labels = options.recordings.labels

@@ -44,7 +44,8 @@ def write_lerobot(root: Path, desk: np.ndarray, info_features: dict | None = Non
     for index, part in parts(desk):
         n = len(part)
         table = pl.DataFrame({"observation.state": part[:, :7].astype(np.float32).tolist(),
-                              "phase": part[:, -1].astype(np.int64), "timestamp": (np.arange(n) / 30).astype(np.float32),
+                              "phase": part[:, -1].astype(np.int64),
+                              "timestamp": (np.arange(n) / 30).astype(np.float32),
                               "frame_index": np.arange(n), "episode_index": [index] * n},
                              schema_overrides={"observation.state": pl.Array(pl.Float32, 7)})
         if shuffle:
@@ -133,7 +134,8 @@ def test_a_demo_that_is_a_dataset_is_refused(desk, tmp_path):
 
     def flat(handle):
         handle["data/demo_2"] = desk[:10, :7]
-    refused_read("hdf5", write_hdf5(tmp_path / "d.hdf5", desk, flat), "d.hdf5:/data/demo_2 is a dataset, not a demo group")
+    refused_read("hdf5", write_hdf5(tmp_path / "d.hdf5", desk, flat),
+                 "d.hdf5:/data/demo_2 is a dataset, not a demo group")
 
 
 def test_a_label_that_is_not_utf8_is_refused(desk, tmp_path):
@@ -163,3 +165,12 @@ def test_lerobot_rows_out_of_frame_order_are_ordered_by_frame_index(desk, tmp_pa
                             SourceOptions())
     for a, b in zip(ordered, shuffled):
         assert a.features.equals(b.features) and a.time.equals(b.time) and a.label.equals(b.label)
+
+
+def test_one_element_of_an_hdf5_vector_is_read_from_every_demo(desk, tmp_path):
+    pytest.importorskip("h5py")
+    path = write_hdf5(tmp_path / "d.hdf5", desk)
+    recordings = sources.read("hdf5", path, TableColumns(features=("obs/joint_pos/3", "obs/gripper")), SourceOptions(),
+                              Labels.NONE)
+    assert [r.features.columns for r in recordings] == [["obs/joint_pos/3", "obs/gripper"]] * 2
+    np.testing.assert_array_equal(recordings[1].features["obs/joint_pos/3"].to_numpy(), desk[240:, 3])

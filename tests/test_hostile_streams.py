@@ -32,7 +32,8 @@ def run(model: Path, lines: list[str]) -> tuple[list[dict], list[str]]:
     emitted, warned = [], []
     stage.run(stage.StreamOptions(model=model), io.BytesIO(("\n".join(lines) + "\n").encode()), emitted.append,
               warned.append)
-    strict = lambda text: json.loads(text, parse_constant=lambda c: pytest.fail(f"not JSON: {c} in {text}"))  # noqa: E731
+    def strict(text: str) -> dict:
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"not JSON: {c} in {text}"))
     return [strict(line) for line in emitted], [w for w in warned if w.startswith("error:")]
 
 

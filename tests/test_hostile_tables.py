@@ -112,7 +112,8 @@ def test_a_numeric_episode_column_still_matches_labels_written_with_leading_zero
 
 def test_an_empty_column_is_left_out_with_a_note(motion, tmp_path):
     source = tmp_path / "t.csv"
-    motion_table(motion, slice(0, 200)).with_columns(label=pl.Series([0, 1] * 100), torque=pl.lit(None)).write_csv(source)
+    table = motion_table(motion, slice(0, 200)).with_columns(label=pl.Series([0, 1] * 100), torque=pl.lit(None))
+    table.write_csv(source)
     result = runner.invoke(app, ["collect", "--env", "table", "--source", str(source), "-w", str(tmp_path / "work")])
     assert result.exit_code == 0, result.output
     assert "note: columns without a value left out: torque" in result.output

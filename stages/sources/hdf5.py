@@ -47,6 +47,14 @@ def _datasets_of(requested: list[str], present: list[str]) -> tuple[list[str], l
     return list(dict.fromkeys(chosen)), list(requested)
 
 
+def _kept(flat: dict[str, np.ndarray], wanted: list[str] | None, where: str) -> dict[str, np.ndarray]:
+    """The features asked for by name (None: all), in the order asked."""
+    absent = [name for name in wanted or () if name not in flat]
+    if absent:
+        raise BadInput(f"{where}: no feature {absent[0]!r}; the demo gives {', '.join(flat)}")
+    return flat if wanted is None else {name: flat[name] for name in wanted}
+
+
 def _labels(group, name: str, where: str, length: int) -> pl.Series:
     """A demo's label dataset: one UTF-8 text or number per frame."""
     raw = np.asarray(group[name])
@@ -94,29 +102,25 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                           and 1 <= group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
                 if not chosen:
                     raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
-            chosen, wanted = _datasets_of(chosen, present)
-            missing = [p for p in chosen if p not in present]
+            datasets, wanted = _datasets_of(chosen, present)
+            missing = [p for p in datasets if p not in present]
             if missing:
                 raise BadInput(f"{where}: no dataset {missing[0]!r}; the demo's datasets are {', '.join(present)}")
             flat: dict[str, np.ndarray] = {}
             length = None
-            for path in chosen:
+            for path in datasets:
                 values = np.asarray(group[path])
                 if not 1 <= values.ndim <= 2 or values.dtype.kind not in "biuf":
                     raise BadInput(f"{where}/{path}: {values.dtype} of shape {values.shape} is not one value or "
                                    "one vector a frame")
                 if length is not None and len(values) != length:
-                    raise BadInput(f"{where}/{path}: {len(values)} frames, where {chosen[0]} has {length}")
+                    raise BadInput(f"{where}/{path}: {len(values)} frames, where {datasets[0]} has {length}")
                 length = len(values)
                 if values.ndim == 1:
                     flat[path] = values
                 else:
                     flat.update({f"{path}/{k}": values[:, k] for k in range(values.shape[1])})
-            if wanted is not None:
-                absent = [name for name in wanted if name not in flat]
-                if absent:
-                    raise BadInput(f"{where}: no feature {absent[0]!r}; the demo gives {', '.join(flat)}")
-                flat = {name: flat[name] for name in wanted}
+            flat = _kept(flat, wanted, where)
             labels = None
             if label is not Labels.NONE and columns.label in present:
                 labels = _labels(group, columns.label, where, length)

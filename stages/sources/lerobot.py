@@ -62,7 +62,8 @@ def element_names(column: str, spec: dict[str, Any]) -> list[str]:
     return [column] if size == 1 else [f"{column}/{k}" for k in range(size)]
 
 
-def requested_features(requested: tuple[str, ...], features: dict[str, Any], source: Path) -> tuple[list[str], list[str]]:
+def requested_features(requested: tuple[str, ...], features: dict[str, Any],
+                       source: Path) -> tuple[list[str], list[str]]:
     """The info.json features to read for ``requested`` names, each a feature or one element of a vector
     feature as collect names it (``observation.state/panda_joint1``, as a model remembers it); and the
     element names to keep, in order."""
