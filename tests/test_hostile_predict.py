@@ -60,3 +60,22 @@ def test_named_labels_come_back_as_names_beside_the_predicted_class(model, log, 
     assert table["label"].dtype == table["class"].dtype == pl.String
     assert table["label"].to_list() == pl.read_csv(log)["phase"].to_list()
     assert result.metrics is not None
+
+
+def test_predicted_intervals_of_trials_named_with_leading_zeros_read_back_as_labels(log, tmp_path):
+    folder = tmp_path / "trials"
+    folder.mkdir()
+    table = pl.read_csv(log)
+    for k, name in enumerate(("001", "002", "010")):
+        table.slice(k * TRIAL, TRIAL).drop("trial", "t").write_csv(folder / f"{name}.csv")
+    workdir = tmp_path / "work"
+    collect.run(workdir, collect.CollectOptions(env="table", source=folder, columns=TableColumns(label="phase")))
+    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=1))
+    model = export.run(workdir, export.ExportOptions(method="lstm")).path
+    predicted = predict.run(predict.PredictOptions(model=model, source=folder, output=tmp_path / "p.parquet",
+                                                   intervals=tmp_path / "p.csv"))
+    assert predicted.table["episode"].unique(maintain_order=True).to_list() == ["001", "002", "010"]
+    relabelled = collect.collect(collect.CollectOptions(env="table", source=folder, columns=TableColumns(label="phase"),
+                                                        recordings=collect.SourceOptions(labels=tmp_path / "p.csv")))
+    classes = relabelled.meta["classes"]
+    assert [classes[k] for k in relabelled.frames["label"]] == predicted.table["class"].to_list()
