@@ -64,7 +64,11 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
                 label_topic = options.label_topic if label is not Labels.NONE else None
                 if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
-                recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+                try:
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+                except _NewJoints:  # a second publisher's joints after the clock started: again, knowing them all
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled,
+                                         _joint_columns(reader, path))
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
@@ -82,7 +86,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
 
 
 def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
-             unlabelled: str | None = None) -> Recording:
+             unlabelled: str | None = None, joints: dict[str, list[tuple[str, str]]] | None = None) -> Recording:
     """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
     available = reader.topics
     if reader.message_count == 0:
@@ -102,7 +106,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
     period = 1e9 / rate
     wanted = set(candidates) | ({label_topic} if label_topic else set())
     connections = [c for c in reader.connections if c.topic in wanted]
-    joint_states = _joint_states(reader, path, [c for c in connections if c.msgtype == JOINT_STATE])
+    joint_states = {c.topic: _JointState(c.topic, (joints or {}).get(c.topic, []))
+                    for c in connections if c.msgtype == JOINT_STATE}
 
     extractors: dict[str, Callable[[Any], np.ndarray]] = {}
     names: dict[str, list[str]] = {}
@@ -136,7 +141,7 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
             if topic in skipped:
                 continue
             fields = _leaves(message, topic, connection.msgtype) if topic not in joint_states else []
-            if topic in joint_states and joint_states[topic].names:  # read by joint name, not by position
+            if topic in joint_states:  # read by joint name, not by position
                 names[topic], extractors[topic] = joint_states[topic].names, joint_states[topic]
             elif not fields:
                 if named:
@@ -158,9 +163,11 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
                 a, b = offsets[topic]
                 row[a:b] = values
                 continue
-            if getattr(extractors[topic], "complete", True):  # a JointState topic: once every joint has a value
-                current[topic] = values
+            current[topic] = values
+            if not getattr(extractors[topic], "complete", True):  # a JointState topic: once every joint has a value
+                del current[topic]
         if row is None and candidates and all(t in current for t in candidates):
+            current.update({t: state.freeze() for t, state in joint_states.items() if t in current})
             position = 0
             for t in candidates:
                 offsets[t] = (position, position + len(current[t]))
@@ -209,57 +216,88 @@ class _JointMismatch(ValueError):
     """A JointState message whose arrays do not match its joint names."""
 
 
+class _NewJoints(Exception):
+    """A JointState topic names a joint after the clock started: the bag is read again knowing every joint."""
+
+
 JOINT_FIELDS = ("position", "velocity", "effort")
+MAX_PLANS = 256  # distinct joint lists of one topic whose column positions are kept
 
 
 class _JointState:
-    """A ``sensor_msgs/JointState`` topic read by joint name: every (field, joint) that any message of the
-    topic carries is one feature, so several publishers (an arm and a gripper) merge by name on one clock;
-    each message updates the joints it names and the others keep their last value."""
+    """A ``sensor_msgs/JointState`` topic read by joint name: every (field, joint) that its messages carry is one
+    feature, so publishers of other joints on one topic (an arm and a gripper) merge by name on the one clock;
+    each message updates the joints it names, the others keep their last value. Joints are added as they come
+    until the clock starts (``freeze``), then ordered by field (position, velocity, effort), first seen first."""
 
     def __init__(self, topic: str, columns: list[tuple[str, str]]):
-        self.index = {column: k for k, column in enumerate(columns)}
-        self.names = [f"{topic}/{field}/{joint}" for field, joint in columns]
-        self.values, self.seen = np.zeros(len(columns)), np.zeros(len(columns), dtype=bool)
-        self.complete = not columns
+        self.topic, self.columns, self.names = topic, list(columns), [f"{topic}/{f}/{j}" for f, j in columns]
+        self.index = {column: k for k, column in enumerate(self.columns)}
+        self.values, self.seen = np.zeros(len(self.columns)), np.zeros(len(self.columns), dtype=bool)
+        self.frozen = False
+        self.plans: dict[tuple, list[tuple[str, np.ndarray]]] = {}  # (names, array sizes) -> (field, columns)
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.seen.all())
 
     def __call__(self, message: Any) -> np.ndarray:
-        for field, joint, value in _joint_values(message):
-            k = self.index[(field, joint)]
-            self.values[k], self.seen[k] = value, True
-        self.complete = self.complete or bool(self.seen.all())
+        key = (tuple(message.name), *(len(getattr(message, field)) for field in JOINT_FIELDS))
+        plan = self.plans.get(key) or self._plan(key)
+        for field, columns in plan:
+            self.values[columns] = getattr(message, field)
+            self.seen[columns] = True
+        return self.values
+
+    def _plan(self, key: tuple) -> list[tuple[str, np.ndarray]]:
+        """Where each non-empty array of messages that name ``key[0]`` goes (new joints added, until frozen)."""
+        joints, sizes = key[0], key[1:]
+        if len(set(joints)) != len(joints):
+            raise _JointMismatch(f"JointState names a joint twice ({', '.join(joints)})")
+        plan = []
+        for field, size in zip(JOINT_FIELDS, sizes):
+            if size and size != len(joints):
+                raise _JointMismatch(f"JointState {field} holds {size} values for {len(joints)} joint names")
+            if size:
+                plan.append((field, np.array([self._column(field, joint) for joint in joints], dtype=np.int64)))
+        if len(self.plans) >= MAX_PLANS:  # joint lists that change message after message: keep memory bounded
+            self.plans.clear()
+        self.plans[key] = plan
+        return plan
+
+    def _column(self, field: str, joint: str) -> int:
+        if (field, joint) not in self.index:
+            if self.frozen:
+                raise _NewJoints(self.topic)
+            self.index[(field, joint)] = len(self.columns)
+            self.columns.append((field, joint))
+            self.names.append(f"{self.topic}/{field}/{joint}")
+            self.values, self.seen = np.append(self.values, 0.0), np.append(self.seen, False)
+        return self.index[(field, joint)]
+
+    def freeze(self) -> np.ndarray:
+        """Order the columns by field and add no more; the values in that order."""
+        order = sorted(range(len(self.columns)), key=lambda k: JOINT_FIELDS.index(self.columns[k][0]))
+        self.columns = [self.columns[k] for k in order]
+        self.names[:] = [self.names[k] for k in order]  # the same list read_bag holds
+        self.index = {column: k for k, column in enumerate(self.columns)}
+        self.values, self.seen, self.frozen, self.plans = self.values[order], self.seen[order], True, {}
         return self.values
 
 
-def _joint_values(message: Any):
-    """(field, joint, value) of every non-empty array of a JointState message, by the message's own names."""
-    joints = list(message.name)
-    if len(set(joints)) != len(joints):
-        raise _JointMismatch(f"JointState names a joint twice ({', '.join(joints)})")
-    for field in JOINT_FIELDS:
-        values = np.asarray(getattr(message, field))
-        if values.size and values.size != len(joints):
-            raise _JointMismatch(f"JointState {field} holds {values.size} values for {len(joints)} joint names")
-        if values.size:
-            yield from ((field, joint, float(v)) for joint, v in zip(joints, values))
-
-
-def _joint_states(reader, path: Path, connections) -> dict[str, _JointState]:
-    """Each JointState topic's (field, joint) columns in order (field, then first-seen joint), from one pass
-    over its messages, so that joints a second publisher sends later are not read by position."""
-    columns: dict[str, dict[tuple[str, str], None]] = {c.topic: {} for c in connections}
-    if not connections:
-        return {}
+def _joint_columns(reader, path: Path) -> dict[str, list[tuple[str, str]]]:
+    """Every JointState topic's (field, joint) columns, by field then first seen, from one pass over its messages."""
+    connections = [c for c in reader.connections if c.msgtype == JOINT_STATE]
+    states = {c.topic: _JointState(c.topic, []) for c in connections}
     for connection, timestamp, raw in reader.messages(connections=connections):
         try:
-            found = _joint_values(reader.deserialize(raw, connection.msgtype))
-            for field, joint, _ in found:
-                columns[connection.topic].setdefault((field, joint), None)
+            states[connection.topic](reader.deserialize(raw, connection.msgtype))
         except _JointMismatch as error:
             raise BadInput(f"{path}: topic {connection.topic!r} at {(timestamp - reader.start_time) / 1e9:.6f} s: "
                            f"{error}") from None
-    return {topic: _JointState(topic, sorted(found, key=lambda c: JOINT_FIELDS.index(c[0])))
-            for topic, found in columns.items()}
+    for state in states.values():
+        state.freeze()  # columns ordered by field
+    return {topic: state.columns for topic, state in states.items()}
 
 
 class _Blocks:
