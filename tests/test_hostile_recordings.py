@@ -89,3 +89,37 @@ def test_a_joint_state_whose_values_do_not_match_its_names_is_refused(desk, tmp_
                 for k in range(20)]
     with pytest.raises(BadInput, match=r"reordered.*'/joint_states'.*position holds 2 values for 3 joint names"):
         read_bag(write_bag(tmp_path / "reordered", messages))
+
+
+def arm_and_gripper(desk: np.ndarray, gripper_from: int, velocity: bool = True) -> list:
+    """An arm publisher (7 joints with velocities) every tick and a gripper publisher (2 fingers, positions only)
+    every 5th tick from ``gripper_from`` (0: its first message before the arm's)."""
+    arm, fingers = [f"panda_joint{i}" for i in range(1, 8)], ["finger_left", "finger_right"]
+    messages = []
+    for k in range(300):
+        t = START + k * STEP
+        if k >= gripper_from and k % 5 == gripper_from % 5:
+            messages.append((t, joint_state(t, fingers, desk[k, 12:14])))
+        message = joint_state(t, arm, desk[k, :7])
+        if velocity:
+            message = JointState(header=message.header, name=arm, position=message.position,
+                                 velocity=np.asarray(desk[k, 7:14], dtype=np.float64), effort=np.zeros(0))
+        messages.append((t, message))
+    return messages
+
+
+def test_a_folder_of_bags_gets_one_column_order_whichever_publisher_comes_first(desk, tmp_path):
+    """Bag 1: the gripper's first message before the arm's; bag 2: after the clock started. Both give bag 1's
+    columns, positions (fingers, arm: as first seen) then velocities, so collect reads the folder as one table."""
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    write_bag(folder / "1_gripper_first", arm_and_gripper(desk, 0))
+    write_bag(folder / "2_gripper_later", arm_and_gripper(desk, 4))
+    recordings = sources.read("rosbag", folder, TableColumns(), SourceOptions(topics=("/joint_states",), rate=50.0),
+                              label=Labels.NONE)
+    arm, fingers = [f"panda_joint{i}" for i in range(1, 8)], ["finger_left", "finger_right"]
+    expected = ([f"/joint_states/position/{j}" for j in (*fingers, *arm)]
+                + [f"/joint_states/velocity/{j}" for j in arm])
+    assert [r.features.columns for r in recordings] == [expected, expected]
+    assert [r.features.height for r in recordings] == [300, 296]
+    np.testing.assert_array_equal(recordings[1].features.select(expected[9:]).to_numpy(), desk[4:300, 7:14])

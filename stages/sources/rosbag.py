@@ -58,6 +58,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
     typestore = get_typestore(Stores.ROS2_HUMBLE)  # for bags that carry no message definitions
     recordings: list[Recording] = []
     topics, rate = tuple(options.topics), options.rate
+    joints = None  # each JointState topic's columns: the first bag's hold for the others, as its topics and rate do
     for path in bag_paths(Path(source)):
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
@@ -65,7 +66,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
                 if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
                 try:
-                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled, joints)
                 except _NewJoints:  # a second publisher's joints after the clock started: again, knowing them all
                     recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled,
                                          _joint_columns(reader, path))
@@ -75,6 +76,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
             text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
+        joints = recording.resolved["joints"]
         if columns.features:
             missing = [n for n in columns.features if n not in recording.features.columns]
             if missing:
@@ -208,7 +210,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         time=pl.Series((times - start) / 1e9),
         label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
         row=pl.Series(rows), where="{file} frame {row}",
-        resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
+        resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped,
+                  "joints": {topic: state.columns for topic, state in joint_states.items()}},
     )
 
 
