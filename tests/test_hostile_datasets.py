@@ -174,3 +174,9 @@ def test_one_element_of_an_hdf5_vector_is_read_from_every_demo(desk, tmp_path):
                               Labels.NONE)
     assert [r.features.columns for r in recordings] == [["obs/joint_pos/3", "obs/gripper"]] * 2
     np.testing.assert_array_equal(recordings[1].features["obs/joint_pos/3"].to_numpy(), desk[240:, 3])
+
+
+def test_a_lerobot_info_json_nested_too_deep_is_refused(desk, tmp_path):
+    dataset = write_lerobot(tmp_path / "lerobot", desk)
+    (dataset / "meta" / "info.json").write_text("[" * 200_000 + "]" * 200_000)
+    refused_read("lerobot", dataset, "meta/info.json", "nested too deep")

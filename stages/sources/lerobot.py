@@ -32,6 +32,8 @@ def info_of(source: Path) -> dict[str, Any]:
         info = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BadInput(f"{path}: cannot read it as JSON ({error})") from error
+    except RecursionError:
+        raise BadInput(f"{path}: cannot read it as JSON (nested too deep)") from None
     if not isinstance(info, dict):
         raise BadInput(f"{path}: expected a JSON object (LeRobot's meta/info.json)")
     version = str(info.get("codebase_version"))
