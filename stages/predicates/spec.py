@@ -274,8 +274,6 @@ def parse_spec(text: str, path: Path, max_columns: int = MAX_COLUMNS) -> Predica
     except tomllib.TOMLDecodeError as error:
         found = re.search(r"at line (\d+)", str(error))
         raise BadInput(f"{path}:{found.group(1) if found else 1}: invalid TOML: {error}") from None
-    except RecursionError:
-        raise BadInput(f"{path}: invalid TOML: its arrays or tables are nested too deep to read") from None
     for key, value in document.items():
         if key not in ("channel", "predicate"):
             raise BadInput(f"{path}:{_top_line(text, key)}: unknown key '{key}': a spec holds "
@@ -322,4 +320,7 @@ def load_spec(path: Path, max_columns: int = MAX_COLUMNS) -> PredicateSpec:
         raise BadInput(f"spec {path} not found: pass --spec FILE") from None
     except (OSError, UnicodeDecodeError) as error:
         raise BadInput(f"cannot read spec {path}: {error}") from error
-    return parse_spec(text, path, max_columns)
+    try:
+        return parse_spec(text, path, max_columns)
+    except RecursionError:  # tomllib recurses once per nested array or table
+        raise BadInput(f"{path}: invalid TOML: its arrays or tables are nested too deep to read") from None
