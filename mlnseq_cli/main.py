@@ -12,6 +12,7 @@ import functools
 import importlib
 import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
@@ -113,7 +114,18 @@ class MlnseqGroup(FlagGroup):
                 path = project_config.find(ctx.params.get("config"), _workdir_in(args[1:]))
                 if path is not None:
                     ctx.default_map = project_config.load(path, self.stage_commands(ctx))
-        return super().invoke(ctx)
+        try:
+            return super().invoke(ctx)
+        except ImportError as error:  # a command whose module imports an optional library at its top
+            from mlnseq.catalog.errors import missing_extra
+            from mlnseq_cli.console import fail, verbose
+
+            missing = missing_extra(error)
+            if missing is None:
+                raise
+            if verbose():
+                traceback.print_exc(file=sys.stderr)
+            raise fail(str(missing), missing.exit_code) from None
 
     def stage_commands(self, ctx: Any) -> dict[str, Any]:
         return {name: self.get_command(ctx, name) for name in self.list_commands(ctx) if name != "config"}

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Creates .venv in the repository and installs mlnseq with its test dependencies and the recording readers (pracmln, optional, is
-# installed by scripts/install_pracmln.sh; `make setup` runs both).
+# Creates .venv in the repository and installs mlnseq editable with every extra (all) and the test dependencies
+# (pracmln, optional, is installed by scripts/install_pracmln.sh; `make setup` runs both).
 # torch 2.13.0 goes first: on these machines it is a CPU wheel on local disk, while a looser
 # requirement with nothing installed would download a multi-GB CUDA build.
 set -euo pipefail
@@ -9,6 +9,6 @@ PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0" || .venv/bin/python -m pip install -q "torch>=2.2"
-.venv/bin/python -m pip install -q -e ".[test,recordings]"
+.venv/bin/python -m pip install -q -e ".[all,test]"
 touch .venv/.setup-done
 echo "setup: .venv ready"

@@ -74,7 +74,8 @@ def collect_recordings(options: CollectOptions) -> Collected:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))
     meta["source"] = options.env
     resolved = {k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}
-    meta["reading"] = reading_record(options.env, options.columns, **{**options.recordings.record(options.env), **resolved})
+    meta["reading"] = reading_record(options.env, options.columns,
+                                     **{**options.recordings.record(options.env), **resolved})
     meta["notes"] = list(dict.fromkeys(
         f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
         for key, what in (("skipped_topics", "topics without a numeric field"),

@@ -59,8 +59,7 @@ class Exported:
 def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
-    workdir = Path(workdir)
-    check_output(options, workdir)
+    workdir = check_output(options, Path(workdir))
     chosen = None
     if options.method == AUTO:
         chosen = choose_method(workdir, options.decode)
@@ -121,9 +120,9 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
 
 
-def check_output(options: ExportOptions, workdir: Path) -> None:
-    """Refuse an --output that exists (without --force), or that is one of the workdir's other files (its
-    frames, predicates, weights, checkpoints...), even with --force."""
+def check_output(options: ExportOptions, workdir: Path) -> Path:
+    """The workdir, once the output is checked: refuse an --output that exists (without --force), or that is one
+    of the workdir's other files (its frames, predicates, weights, checkpoints...), even with --force."""
     path = options.output_path(workdir)
     folders = (workdir.resolve(), (workdir / artifacts.MODELS_DIR).resolve())
     if path.is_file() and path.resolve().parent in folders and path.suffix != model_file.MODEL_SUFFIX:
@@ -131,6 +130,7 @@ def check_output(options: ExportOptions, workdir: Path) -> None:
                        f"{model_file.MODEL_SUFFIX} file")
     if options.output is not None and path.exists() and not options.force:
         raise BadInput(f"{path} exists; pass --force to overwrite it, or name another file")
+    return workdir
 
 
 def choose_method(workdir: Path, decode: str) -> dict[str, Any]:

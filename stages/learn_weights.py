@@ -42,7 +42,8 @@ class LearnWeightsOptions:
     engine: str = "native"
     objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
-    folds: int = 0  # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
+    # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
+    folds: int = 0
     max_formulas: int = MAX_FORMULAS  # refuse formulas whose templates and variables expand past this many
 
     def validate(self) -> None:
@@ -98,12 +99,14 @@ def training_data(predicates: pl.DataFrame, n_classes: int, class_names: Sequenc
     is_train = (predicates["split"] == "train").to_numpy()
     train = predicates.filter(pl.Series(is_train))
     if train.height == 0:
-        raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with training frames")
+        raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with "
+                       "training frames")
     columns = artifacts.feature_columns(predicates)
     evidence = train.select(columns).to_numpy().astype(bool)
     labels = train["label"].to_numpy().astype(np.int64)
     if labels.min() < 0 or labels.max() >= n_classes:
-        raise BadInput(f"predicates.parquet has labels outside the {n_classes} classes of its metadata; rerun `mlnseq binarize`")
+        raise BadInput(f"predicates.parquet has labels outside the {n_classes} classes of its metadata; "
+                       "rerun `mlnseq binarize`")
     words = [c for c, seen in zip(columns, evidence.any(axis=0)) if seen]
     present = sorted(set(labels.tolist()))
     warnings = [
@@ -127,14 +130,16 @@ def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: st
         if item.weight is not None:
             continue
         space = space_of(item.formula, training.space)
-        rows, frames = (pair_rows, pairs) if is_temporal(item.formula) else (training.rows, np.arange(len(training.rows)))
+        rows, frames = ((pair_rows, pairs) if is_temporal(item.formula)
+                        else (training.rows, np.arange(len(training.rows))))
         broken = np.zeros(len(rows), dtype=bool)
         for grounding in ground(item.formula, space):
             broken |= ~truth(grounding, rows, space)
         if broken.any():
             named = ", ".join(training.frame_name(i) for i in frames[broken][:SHOWN_FRAMES])
             more = f" and {broken.sum() - SHOWN_FRAMES} more" if broken.sum() > SHOWN_FRAMES else ""
-            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula {show(item.formula, class_names)} is "
+            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula "
+                           f"{show(item.formula, class_names)} is "
                            f"false at {broken.sum()} training frame(s): {named}{more}; fix their labels, or give the "
                            "formula a weight to make it soft")
 
@@ -253,7 +258,8 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         },
         schema=artifacts.WEIGHTS_SCHEMA,
     )
-    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings, objective, l2)
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings,
+                   objective, l2)
 
 
 def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
@@ -303,5 +309,6 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                                      inputs=[predicates_path, formulas_path])
         if folds is not None:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
-                                  {**table_meta, "folds": folds.record()}, inputs=[predicates_path, formulas_path, path])
+                                  {**table_meta, "folds": folds.record()},
+                                  inputs=[predicates_path, formulas_path, path])
     return path, learned

@@ -90,7 +90,8 @@ def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableCo
     kept = model.manifest.get("reading") or {}
     env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
     same = env == kept.get("env")
-    pick = lambda given, key, default=None: given if given is not None else (kept.get(key, default) if same else default)  # noqa: E731
+    pick = lambda given, key, default=None: (  # noqa: E731
+        given if given is not None else (kept.get(key, default) if same else default))
     columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
                            episode=pick(options.episode_column, "episode_column"),
                            time=pick(options.time_column, "time_column"),

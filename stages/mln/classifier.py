@@ -11,7 +11,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import polars as pl
-from scipy.special import log_softmax
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
@@ -46,6 +45,15 @@ def paper_prior(scores: np.ndarray, source: str) -> np.ndarray:
     return prior.astype(np.float32)
 
 
+def _log_softmax(scores: np.ndarray) -> np.ndarray:
+    """log softmax over the classes (axis 1), as scipy.special.log_softmax computes it; a row without a finite
+    maximum is not shifted."""
+    top = scores.max(axis=1, keepdims=True)
+    shifted = scores - np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        return shifted - np.log(np.exp(shifted).sum(axis=1, keepdims=True))
+
+
 def class_log_probs(scores: np.ndarray, mode: str, source: str) -> np.ndarray:
     """mode 'paper': authors' eq. 12-13 code: paper_prior + 1, normalised, log. mode 'exact': the MLN's
     own conditional distribution with classes mutually exclusive: log_softmax(scores). [n, C] float64."""
@@ -53,5 +61,5 @@ def class_log_probs(scores: np.ndarray, mode: str, source: str) -> np.ndarray:
         smoothed = paper_prior(scores, source).astype(np.float64) + 1.0  # +1: no zero probability
         return np.log(smoothed / smoothed.sum(axis=1, keepdims=True))
     if mode == "exact":
-        return log_softmax(scores, axis=1)
+        return _log_softmax(scores)
     raise BadInput(f"unknown MLN mode {mode!r}: expected one of {', '.join(MODES)}")

@@ -101,7 +101,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                 chosen = [p for p in present if p.startswith("obs/") and group[p].dtype.kind in "biuf"
                           and 1 <= group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
                 if not chosen:
-                    raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
+                    raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are "
+                                   f"{', '.join(present)}")
             datasets, wanted = _datasets_of(chosen, present)
             missing = [p for p in datasets if p not in present]
             if missing:

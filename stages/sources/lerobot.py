@@ -130,7 +130,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                 flat[names[0]] = column
         if wanted is not None:
             flat = {name: flat[name] for name in wanted}
-        time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
+        time = (table["timestamp"] if "timestamp" in table.columns
+                else table["frame_index"] / float(info.get("fps") or 1))
         labelled = label is not Labels.NONE and columns.label in table.columns
         recordings.append(Recording(
             path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),

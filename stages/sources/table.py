@@ -311,7 +311,8 @@ def _split(frames: pl.DataFrame, episode_index: np.ndarray, at) -> np.ndarray:
 def _check_time(frames: pl.DataFrame, at) -> None:
     """Time must rise strictly within each episode, in file order."""
     if frames["time"].is_null().any() or not frames["time"].is_finite().all():
-        first = frames.filter(frames["time"].is_null() | ~frames["time"].is_finite().fill_null(False)).row(0, named=True)
+        bad = frames["time"].is_null() | ~frames["time"].is_finite().fill_null(False)
+        first = frames.filter(bad).row(0, named=True)
         raise BadInput(f"{at(first)}: time is empty, NaN or infinite")
     step = frames.select(pl.col("time").diff().over("episode").alias("step"), "file", "row")
     bad = step.filter(pl.col("step").is_not_null() & (pl.col("step") <= 0))
@@ -330,7 +331,8 @@ def _check_class_count(frames: pl.DataFrame, values: np.ndarray, at) -> None:
                        "classes mlnseq stores (labels are 16-bit); give the classes as text, or renumber them")
 
 
-def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
+def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at,
+                   min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
     labels = frames["label"]
     if labels.is_null().any():
         first = frames.filter(labels.is_null()).row(0, named=True)
