@@ -21,13 +21,14 @@ def binarize(
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/suggested.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output even if edited by hand.")] = False,
     table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas.")] = False,
+    max_columns: Annotated[int, typer.Option(help="Refuse a spec that makes more predicate columns than this (a pair makes one per combination).")] = stage.BinarizeOptions.max_columns,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet and a predicate spec (--spec, the source's built-in one, or --suggest: one written from the frames); write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
     if output is not None and not suggest:
         raise fail("--output names the spec --suggest writes: add --suggest", 2)
     suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
-    options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force)
+    options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force, max_columns=max_columns)
     with reported_errors():
         path, binarized = stage.run(workdir, options)
     if suggested is not None:

@@ -25,6 +25,7 @@ def export(
                                                "conflate --mln-mode).")] = Defaults.mln_mode.value,
     output: Annotated[Optional[Path], typer.Option(
         "--output", "-o", help="The model file \\[default: WORKDIR/METHOD[+DECODE].mlnseq].", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --output file.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR's frames.parquet, predicates.parquet, weights.parquet and models/*.pt; write one model file
@@ -32,7 +33,7 @@ def export(
     fusion and decoding (its network factor weight learned on the out-of-fold predictions of networks trained with
     --folds, else chosen on the validation part), the classes and the input digests, for `mlnseq predict`, `mlnseq
     stream` and the Python API."""
-    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output)
+    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output, force=force)
     with reported_errors():
         exported = stage.run(workdir, options)
     manifest = exported.manifest

@@ -17,7 +17,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.predicates import rules as predicate_rules
 from mlnseq.catalog.errors import BadInput
-from mlnseq.predicates.spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
+from mlnseq.predicates.spec import (
+    MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec,
+)
 
 __all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
            "parse_spec", "run", "true_shares"]
@@ -30,8 +32,11 @@ class BinarizeOptions:
     spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
     suggest: Path | None = None  # write a starter spec from the frames here (stages/predicates/suggest.py), then use it
     replace: bool = False  # --suggest may overwrite a file edited by hand
+    max_columns: int = MAX_COLUMNS  # refuse a spec that makes more predicate columns
 
     def validate(self) -> None:
+        if self.max_columns < 1:
+            raise BadInput(f"--max-columns {self.max_columns}: allow at least 1 column")
         if self.spec is not None and self.suggest is not None:
             raise BadInput("--spec and --suggest: give one (--suggest writes a spec from the data, --spec reads yours)")
         if self.spec is not None and not Path(self.spec).is_file():
@@ -103,7 +108,7 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     if options.spec is None and not spec_path.is_file():
         raise BadInput(f"no built-in spec for frames of source {source!r}: pass --spec FILE, or --suggest to write a "
                        "starter spec from these frames (`mlnseq binarize --suggest`)")
-    spec = load_spec(spec_path)
+    spec = load_spec(spec_path, options.max_columns)
     predicates = binarize(frames, spec)
     meta = {
         "predicates": spec.columns(),

@@ -39,6 +39,7 @@ class ExportOptions:
     decode: str = "none"
     mln_mode: MLNMode = MLNMode.PAPER
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
+    force: bool = False  # overwrite an existing --output (the default output, a workdir artifact, is replaced)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "method", member(Method, self.method, ALIASES))
@@ -72,7 +73,7 @@ SEGMENT_NOTE = ("its {network} network was trained in segment mode, its state re
 def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
-    workdir = Path(workdir)
+    workdir = check_output(options, Path(workdir))
     chosen = None
     if options.method == AUTO:
         chosen = choose_method(workdir, options.decode)
@@ -130,6 +131,19 @@ def _manifest(options: ExportOptions, frames_meta: dict[str, Any], floor: PaperF
         classes=list(frames_meta["classes"]), features=list(frames_meta["features"]), source=source,
         reading=frames_meta.get("reading") or {"env": source},  # how predict reads
         predicates=columns, network=network, inputs={p.name: artifacts.file_digest(p) for p in inputs}, notes=notes)
+
+
+def check_output(options: ExportOptions, workdir: Path) -> Path:
+    """The workdir, once the output is checked: refuse an --output that exists (without --force), or that is one
+    of the workdir's other files (its frames, predicates, weights, checkpoints...), even with --force."""
+    path = options.output_path(workdir)
+    folders = (workdir.resolve(), (workdir / artifacts.MODELS_DIR).resolve())
+    if path.is_file() and path.resolve().parent in folders and path.suffix != model_file.MODEL_SUFFIX:
+        raise BadInput(f"--output {path} is {workdir}'s own {path.name}, which the model is made from; name a "
+                       f"{model_file.MODEL_SUFFIX} file")
+    if options.output is not None and path.exists() and not options.force:
+        raise BadInput(f"{path} exists; pass --force to overwrite it, or name another file")
+    return workdir
 
 
 def choose_method(workdir: Path, decode: str) -> Chosen:

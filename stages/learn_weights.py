@@ -28,11 +28,12 @@ from mlnseq.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
     show, shown, space_of, truth,
 )
-from mlnseq.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
+from mlnseq.mln.syntax import MLN, Const, Var, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
 
 ENGINES = ("native", "pracmln")
 OBJECTIVES = ("pll", "cll")
 SHOWN_FRAMES = 5  # frames named when a hard formula is broken
+MAX_FORMULAS = 20_000  # ground formulas the templates and variables may expand to (--max-formulas)
 
 
 @dataclass(frozen=True)
@@ -43,9 +44,12 @@ class LearnWeightsOptions:
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
     # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
     folds: int = 0
+    max_formulas: int = MAX_FORMULAS  # refuse formulas whose templates and variables expand past this many
 
     def validate(self) -> None:
         check_choice("engine", self.engine, ENGINES)
+        if self.max_formulas < 1:
+            raise BadInput(f"--max-formulas {self.max_formulas}: allow at least 1 formula")
         if self.objective is not None:
             check_choice("objective", self.objective, OBJECTIVES)
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
@@ -189,9 +193,31 @@ def head_class(item: Expanded, class_names: Sequence[str] | None = None) -> str 
     return constant if class_names is None else class_names[int(constant[1:])]
 
 
+def check_expansion(mln: MLN, space: AtomSpace, limit: int, where: str) -> None:
+    """Count the ground formulas each formula's `+var`s and variables make over ``space`` before any is built;
+    refuse past ``limit``, naming the largest."""
+    counts = []
+    for item in mln.formulas:
+        count = 1
+        for predicate in _first_variables(item.formula).values():
+            count *= len(space.constants(predicate))
+        counts.append(count)
+    if counts and sum(counts) > limit:
+        largest = mln.formulas[int(np.argmax(counts))]
+        raise BadInput(f"{where}:{largest.line}: the formulas expand to {sum(counts):,} ground formulas over the "
+                       f"training split's constants ({max(counts):,} from this line's variables), over "
+                       f"--max-formulas {limit:,}: use fewer template variables, or raise --max-formulas")
+
+
+def _first_variables(formula) -> dict[str, str]:
+    """Every variable in a first-argument position (a `+var` or not) -> its predicate."""
+    return {a.args[0].name: a.predicate for a in atoms(formula)
+            if a.predicate != NEXT and a.args and isinstance(a.args[0], Var)}
+
+
 def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native", objective: str | None = None,
-          l2: float | None = None, where: str = artifacts.FORMULAS,
-          class_names: Sequence[str] | None = None) -> Learned:
+          l2: float | None = None, where: str = artifacts.FORMULAS, class_names: Sequence[str] | None = None,
+          max_formulas: int = MAX_FORMULAS) -> Learned:
     """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure); ``where`` names
     the formulas in messages; ``class_names`` (label order) name the classes in the weights table, learned.mln
     and messages (None: the paper's C<k>)."""
@@ -199,6 +225,7 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
     options.validate()
     training = training_data(predicates, n_classes, class_names)
     warnings = list(training.warnings)
+    check_expansion(mln, training.space, max_formulas, where)
     expanded, left_out, expand_warnings = expand_templates(mln.formulas, training.space, class_names)
     warnings += expand_warnings
     uses_next = [item for item in mln.formulas if is_temporal(item.formula)]
@@ -278,7 +305,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
     named = with_episode_names(predicates, workdir)  # messages name episodes as the recordings do
-    learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes))
+    learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes),
+                    options.max_formulas)
     learned.warnings[:] = source_lines.located(learned.warnings, where)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
@@ -288,7 +316,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
         for k in range(folds.k):
             held_out = named.with_columns(pl.Series("split", folds.splits(k)))
             fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
-                         list(classes))
+                         list(classes), options.max_formulas)
             fold.warnings[:] = source_lines.located(fold.warnings, where)
             per_fold.append(fold.weights.with_columns(pl.lit(k, dtype=pl.Int32).alias("fold")))
             learned.warnings.extend(f"fold {k}: {w}" for w in fold.warnings if w not in learned.warnings)

@@ -1,7 +1,8 @@
 """stream: recognise live frames, one per input line, answering each at once.
 
 Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
-frame); the first line that is not blank decides which. An ``episode`` key or column starts a new
+frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
+no CSV header). An ``episode`` key or column starts a new
 episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
 next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}}``. Everything is causal
 and stateful (the previous frame for the change predicates, the network's state, the filter's belief).
@@ -22,6 +23,7 @@ import contextlib
 import csv
 import itertools
 import json
+import math
 import signal
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -107,27 +109,54 @@ def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str,
             continue
         if not line.strip():
             continue
-        if json_lines is None:
-            json_lines = line.lstrip().startswith("{")
-            if not json_lines:
-                header = next(csv.reader([line]))
-                continue
+        if json_lines is None and line.lstrip().startswith("{"):
+            json_lines = True  # the first JSON frame decides, even after a line of text (a log banner)
+        if json_lines is None and header is None:
+            header = _csv_row(line, number)
+            if isinstance(header, InputLine):
+                yield number, header
+                header = None
+            continue
         if json_lines:
             try:
-                frame = json.loads(line)
-            except ValueError as error:
-                yield number, InputLine(f"line {number}: not JSON ({error})")
+                frame = _json(line)
+            except (ValueError, RecursionError) as error:
+                what = "nested too deep" if isinstance(error, RecursionError) else str(error)
+                yield number, InputLine(f"line {number}: not JSON ({what})")
                 continue
             if not isinstance(frame, dict):
                 yield number, InputLine(f"line {number}: expected a JSON object of feature -> value")
                 continue
             yield number, frame
             continue
-        row = next(csv.reader([line]))
+        row = _csv_row(line, number)
+        if isinstance(row, InputLine):
+            yield number, row
+            continue
+        json_lines = False  # a CSV row: the stream is CSV
         if len(row) != len(header):
             yield number, InputLine(f"line {number}: {len(row)} fields, the header has {len(header)}")
             continue
         yield number, {name: _number(value) if name != EPISODE else value for name, value in zip(header, row)}
+
+
+def _json(line: str) -> Any:
+    """A JSON line; an integer too long for a float is read as one (infinite, so refused as a value)."""
+    return json.loads(line, parse_int=lambda digits: int(digits) if len(digits) < 300 else float(digits))
+
+
+def _csv_row(line: str, number: int) -> list[str] | InputLine:
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as error:  # a field over the csv module's limit, say
+        return InputLine(f"line {number}: not a CSV row ({error})")
+
+
+def _check_episode(frame: dict[str, Any], number: int) -> None:
+    """An episode id must be echoed back as JSON: NaN or infinity is not an id."""
+    value = frame.get(EPISODE)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputLine(f"line {number}: episode {value} is not an id (NaN or infinite)")
 
 
 def _number(text: str) -> float | str:
@@ -194,6 +223,7 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
             try:
                 if isinstance(frame, InputLine):
                     raise frame
+                _check_episode(frame, number)
                 unused = set(frame) - used - ignored
                 if unused:
                     ignored |= unused

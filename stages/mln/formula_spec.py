@@ -40,6 +40,7 @@ def formulas_for(mln: MLN, spec: Path, columns: list[str], class_names: list[str
     ``C<k>``), then write each class as its ``C<k>``; a formula written twice is refused."""
     check_class_names(class_names, str(spec))
     check_mln(mln, str(spec), set(columns), set(class_aliases(class_names)), class_names)
+    refuse_variables_named_as_constants(mln, str(spec), set(columns), set(class_aliases(class_names)))
     name_classes(mln, class_names)
     duplicates(mln, str(spec), class_names)
 
@@ -160,3 +161,18 @@ def _check_join(item: WeightedFormula, joins: list[Atom], at: Callable[..., str]
             f"{at()}: {format_formula(item.formula)} must hold whenever {format_formula(joined)} is false (frames that "
             f"are not consecutive), else every pair of frames counts: put {format_formula(joined)} in the body, "
             f"e.g. Topic(c1, {previous}) ^ {format_formula(joined)} => Topic(c2, {current})")
+
+
+def refuse_variables_named_as_constants(mln: MLN, where: str, words: set[str], classes: set[str]) -> None:
+    """``Has(gripper_closed, p)``: unquoted and lowercase, a variable over every column, yet it names one."""
+    for item in mln.formulas:
+        for atom in atoms(item.formula):
+            first = atom.args[0] if atom.args and atom.predicate != NEXT else None
+            known = words if atom.predicate == EVIDENCE else classes
+            if isinstance(first, Var) and not first.expand and first.name in known:
+                what = "predicate column" if atom.predicate == EVIDENCE else "class"
+                raise BadInput(
+                    f"{where}:{item.line}:{atom.column or item.column}: {first.name} in {format_formula(atom)} is a "
+                    f"variable (unquoted, it starts with a small letter) over every {what}, yet it names the {what} "
+                    f"{first.name!r}: write {atom.predicate}(\"{first.name}\", {atom.args[-1].name}) for that "
+                    f"{what}, or +{first.name} for one formula per {what}")

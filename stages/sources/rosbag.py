@@ -22,11 +22,11 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.table import check_features
+from mlnseq.sources.joint_states import JOINT_STATE, JointMismatch, JointState, NewJoints, joint_columns
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 BAG_SUFFIXES = (".bag", ".mcap")
 STRING = "std_msgs/msg/String"
-JOINT_STATE = "sensor_msgs/msg/JointState"
 RATE_PROBE = 200  # messages of the first topic whose median period gives the default rate
 CHUNK = 8192  # frames per buffer block
 
@@ -58,19 +58,25 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
     typestore = get_typestore(Stores.ROS2_HUMBLE)  # for bags that carry no message definitions
     recordings: list[Recording] = []
     topics, rate = tuple(options.topics), options.rate
+    joints = None  # each JointState topic's columns: the first bag's hold for the others, as its topics and rate do
     for path in bag_paths(Path(source)):
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
                 label_topic = options.label_topic if label is not Labels.NONE else None
                 if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
-                recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+                try:
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled, joints)
+                except NewJoints:  # a second publisher's joints after the clock started: again, knowing them all
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled,
+                                         joint_columns(reader, path))
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
             text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
+        joints = recording.resolved["joints"]
         if columns.features:
             missing = [n for n in columns.features if n not in recording.features.columns]
             if missing:
@@ -82,7 +88,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
 
 
 def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
-             unlabelled: str | None = None) -> Recording:
+             unlabelled: str | None = None, joints: dict[str, list[tuple[str, str]]] | None = None) -> Recording:
     """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
     listed = _check_topics(reader, path, topics, label_topic)
     candidates = list(topics) or sorted(t for t, info in reader.topics.items() if info.msgcount and t != label_topic)
@@ -90,6 +96,8 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         rate = _rate_of(reader, path, candidates[0])
     wanted = set(candidates) | ({label_topic} if label_topic else set())
     clock = _Clock(reader, path, candidates, 1e9 / rate, label_topic, named=bool(topics))
+    clock.joint_states = {c.topic: JointState(c.topic, (joints or {}).get(c.topic, []))
+                          for c in reader.connections if c.topic in wanted and c.msgtype == JOINT_STATE}
     for connection, timestamp, raw in reader.messages(connections=[c for c in reader.connections if c.topic in wanted]):
         clock.message(connection, timestamp, raw)
     clock.finish(listed)
@@ -133,6 +141,7 @@ class _Clock:
         self.label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label)
         self.tick = 0
         self.clock0: int | None = None
+        self.joint_states: dict[str, JointState] = {}  # JointState topics, read by joint name
 
     def message(self, connection, timestamp: int, raw: bytes) -> None:
         topic = connection.topic
@@ -152,6 +161,8 @@ class _Clock:
                 self.row[a:b] = values
                 return
             self.current[topic] = values
+            if not getattr(self.extractors[topic], "complete", True):  # a JointState topic: once every joint has one
+                del self.current[topic]
         if self.row is None and self.candidates and all(t in self.current for t in self.candidates):
             self._first_tick(timestamp)
 
@@ -169,6 +180,9 @@ class _Clock:
 
     def _discover(self, topic: str, msgtype: str, message: Any) -> None:
         """A topic's first message: its numeric fields and their feature names, or the topic skipped."""
+        if topic in self.joint_states:  # by joint name, not by position
+            self.names[topic], self.extractors[topic] = self.joint_states[topic].names, self.joint_states[topic]
+            return
         fields = _leaves(message, topic, msgtype)
         if fields:
             self.names[topic] = [name for group, _, _ in fields for name in group]
@@ -182,12 +196,15 @@ class _Clock:
     def _values(self, topic: str, message: Any, timestamp: int) -> np.ndarray:
         try:
             return self.extractors[topic](message)
+        except JointMismatch as error:
+            raise BadInput(f"{self.path}: topic {topic!r} at {(timestamp - self.start) / 1e9:.6f} s: {error}") from None
         except ValueError:
             raise BadInput(f"{self.path}: topic {topic!r} changes its number of values at "
                            f"{(timestamp - self.start) / 1e9:.6f} s; a topic's fields must keep their length") from None
 
     def _first_tick(self, timestamp: int) -> None:
         """Every topic has sent a message: the clock starts now, with their values side by side."""
+        self.current.update({t: state.freeze() for t, state in self.joint_states.items() if t in self.current})
         position = 0
         for t in self.candidates:
             self.offsets[t] = (position, position + len(self.current[t]))
@@ -236,7 +253,8 @@ def _recording(clock: _Clock, path: Path, rate: float, label_topic: str | None,
         time=pl.Series((times - clock.start) / 1e9),
         label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
         row=pl.Series(rows), where="{file} frame {row}",
-        resolved={"topics": list(clock.candidates), "rate": rate, "skipped_topics": clock.skipped},
+        resolved={"topics": list(clock.candidates), "rate": rate, "skipped_topics": clock.skipped,
+                  "joints": {topic: state.columns for topic, state in clock.joint_states.items()}},
     )
 
 

@@ -43,7 +43,8 @@ def held_out_frame_accuracy(bags, model, tmp_path) -> float:
     assert result.exit_code == 0, result.output
     predictions = pl.read_parquet(out)
     classes = [c.removeprefix("p_") for c in predictions.columns if c.startswith("p_")]  # in label order
-    truth = np.array(classes)[predictions["label"].to_numpy()]
+    labels = predictions["label"]  # the bag's phase names (a numeric label: the class index)
+    truth = labels.to_numpy() if labels.dtype == pl.String else np.array(classes)[labels.to_numpy()]
     return float(np.mean(truth == predictions["class"].to_numpy()))
 
 
