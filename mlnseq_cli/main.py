@@ -43,6 +43,8 @@ COMMANDS = {
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
+    "sweep": Command("sweep", "sweep", "Run a grid of options x seeds through Snakemake, locally or on SLURM: "
+                     "OUT/results.parquet."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
 }
 GLOBAL_FLAGS = ("--verbose",)

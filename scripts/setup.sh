@@ -9,6 +9,6 @@ PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0" || .venv/bin/python -m pip install -q "torch>=2.2"
-.venv/bin/python -m pip install -q -e ".[test,recordings]"
+.venv/bin/python -m pip install -q -e ".[test,recordings,sweep]"
 touch .venv/.setup-done
 echo "setup: .venv ready"

@@ -1,0 +1,249 @@
+"""The sweep file (TOML) and its grid: read, checked against the stages' options, expanded into configs.
+
+```toml
+[sweep]
+workdir = "mlnseq-work"       # the dataset's workdir: frames, predicates, weights and fold weights
+seeds = [0, 1]
+
+[grid]                        # option names of train, conflate and export, each with a list of values
+cell = ["lstm", "tcn"]
+epochs = [5]
+export.method = ["auto"]      # a name two stages share is qualified: train.method, export.method
+```
+
+A bare key names a train option, else a conflate option, else an export option (``mln_mode`` goes to conflate
+and export, ``decode`` to export: conflate always predicts every decoding so that each has figures).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import re
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+from mlnseq import conflate, export, train
+from mlnseq.catalog.errors import BadInput
+
+STAGES = ("train", "conflate", "export")
+OPTIONS = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
+FIXED = {"train": ("seed",), "conflate": ("decode",), "export": ("output",)}  # set by the sweep itself
+SHARED_BARE = {"mln_mode": ("conflate", "export"), "decode": ("export",)}  # bare keys with their own stages
+# What the sweep runs unless the grid says otherwise: stream networks whose folds follow the MLN's fold
+# weights, and the deployed method chosen by cross-validation among the online decoders.
+DEFAULTS = {"train": {"mode": "stream"}, "conflate": {}, "export": {"method": export.AUTO, "decode": "filter"}}
+SWEEP_KEYS = ("workdir", "seeds")
+MAX_CONFIGS = 1000
+
+
+@dataclass(frozen=True)
+class Config:
+    """One cell of the grid: its name and the options of each stage (seed apart)."""
+
+    name: str
+    values: dict[str, Any]  # grid key as written -> value
+    options: dict[str, Any]  # stage -> its options dataclass
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A sweep file, read and checked."""
+
+    path: Path
+    workdir: Path
+    seeds: tuple[int, ...]
+    keys: tuple[str, ...]  # grid keys as written (qualified where qualified)
+    configs: tuple[Config, ...]
+
+
+def allowed_keys() -> dict[str, tuple[str, ...]]:
+    """Every grid key -> the stages it sets."""
+    keys: dict[str, tuple[str, ...]] = {}
+    for stage in STAGES:
+        for f in fields(OPTIONS[stage]):
+            if f.name in FIXED[stage]:
+                continue
+            keys[f"{stage}.{f.name}"] = (stage,)
+            keys.setdefault(f.name, SHARED_BARE.get(f.name, (stage,)))
+    return keys
+
+
+def line_of(text: str, key: str) -> int | None:
+    """The line of ``key`` (its last part) in the sweep file's text, for messages; None if not found."""
+    last = re.escape(key.rsplit(".", 1)[-1])
+    for number, line in enumerate(text.splitlines(), 1):
+        if re.match(rf'\s*(?:[\w"]+\.)?"?{last}"?\s*=', line):
+            return number
+    return None
+
+
+def where(path: Path, text: str, key: str) -> str:
+    line = line_of(text, key)
+    return f"{path}{'' if line is None else f' line {line}'}"
+
+
+def read(path: Path) -> Sweep:
+    """Read and check the sweep file; every error names the file, the line and the key."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+        data = tomllib.loads(text)
+    except FileNotFoundError:
+        raise BadInput(f"sweep file {path} not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise BadInput(f"cannot read sweep file {path}: {error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise BadInput(f"{path} is not valid TOML: {error}") from None
+    unknown = sorted(set(data) - {"sweep", "grid"})
+    if unknown:
+        raise BadInput(f"{where(path, text, unknown[0])}: unknown table [{unknown[0]}]; a sweep file has [sweep] and [grid]")
+    head = data.get("sweep")
+    if not isinstance(head, dict) or "workdir" not in head:
+        raise BadInput(f"{path}: no [sweep] table with workdir = \"DATASET-WORKDIR\" and seeds = [0, 1]")
+    for key in head:
+        if key not in SWEEP_KEYS:
+            raise BadInput(f"{where(path, text, key)}: unknown [sweep] key {key!r}: choose one of {', '.join(SWEEP_KEYS)}")
+    seeds = head.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds or not all(type(s) is int and s >= 0 for s in seeds) \
+            or len(set(seeds)) != len(seeds):
+        raise BadInput(f"{where(path, text, 'seeds')}: seeds must be a list of distinct whole numbers >= 0, got {seeds!r}")
+    workdir = Path(str(head["workdir"]))
+    if not workdir.is_absolute():
+        workdir = path.parent / workdir
+    grid = flatten(data.get("grid", {}), path, text)
+    return Sweep(path, workdir, tuple(seeds), tuple(grid), tuple(expand(grid, path, text)))
+
+
+def flatten(table: Any, path: Path, text: str) -> dict[str, list[Any]]:
+    """The [grid] table as key -> values, ``export.method = [..]`` (a nested table in TOML) as "export.method"."""
+    if not isinstance(table, dict):
+        raise BadInput(f"{where(path, text, 'grid')}: [grid] must be a table of option = [values]")
+    allowed = allowed_keys()
+    grid: dict[str, list[Any]] = {}
+    for key, value in table.items():
+        items = [(f"{key}.{k}", v) for k, v in value.items()] if isinstance(value, dict) and key in STAGES \
+            else [(key, value)]
+        for name, values in items:
+            if name not in allowed:
+                close = [k for k in allowed if "." not in k]
+                raise BadInput(f"{where(path, text, name)}: unknown grid key {name!r}: choose among the options of "
+                               f"train, conflate and export: {', '.join(close)} (qualify a shared name: "
+                               "train.method, export.method)")
+            if not isinstance(values, list) or not values:
+                raise BadInput(f"{where(path, text, name)}: grid key {name!r} needs a non-empty list of values, "
+                               f"e.g. {name} = [{values!r}]")
+            if len(set(map(repr, values))) != len(values):
+                raise BadInput(f"{where(path, text, name)}: grid key {name!r} lists a value twice: {values!r}")
+            grid[name] = values
+    return grid
+
+
+def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
+    """Every combination of the grid's values, in the file's order, each checked as the stages check options."""
+    allowed = allowed_keys()
+    for key, values in grid.items():
+        for value in values:
+            for stage in allowed[key]:
+                option_value(stage, key.rsplit(".", 1)[-1], value, where(path, text, key))
+    varying = [k for k, v in grid.items() if len(v) > 1]
+    configs = []
+    for combo in itertools.product(*grid.values()):
+        values = dict(zip(grid, combo))
+        options = {}
+        for stage in STAGES:
+            chosen = dict(DEFAULTS[stage])
+            for key, value in values.items():
+                if stage in allowed[key]:
+                    name = key.rsplit(".", 1)[-1]
+                    chosen[name] = option_value(stage, name, value, "")
+            options[stage] = replace(OPTIONS[stage](), **chosen)
+        configs.append(Config(config_name({k: values[k] for k in varying}), values, options))
+    names = [c.name for c in configs]
+    if len(set(names)) != len(names):  # two values that read the same in a folder name
+        configs = [replace(c, name=hashed(c.values)) for c in configs]
+    for config in configs:
+        for stage in STAGES:
+            try:
+                config.options[stage].validate()
+            except BadInput as error:
+                shown = ", ".join(f"{k} = {v!r}" for k, v in config.values.items())
+                raise BadInput(f"{path}: the grid's config {shown} is refused by {stage}: {error}") from None
+    return configs
+
+
+def option_value(stage: str, name: str, value: Any, place: str) -> Any:
+    """``value`` as the stage's option ``name`` takes it; a wrong type or value names ``place`` and the choices."""
+    import enum
+
+    field = next(f for f in fields(OPTIONS[stage]) if f.name == name)
+    default = getattr(OPTIONS[stage](), name)
+    kind = str(field.type)
+    try:
+        if isinstance(default, enum.Enum):
+            choices = [m.value for m in type(default)]
+            if value not in choices:
+                raise ValueError(f"choose one of {', '.join(map(str, choices))}")
+            value = type(default)(value)
+        elif kind.startswith("bool"):
+            if type(value) is not bool:
+                raise ValueError("use true or false")
+        elif kind.startswith("int"):
+            if type(value) is not int:
+                raise ValueError("use a whole number")
+        elif kind.startswith("float"):
+            if value == "auto" and "None" in kind:
+                value = None
+            elif type(value) not in (int, float):
+                raise ValueError("use a number" + (" or \"auto\"" if "None" in kind else ""))
+            else:
+                value = float(value)
+        elif kind.startswith("tuple"):
+            value = tuple(value) if isinstance(value, list) else tuple(str(value).split(","))
+        elif kind.startswith("str") and not isinstance(value, str):
+            raise ValueError("use a quoted name")
+        if place:
+            replace(OPTIONS[stage](), **{name: value}).validate()
+    except ValueError as error:
+        raise BadInput(f"{place}: grid key {name!r} value {value!r}: {error}") from None
+    except BadInput as error:
+        raise BadInput(f"{place}: grid key {name!r} value {value!r}: {error}") from None
+    return value
+
+
+def config_name(values: dict[str, Any]) -> str:
+    """A folder name for a config: its varying keys and values (``cell-tcn_epochs-5``), or a digest if too long."""
+    if not values:
+        return "default"
+    name = "_".join(re.sub(r"[^A-Za-z0-9.+]+", "-", f"{k}-{v}") for k, v in values.items())
+    return name if len(name) <= 100 else hashed(values)
+
+
+def hashed(values: dict[str, Any]) -> str:
+    return "config-" + hashlib.sha256(repr(sorted(values.items())).encode()).hexdigest()[:12]
+
+
+def flags(stage: str, options: Any) -> list[str]:
+    """The command-line flags that give ``options`` of ``stage`` where they differ from the stage's defaults."""
+    import enum
+
+    defaults = OPTIONS[stage]()
+    out: list[str] = []
+    for f in fields(options):
+        value = getattr(options, f.name)
+        if f.name in FIXED[stage] or value == getattr(defaults, f.name):
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(value, bool):
+            out.append(flag if value else f"--no-{f.name.replace('_', '-')}")
+            continue
+        if isinstance(value, enum.Enum):
+            value = value.value
+        elif value is None:
+            value = "auto"
+        elif isinstance(value, tuple):
+            value = ",".join(map(str, value))
+        out += [flag, str(value)]
+    return out
