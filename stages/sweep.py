@@ -118,6 +118,17 @@ def snakemake_command(snakefile: Path, out: Path, options: SweepOptions) -> list
     return command + ["--cores", str(options.cores or os.cpu_count() or 1)]
 
 
+def run_snakemake(command: list[str]) -> int:
+    """Snakemake as a process, its output on stderr; on Ctrl-C (which reaches it too) wait while it stops its jobs
+    and unlocks the folder, so that the next run resumes."""
+    process = subprocess.Popen(command, stdout=sys.stderr)
+    try:
+        return process.wait()
+    except KeyboardInterrupt:
+        process.wait()
+        raise
+
+
 def run(sweep_file: Path, options: SweepOptions) -> Swept:
     """Run the sweep (only what is missing or stale) and gather OUT/results.parquet."""
     sweep = plan(sweep_file, options)
@@ -127,9 +138,9 @@ def run(sweep_file: Path, options: SweepOptions) -> Swept:
         import snakemake  # noqa: F401  (the extra `sweep`: pip install 'mlnseq[sweep]')
     except ImportError:
         raise BadInput("mlnseq sweep needs Snakemake: pip install 'mlnseq[sweep]' (make setup installs it)") from None
-    done = subprocess.run(snakemake_command(snakefile, out, options), stdout=sys.stderr)
-    if done.returncode != 0:
-        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {done.returncode}): see its output above and "
+    code = run_snakemake(snakemake_command(snakefile, out, options))
+    if code != 0:
+        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {code}): see its output above and "
                           f"the stage logs in {out / workflow.RUNS}/CONFIG/seed-N/logs/; rerun `mlnseq sweep` to "
                           "resume")
     table = results.gather(sweep, out)

@@ -18,6 +18,7 @@ and export, ``decode`` to export: conflate always predicts every decoding so tha
 from __future__ import annotations
 
 import hashlib
+import json
 import itertools
 import re
 import tomllib
@@ -134,7 +135,7 @@ def flatten(table: Any, path: Path, text: str) -> dict[str, list[Any]]:
                                "train.method, export.method)")
             if not isinstance(values, list) or not values:
                 raise BadInput(f"{where(path, text, name)}: grid key {name!r} needs a non-empty list of values, "
-                               f"e.g. {name} = [{values!r}]")
+                               f"e.g. {name} = [{json.dumps(values)}]")
             if len(set(map(repr, values))) != len(values):
                 raise BadInput(f"{where(path, text, name)}: grid key {name!r} lists a value twice: {values!r}")
             grid[name] = values
@@ -147,7 +148,7 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
     for key, values in grid.items():
         for value in values:
             for stage in allowed[key]:
-                option_value(stage, key.rsplit(".", 1)[-1], value, where(path, text, key))
+                option_value(stage, key.rsplit(".", 1)[-1], value, where(path, text, key), key)
     varying = [k for k, v in grid.items() if len(v) > 1]
     configs = []
     for combo in itertools.product(*grid.values()):
@@ -174,7 +175,7 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
     return configs
 
 
-def option_value(stage: str, name: str, value: Any, place: str) -> Any:
+def option_value(stage: str, name: str, value: Any, place: str, key: str = "") -> Any:
     """``value`` as the stage's option ``name`` takes it; a wrong type or value names ``place`` and the choices."""
     import enum
 
@@ -207,9 +208,9 @@ def option_value(stage: str, name: str, value: Any, place: str) -> Any:
         if place:
             replace(OPTIONS[stage](), **{name: value}).validate()
     except ValueError as error:
-        raise BadInput(f"{place}: grid key {name!r} value {value!r}: {error}") from None
+        raise BadInput(f"{place}: grid key {key or name!r} value {value!r}: {error}") from None
     except BadInput as error:
-        raise BadInput(f"{place}: grid key {name!r} value {value!r}: {error}") from None
+        raise BadInput(f"{place}: grid key {key or name!r} value {value!r}: {error}") from None
     return value
 
 
