@@ -327,3 +327,13 @@ def test_classes_and_weights_that_disagree_are_refused(exported, tmp_path):
     refused(write(tmp_path / "predicates.mlnseq", resealed(exported["mln"], manifest)), "binarize.toml makes predicate columns")
     manifest = manifest_of(exported["mln"]) | {"classes": ["a", "a", "b", "c", "d", "e", "f"]}
     refused(write(tmp_path / "twice.mlnseq", resealed(exported["mln"], manifest)), "'classes' is not a list of unique strings")
+
+
+def test_a_network_weight_of_0_loads_and_a_negative_one_is_refused(exported, tmp_path):
+    """The network factor's weight is learned by CLL over w >= 0: 0 (the network ignored: a 1-epoch network in the
+    sweep tests learns it) is a model file that loads; a negative weight is refused."""
+    zero = write(tmp_path / "zero.mlnseq", resealed(exported["combined"], manifest_of(exported["combined"])
+                                                    | {"network_weight": 0.0}))
+    assert runner.invoke(app, ["info", str(zero)]).exit_code == 0
+    refused(write(tmp_path / "negative.mlnseq", resealed(exported["combined"], manifest_of(exported["combined"])
+                                                         | {"network_weight": -1.0})), "null or a number >= 0")

@@ -29,3 +29,55 @@ def tiny_desk_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
     learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
     return workdir
+
+
+@pytest.fixture(scope="session")
+def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
+    """The tiny sweep (2 cells x 2 seeds, 1 epoch) run locally with --cores 2: interrupted with Ctrl-C (SIGINT to
+    its process group) once its first network is trained, then run again to the end; read-only."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from sweep_files import TINY_GRID, mlnseq, write_sweep
+
+    folder = tmp_path_factory.mktemp("local-sweep")
+    path = write_sweep(folder, tiny_desk_workdir, TINY_GRID)
+    command = [str(Path(sys.executable).with_name("mlnseq")), "sweep", str(path), "--cores", "2"]
+    process = subprocess.Popen(command, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    out = folder / "sweep"
+    deadline = time.monotonic() + 600
+    while not finished_trainings(out) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    os.killpg(process.pid, signal.SIGINT)
+    interrupted_out, interrupted_err = process.communicate(timeout=120)
+    finished = {out / p: (out / p).stat().st_mtime_ns for p in finished_trainings(out)}
+    started = time.monotonic()
+    resumed = mlnseq("sweep", str(path), "--cores", "2", cwd=folder)
+    return {"folder": folder, "path": path, "out": folder / "sweep", "interrupted": process.returncode,
+            "interrupted_stderr": interrupted_err, "finished_before": finished, "result": resumed,
+            "seconds": time.monotonic() - started}
+
+
+def finished_trainings(out: Path) -> list[str]:
+    """The outputs of the train jobs Snakemake's log (OUT/.snakemake/log/) reports finished."""
+    import re
+
+    outputs, finished = {}, set()
+    for log in out.glob(".snakemake/log/*.snakemake.log"):
+        rule = output = None
+        for line in log.read_text(errors="replace").splitlines():
+            stripped = line.strip()
+            if re.fullmatch(r"(local)?rule \w+:", stripped):
+                rule, output = stripped.split()[-1][:-1], None
+            elif rule == "train" and stripped.startswith("output: "):
+                output = stripped.removeprefix("output: ")
+            elif rule == "train" and stripped.startswith("jobid: ") and output:
+                outputs[(log, stripped.removeprefix("jobid: "))] = output
+            done = re.fullmatch(r"Finished jobid: (\d+) \(Rule: train\)", stripped)
+            if done:
+                finished.add((log, done.group(1)))
+    return sorted(outputs[key] for key in finished if key in outputs)
