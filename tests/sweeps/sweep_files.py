@@ -33,3 +33,5 @@ def refused(result, *words: str) -> str:
     for word in words:
         assert word in lines[0], lines[0]
     return lines[0]
+
+REPO = Path(__file__).resolve().parents[2]
