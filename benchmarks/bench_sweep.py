@@ -18,6 +18,7 @@ from pathlib import Path
 
 from mlnseq import binarize, collect, formulas, learn_weights
 from mlnseq.sweeps import grid, workflow
+from mlnseq_cli.sweep import STAGES
 
 REPO = Path(__file__).resolve().parents[1]
 DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
@@ -60,7 +61,7 @@ def main() -> None:
         path = folder / "sweep.toml"
         path.write_text(f'[sweep]\nworkdir = "{workdir}"\nseeds = [0, 1]\n\n[grid]\ncell = ["lstm", "tcn"]\n'
                         f"epochs = [{epochs}]\n")
-        sweep = grid.read(path)
+        sweep = grid.read(path, STAGES)
         load = os.getloadavg()[0]
         started = time.perf_counter()
         subprocess.run([mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")],

@@ -8,8 +8,12 @@ from typing import Annotated, Optional
 import typer
 
 from mlnseq_cli.console import console, reported_errors
+from mlnseq import conflate, export, train
 from mlnseq import sweep as stage
 from mlnseq.catalog.errors import BadInput
+
+# The stages whose options a grid sets (the command line wires them: the sweep stage imports no other stage).
+STAGES = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
 
 
 def sweep(
@@ -29,7 +33,7 @@ def sweep(
                            f"{', '.join(e.value for e in stage.Executor)}") from None
         options = stage.SweepOptions(cores=cores, executor=chosen, profile=profile, out=out,
                                      limit=None if yes else stage.grid.MAX_CONFIGS)
-        swept = stage.run(sweep_file, options)
+        swept = stage.run(sweep_file, options, STAGES)
     console.print("cross-validated on the training split (mean ± spread over seeds); test only for display:",
                   highlight=False)
     for line in summary_lines(swept):

@@ -61,10 +61,11 @@ class Swept:
     best: dict[str, Any]
 
 
-def plan(sweep_file: Path, options: SweepOptions) -> grid.Sweep:
-    """The sweep file read and checked, with the dataset's inputs and the profile: any error before anything runs."""
+def plan(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> grid.Sweep:
+    """The sweep file read and checked against the stages' options (``stages``: train, conflate and export's
+    dataclasses), with the dataset's inputs and the profile: any error comes before anything runs."""
     options.validate()
-    sweep = grid.read(sweep_file)
+    sweep = grid.read(sweep_file, stages)
     if options.limit is not None and len(sweep.configs) > options.limit:
         raise BadInput(f"{sweep_file}: the grid has {len(sweep.configs):,} configs (x {len(sweep.seeds)} seeds), over "
                        f"{options.limit:,}; shrink it or add --yes to run them all")
@@ -129,9 +130,9 @@ def run_snakemake(command: list[str]) -> int:
         raise
 
 
-def run(sweep_file: Path, options: SweepOptions) -> Swept:
+def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> Swept:
     """Run the sweep (only what is missing or stale) and gather OUT/results.parquet."""
-    sweep = plan(sweep_file, options)
+    sweep = plan(sweep_file, options, stages)
     out = options.out_dir(sweep)
     snakefile = workflow.write(sweep, out, mlnseq_command())
     try:

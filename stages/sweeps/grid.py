@@ -24,18 +24,20 @@ import re
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
-from mlnseq import conflate, export, train
 from mlnseq.catalog.errors import BadInput
 
 STAGES = ("train", "conflate", "export")
-OPTIONS = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
+# The options dataclass of each stage in STAGES, given by the caller (the command line wires the stages: a library
+# imports no stage); each has a default for every field and validate() raising BadInput.
+StageOptions = Mapping[str, type]
 FIXED = {"train": ("seed",), "conflate": ("decode",), "export": ("output",)}  # set by the sweep itself
 SHARED_BARE = {"mln_mode": ("conflate", "export"), "decode": ("export",)}  # bare keys with their own stages
 # What the sweep runs unless the grid says otherwise: stream networks whose folds follow the MLN's fold
 # weights, and the deployed method chosen by cross-validation among the online decoders.
-DEFAULTS = {"train": {"mode": "stream"}, "conflate": {}, "export": {"method": export.AUTO, "decode": "filter"}}
+DEFAULTS = {"train": {"mode": "stream"}, "conflate": {}, "export": {"method": "auto", "decode": "filter"}}
 SWEEP_KEYS = ("workdir", "seeds")
 MAX_CONFIGS = 1000
 
@@ -60,11 +62,11 @@ class Sweep:
     configs: tuple[Config, ...]
 
 
-def allowed_keys() -> dict[str, tuple[str, ...]]:
+def allowed_keys(stages: StageOptions) -> dict[str, tuple[str, ...]]:
     """Every grid key -> the stages it sets."""
     keys: dict[str, tuple[str, ...]] = {}
     for stage in STAGES:
-        for f in fields(OPTIONS[stage]):
+        for f in fields(stages[stage]):
             if f.name in FIXED[stage]:
                 continue
             keys[f"{stage}.{f.name}"] = (stage,)
@@ -86,7 +88,7 @@ def where(path: Path, text: str, key: str) -> str:
     return f"{path}{'' if line is None else f' line {line}'}"
 
 
-def read(path: Path) -> Sweep:
+def read(path: Path, stages: StageOptions) -> Sweep:
     """Read and check the sweep file; every error names the file, the line and the key."""
     path = Path(path)
     try:
@@ -100,29 +102,32 @@ def read(path: Path) -> Sweep:
         raise BadInput(f"{path} is not valid TOML: {error}") from None
     unknown = sorted(set(data) - {"sweep", "grid"})
     if unknown:
-        raise BadInput(f"{where(path, text, unknown[0])}: unknown table [{unknown[0]}]; a sweep file has [sweep] and [grid]")
+        raise BadInput(f"{where(path, text, unknown[0])}: unknown table [{unknown[0]}]; a sweep file has [sweep] "
+                       "and [grid]")
     head = data.get("sweep")
     if not isinstance(head, dict) or "workdir" not in head:
         raise BadInput(f"{path}: no [sweep] table with workdir = \"DATASET-WORKDIR\" and seeds = [0, 1]")
     for key in head:
         if key not in SWEEP_KEYS:
-            raise BadInput(f"{where(path, text, key)}: unknown [sweep] key {key!r}: choose one of {', '.join(SWEEP_KEYS)}")
+            raise BadInput(f"{where(path, text, key)}: unknown [sweep] key {key!r}: choose one of "
+                           f"{', '.join(SWEEP_KEYS)}")
     seeds = head.get("seeds", [0])
     if not isinstance(seeds, list) or not seeds or not all(type(s) is int and s >= 0 for s in seeds) \
             or len(set(seeds)) != len(seeds):
-        raise BadInput(f"{where(path, text, 'seeds')}: seeds must be a list of distinct whole numbers >= 0, got {seeds!r}")
+        raise BadInput(f"{where(path, text, 'seeds')}: seeds must be a list of distinct whole numbers >= 0, "
+                       f"got {seeds!r}")
     workdir = Path(str(head["workdir"]))
     if not workdir.is_absolute():
         workdir = path.parent / workdir
-    grid = flatten(data.get("grid", {}), path, text)
-    return Sweep(path, workdir, tuple(seeds), tuple(grid), tuple(expand(grid, path, text)))
+    grid = flatten(data.get("grid", {}), path, text, stages)
+    return Sweep(path, workdir, tuple(seeds), tuple(grid), tuple(expand(grid, path, text, stages)))
 
 
-def flatten(table: Any, path: Path, text: str) -> dict[str, list[Any]]:
+def flatten(table: Any, path: Path, text: str, stages: StageOptions) -> dict[str, list[Any]]:
     """The [grid] table as key -> values, ``export.method = [..]`` (a nested table in TOML) as "export.method"."""
     if not isinstance(table, dict):
         raise BadInput(f"{where(path, text, 'grid')}: [grid] must be a table of option = [values]")
-    allowed = allowed_keys()
+    allowed = allowed_keys(stages)
     grid: dict[str, list[Any]] = {}
     for key, value in table.items():
         items = [(f"{key}.{k}", v) for k, v in value.items()] if isinstance(value, dict) and key in STAGES \
@@ -142,13 +147,13 @@ def flatten(table: Any, path: Path, text: str) -> dict[str, list[Any]]:
     return grid
 
 
-def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
+def expand(grid: dict[str, list[Any]], path: Path, text: str, stages: StageOptions) -> list[Config]:
     """Every combination of the grid's values, in the file's order, each checked as the stages check options."""
-    allowed = allowed_keys()
+    allowed = allowed_keys(stages)
     for key, values in grid.items():
         for value in values:
             for stage in allowed[key]:
-                option_value(stage, key.rsplit(".", 1)[-1], value, where(path, text, key), key)
+                option_value(stages[stage], key.rsplit(".", 1)[-1], value, where(path, text, key), key)
     varying = [k for k, v in grid.items() if len(v) > 1]
     configs = []
     for combo in itertools.product(*grid.values()):
@@ -159,8 +164,8 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
             for key, value in values.items():
                 if stage in allowed[key]:
                     name = key.rsplit(".", 1)[-1]
-                    chosen[name] = option_value(stage, name, value, "")
-            options[stage] = replace(OPTIONS[stage](), **chosen)
+                    chosen[name] = option_value(stages[stage], name, value, "")
+            options[stage] = replace(stages[stage](), **chosen)
         configs.append(Config(config_name({k: values[k] for k in varying}), values, options))
     names = [c.name for c in configs]
     if len(set(names)) != len(names):  # two values that read the same in a folder name
@@ -175,12 +180,13 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str) -> list[Config]:
     return configs
 
 
-def option_value(stage: str, name: str, value: Any, place: str, key: str = "") -> Any:
-    """``value`` as the stage's option ``name`` takes it; a wrong type or value names ``place`` and the choices."""
+def option_value(options: type, name: str, value: Any, place: str, key: str = "") -> Any:
+    """``value`` as the option ``name`` of the stage whose dataclass is ``options`` takes it; a wrong type or value
+    names ``place`` and the choices. Without ``place``, the value is only converted."""
     import enum
 
-    field = next(f for f in fields(OPTIONS[stage]) if f.name == name)
-    default = getattr(OPTIONS[stage](), name)
+    field = next(f for f in fields(options) if f.name == name)
+    default = getattr(options(), name)
     kind = str(field.type)
     try:
         if isinstance(default, enum.Enum):
@@ -206,7 +212,7 @@ def option_value(stage: str, name: str, value: Any, place: str, key: str = "") -
         elif kind.startswith("str") and not isinstance(value, str):
             raise ValueError("use a quoted name")
         if place:
-            replace(OPTIONS[stage](), **{name: value}).validate()
+            replace(options(), **{name: value}).validate()
     except ValueError as error:
         raise BadInput(f"{place}: grid key {key or name!r} value {value!r}: {error}") from None
     except BadInput as error:
@@ -230,7 +236,7 @@ def flags(stage: str, options: Any) -> list[str]:
     """The command-line flags that give ``options`` of ``stage`` where they differ from the stage's defaults."""
     import enum
 
-    defaults = OPTIONS[stage]()
+    defaults = type(options)()
     out: list[str] = []
     for f in fields(options):
         value = getattr(options, f.name)

@@ -57,7 +57,8 @@ rule train:
     log: WORKDIR + "/logs/train-{{network}}.log"
     threads: 1
     resources: {train}
-    shell: "{{params.mlnseq}} train {{params.flags}} --seed {{wildcards.seed}} --workdir " + IN_SHELL + " > {{log}} 2>&1"
+    shell: ("{{params.mlnseq}} train {{params.flags}} --seed {{wildcards.seed}} --workdir " + IN_SHELL
+            + " > {{log}} 2>&1")
 
 rule conflate:
     input: lambda w: f"{runs}/{{w.config}}/seed-{{w.seed}}/models/{{CONFIGS[w.config]['network']}}.pt"

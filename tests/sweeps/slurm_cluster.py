@@ -57,7 +57,8 @@ def config(folder: Path, host: str, ports: tuple[int, int]) -> str:
 def check_machine() -> None:
     missing = [p for p in PROGRAMS if shutil.which(p) is None]
     if missing:
-        raise Unavailable(f"{', '.join(missing)} not installed (apt-get install slurm-wlm munge; make setup does as root)")
+        raise Unavailable(f"{', '.join(missing)} not installed (apt-get install slurm-wlm munge; make setup does "
+                          "as root)")
     if os.geteuid() != 0:
         raise Unavailable("slurmd and munged run as root here; run the test as root")
     if SYSTEM_CONF.exists():

@@ -12,6 +12,7 @@ from mlnseq.sweeps import grid
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
+from mlnseq_cli.sweep import STAGES
 from sweep_files import refused, write_sweep
 
 runner = CliRunner()
@@ -25,7 +26,7 @@ def mlnseq(*args: str, cwd: Path):
 def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tiny_desk_workdir):
     path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm", "gru"]\nhidden_size = [8, 16]\nepochs = [3]\n'
                        'export.method = ["conflation"]\nmln_mode = ["exact"]\n', seeds="[3]")
-    sweep = grid.read(path)
+    sweep = grid.read(path, STAGES)
     assert sweep.seeds == (3,) and sweep.keys == ("cell", "hidden_size", "epochs", "export.method", "mln_mode")
     assert [c.name for c in sweep.configs] == ["cell-lstm_hidden-size-8", "cell-lstm_hidden-size-16",
                                               "cell-gru_hidden-size-8", "cell-gru_hidden-size-16"]
@@ -76,10 +77,11 @@ def test_a_missing_workdir_input_names_the_stage_that_writes_it(tmp_path, tiny_d
 
 
 def test_more_than_1000_configs_need_yes(tmp_path, tiny_desk_workdir):
-    path = write_sweep(tmp_path, tiny_desk_workdir, f"hidden_size = {list(range(1, 35))}\nwindow = {list(range(1, 31))}")
+    grid_lines = f"hidden_size = {list(range(1, 35))}\nwindow = {list(range(1, 31))}"
+    path = write_sweep(tmp_path, tiny_desk_workdir, grid_lines)
     refused(mlnseq("sweep", str(path), cwd=tmp_path), "1,020 configs", "over 1,000", "--yes")
     assert not (tmp_path / "sweep").exists()
-    assert len(grid.read(path).configs) == 1020
+    assert len(grid.read(path, STAGES).configs) == 1020
 
 
 def test_a_slurm_profile_that_does_not_parse_submits_nothing(tmp_path, tiny_desk_workdir):
@@ -103,3 +105,9 @@ def test_the_example_profile_parses():
 
     settings = check_profile(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "slurm-profile")
     assert settings["executor"] == "slurm" and settings["slurm-status-command"] == "squeue"
+
+
+def test_the_example_sweep_file_reads():
+    sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
+    assert len(sweep.configs) == 6 and sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
+    assert sweep.configs[0].name == "cell-lstm_hidden-size-16"
