@@ -53,12 +53,11 @@ rule link:
 rule train:
     input: WORKDIR + "/.inputs-linked"
     output: WORKDIR + "/models/{{network}}.pt"
-    params: flags=lambda w: CONFIGS[w.config]["train"], mlnseq=config["mlnseq"]
+    params: flags=lambda w: CONFIGS[w.config]["train"] + " --seed " + w.seed, mlnseq=config["mlnseq"]
     log: WORKDIR + "/logs/train-{{network}}.log"
     threads: 1
     resources: {train}
-    shell: ("{{params.mlnseq}} train {{params.flags}} --seed {{wildcards.seed}} --workdir " + IN_SHELL
-            + " > {{log}} 2>&1")
+    shell: "{{params.mlnseq}} train {{params.flags}} --workdir " + IN_SHELL + " > {{log}} 2>&1"
 
 rule conflate:
     input: lambda w: f"{runs}/{{w.config}}/seed-{{w.seed}}/models/{{CONFIGS[w.config]['network']}}.pt"

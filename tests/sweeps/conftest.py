@@ -52,6 +52,9 @@ def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
     deadline = time.monotonic() + 600
     while not finished_trainings(out) and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.2)
+    if process.poll() is not None:
+        pytest.fail(f"the sweep ended (exit {process.returncode}) before a training finished: "
+                    f"{process.communicate()[1][-3000:]}")
     os.killpg(process.pid, signal.SIGINT)
     interrupted_out, interrupted_err = process.communicate(timeout=120)
     finished = {out / p: (out / p).stat().st_mtime_ns for p in finished_trainings(out)}
