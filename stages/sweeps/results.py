@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import shlex
 import statistics
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,19 +68,13 @@ def spread(values: list[float]) -> float:
 
 
 def deploy_command(config: Config, result: SeedResult, workdir: Path) -> str:
-    """The `mlnseq export` command that writes the model file of ``result``'s method from ``workdir``."""
+    """The `mlnseq export` command that writes the model file of ``result``'s method from ``workdir``: its method
+    and decoding written out, then the config's other export options."""
     method, _, decode = result.method.partition("+")
-    export_flags = [f for f in flags("export", config.options["export"])]
-    kept, skip = [], False
-    for flag in export_flags:  # method and decode are written out as chosen
-        if skip:
-            skip = False
-            continue
-        if flag in ("--method", "--decode"):
-            skip = True
-            continue
-        kept.append(flag)
-    return shlex.join(["mlnseq", "export", "--method", method, "--decode", decode or "none", *kept,
+    options = config.options["export"]
+    defaults = type(options)()
+    others = flags("export", replace(options, method=defaults.method, decode=defaults.decode))
+    return shlex.join(["mlnseq", "export", "--method", method, "--decode", decode or "none", *others,
                        "--workdir", str(workdir)])
 
 
