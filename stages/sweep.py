@@ -9,6 +9,7 @@ missing or stale, and an interrupted sweep resume.
 from __future__ import annotations
 
 import enum
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -119,6 +120,14 @@ def snakemake_command(snakefile: Path, out: Path, options: SweepOptions) -> list
     return command + ["--cores", str(options.cores or os.cpu_count() or 1)]
 
 
+def installed(module: str) -> bool:
+    """Whether ``module`` can be imported here (without importing it)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ValueError, ImportError):  # a module blocked in sys.modules
+        return False
+
+
 def run_snakemake(command: list[str]) -> int:
     """Snakemake as a process, its output on stderr; on Ctrl-C (which reaches it too) wait while it stops its jobs
     and unlocks the folder, so that the next run resumes."""
@@ -133,12 +142,13 @@ def run_snakemake(command: list[str]) -> int:
 def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> Swept:
     """Run the sweep (only what is missing or stale) and gather OUT/results.parquet."""
     sweep = plan(sweep_file, options, stages)
+    if not installed("snakemake"):
+        raise BadInput("mlnseq sweep runs on Snakemake, which is not installed: pip install 'mlnseq[sweep]' "
+                       "(make setup installs it)")
+    if options.executor is Executor.SLURM and not installed("snakemake_executor_plugin_slurm"):
+        raise BadInput("--executor slurm needs Snakemake's SLURM executor: pip install 'mlnseq[sweep]'")
     out = options.out_dir(sweep)
     snakefile = workflow.write(sweep, out, mlnseq_command())
-    try:
-        import snakemake  # noqa: F401  (the extra `sweep`: pip install 'mlnseq[sweep]')
-    except ImportError:
-        raise BadInput("mlnseq sweep needs Snakemake: pip install 'mlnseq[sweep]' (make setup installs it)") from None
     code = run_snakemake(snakemake_command(snakefile, out, options))
     if code != 0:
         raise MlnseqError(f"the sweep's workflow failed (snakemake exit {code}): see its output above and "

@@ -111,3 +111,16 @@ def test_the_example_sweep_file_reads():
     sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
     assert len(sweep.configs) == 6 and sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
     assert sweep.configs[0].name == "cell-lstm_hidden-size-16"
+
+
+def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir):
+    """In a Python where Snakemake cannot be imported (blocked in sys.modules), one line names the extra `sweep`."""
+    import subprocess
+    import sys
+
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm"]')
+    code = ("import sys; sys.modules['snakemake'] = None; from mlnseq_cli.main import main; "
+            f"sys.argv = ['mlnseq', 'sweep', {str(path)!r}]; main()")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    refused(done, "pip install 'mlnseq[sweep]'")
+    assert not (tmp_path / "sweep").exists()
