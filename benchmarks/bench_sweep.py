@@ -52,6 +52,14 @@ def one_after_another(sweep: grid.Sweep, folder: Path, mlnseq: str) -> float:
     return time.perf_counter() - started
 
 
+def children_cpu() -> float:
+    """CPU seconds (user + system) of the finished child processes so far."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def main() -> None:
     epochs = int(os.environ.get("BENCH_SWEEP_EPOCHS", "10"))
     mlnseq = str(Path(sys.executable).with_name("mlnseq"))
@@ -63,15 +71,17 @@ def main() -> None:
                         f"epochs = [{epochs}]\n")
         sweep = grid.read(path, STAGES)
         load = os.getloadavg()[0]
-        started = time.perf_counter()
+        cpu, started = children_cpu(), time.perf_counter()
         subprocess.run([mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")],
                        check=True, capture_output=True)
-        swept = time.perf_counter() - started
+        swept, swept_cpu = time.perf_counter() - started, children_cpu() - cpu
+        cpu = children_cpu()
         serial = one_after_another(sweep, folder / "serial", mlnseq)
+        serial_cpu = children_cpu() - cpu
         print(f"sweep of 2 cells x 2 seeds on DESK ({epochs} epochs, 4 trainings with 3 fold networks, 4 conflate "
-              f"and 4 eval): mlnseq sweep --cores {CORES} {swept:.1f} s, the same commands one after another "
-              f"{serial:.1f} s, ratio {serial / swept:.2f}x (load average {load:.1f} before, "
-              f"{os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores)")
+              f"and 4 eval): mlnseq sweep --cores {CORES} {swept:.1f} s (CPU {swept_cpu:.1f} s), the same commands "
+              f"one after another {serial:.1f} s (CPU {serial_cpu:.1f} s), ratio {serial / swept:.2f}x (load "
+              f"average {load:.1f} before, {os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores)")
 
 
 if __name__ == "__main__":
