@@ -43,8 +43,8 @@ def one_after_another(sweep: grid.Sweep, folder: Path, mlnseq: str) -> float:
         for seed in sweep.seeds:
             workdir = folder / name / f"seed-{seed}"
             workdir.mkdir(parents=True)
-            for input_name in config["inputs"]:
-                (workdir / input_name).symlink_to(Path(config["shared"]) / input_name)
+            for input_name, source in flags["sources"].items():
+                (workdir / input_name).symlink_to(source)
             for command in (f"train {flags['train']} --seed {seed}", f"conflate --decode all {flags['conflate']}",
                             "eval --method all"):
                 subprocess.run([mlnseq, *shlex.split(command), "--workdir", str(workdir)], check=True,

@@ -39,6 +39,7 @@ SHARED_BARE = {"mln_mode": ("conflate", "export"), "decode": ("export",)}  # bar
 # weights, and the deployed method chosen by cross-validation among the online decoders.
 DEFAULTS = {"train": {"mode": "stream"}, "conflate": {}, "export": {"method": "auto", "decode": "filter"}}
 SWEEP_KEYS = ("workdir", "seeds")
+FORMULAS = "formulas"  # a grid key of .mln files: each is written (formulas --spec) and learned (learn-weights --folds)
 MAX_CONFIGS = 1000
 
 
@@ -49,6 +50,7 @@ class Config:
     name: str
     values: dict[str, Any]  # grid key as written -> value
     options: dict[str, Any]  # stage -> its options dataclass
+    formulas: Path | None = None  # the grid's formulas file: None, the dataset's weights
 
 
 @dataclass(frozen=True)
@@ -133,18 +135,28 @@ def flatten(table: Any, path: Path, text: str, stages: StageOptions) -> dict[str
         items = [(f"{key}.{k}", v) for k, v in value.items()] if isinstance(value, dict) and key in STAGES \
             else [(key, value)]
         for name, values in items:
-            if name not in allowed:
+            if name not in allowed and name != FORMULAS:
                 close = [k for k in allowed if "." not in k]
-                raise BadInput(f"{where(path, text, name)}: unknown grid key {name!r}: choose among the options of "
-                               f"train, conflate and export: {', '.join(close)} (qualify a shared name: "
-                               "train.method, export.method)")
+                raise BadInput(f"{where(path, text, name)}: unknown grid key {name!r}: choose {FORMULAS} (.mln "
+                               f"files) or among the options of train, conflate and export: {', '.join(close)} "
+                               "(qualify a shared name: train.method, export.method)")
             if not isinstance(values, list) or not values:
                 raise BadInput(f"{where(path, text, name)}: grid key {name!r} needs a non-empty list of values, "
                                f"e.g. {name} = [{json.dumps(values)}]")
             if len(set(map(repr, values))) != len(values):
                 raise BadInput(f"{where(path, text, name)}: grid key {name!r} lists a value twice: {values!r}")
+            if name == FORMULAS:
+                for value in values:
+                    if not isinstance(value, str) or not formulas_path(path, value).is_file():
+                        raise BadInput(f"{where(path, text, name)}: grid key {name!r}: {value!r} is not a formulas "
+                                       "file (.mln; a path relative to the sweep file, or absolute)")
             grid[name] = values
     return grid
+
+
+def formulas_path(sweep_file: Path, value: str) -> Path:
+    path = Path(value)
+    return path if path.is_absolute() else sweep_file.parent / path
 
 
 def expand(grid: dict[str, list[Any]], path: Path, text: str, stages: StageOptions) -> list[Config]:
@@ -152,7 +164,7 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str, stages: StageOptio
     allowed = allowed_keys(stages)
     for key, values in grid.items():
         for value in values:
-            for stage in allowed[key]:
+            for stage in allowed.get(key, ()):
                 option_value(stages[stage], key.rsplit(".", 1)[-1], value, where(path, text, key), key)
     varying = [k for k, v in grid.items() if len(v) > 1]
     configs = []
@@ -162,11 +174,13 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str, stages: StageOptio
         for stage in STAGES:
             chosen = dict(DEFAULTS[stage])
             for key, value in values.items():
-                if stage in allowed[key]:
+                if stage in allowed.get(key, ()):
                     name = key.rsplit(".", 1)[-1]
                     chosen[name] = option_value(stages[stage], name, value, "")
             options[stage] = replace(stages[stage](), **chosen)
-        configs.append(Config(config_name({k: values[k] for k in varying}), values, options))
+        spec = formulas_path(path, values[FORMULAS]).resolve() if FORMULAS in values else None
+        shown = {k: Path(values[k]).stem if k == FORMULAS else values[k] for k in varying}
+        configs.append(Config(config_name(shown), values, options, spec))
     names = [c.name for c in configs]
     if len(set(names)) != len(names):  # two values that read the same in a folder name
         configs = [replace(c, name=hashed(c.values)) for c in configs]

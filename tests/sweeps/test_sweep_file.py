@@ -47,6 +47,7 @@ def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tin
     ('export.output = ["x.mlnseq"]', ["line 6", "'export.output'"]),
     ('cell = "tcn"', ["line 6", "non-empty list", '["tcn"]']),
     ('decode = ["none"]', ["refused by export", "--method auto chooses among decoded methods"]),
+    ('formulas = ["no-such.mln"]', ["line 6", "'formulas'", "'no-such.mln' is not a formulas file"]),
 ])
 def test_a_bad_grid_is_one_line_naming_its_line_and_key(tmp_path, tiny_desk_workdir, grid_lines, words):
     path = write_sweep(tmp_path, tiny_desk_workdir, grid_lines)
@@ -105,6 +106,13 @@ def test_the_example_profile_parses():
 
     settings = check_profile(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "slurm-profile")
     assert settings["executor"] == "slurm" and settings["slurm-status-command"] == "squeue"
+
+
+def test_a_formulas_key_names_configs_by_the_files_stem(tmp_path, tiny_desk_workdir, repo_root):
+    grid_lines = f'formulas = ["{repo_root}/examples/temporal.mln", "{repo_root}/examples/conjunctive.mln"]'
+    sweep = grid.read(write_sweep(tmp_path, tiny_desk_workdir, grid_lines), STAGES)
+    assert [c.name for c in sweep.configs] == ["formulas-temporal", "formulas-conjunctive"]
+    assert sweep.configs[1].formulas == (repo_root / "examples" / "conjunctive.mln").resolve()
 
 
 def test_the_example_sweep_file_reads():

@@ -92,3 +92,28 @@ def test_a_rerun_does_nothing_and_a_stale_file_is_redone_alone(local_sweep):
     assert "rule train:" not in redone.stderr and "rule conflate:" not in redone.stderr
     assert stale.exists() and pl.read_parquet(out / "results.parquet").equals(table)
     print(f"resumed sweep: {local_sweep['seconds']:.1f} s", file=sys.stderr)
+
+
+def test_a_grid_over_formulas_files_learns_each_ones_weights_with_the_datasets_folds(tmp_path, tiny_desk_workdir,
+                                                                                    repo_root):
+    """formulas = [temporal.mln, conjunctive.mln]: each file is written and its weights learned with the dataset's
+    3 folds in OUT/formulas/STEM, and each config's workdir links those weights; temporal.mln's are the dataset's."""
+    from sweep_files import write_sweep
+
+    grid = (f'formulas = ["{repo_root}/examples/temporal.mln", "{repo_root}/examples/conjunctive.mln"]\n'
+            "epochs = [1]\n")
+    path = write_sweep(tmp_path, tiny_desk_workdir, grid, seeds="[0]")
+    done = mlnseq("sweep", str(path), "--cores", "2", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = tmp_path / "sweep"
+    table = pl.read_parquet(out / "results.parquet")
+    assert table["config"].to_list() == ["formulas-temporal", "formulas-conjunctive"]
+    for stem in ("temporal", "conjunctive"):
+        learned = out / "formulas" / stem
+        assert metadata(learned / "weights.folds.parquet")["folds"]["k"] == 3
+        for name in ("weights.parquet", "weights.folds.parquet"):
+            assert (out / "runs" / f"formulas-{stem}" / "seed-0" / name).resolve() == (learned / name).resolve()
+    same = pl.read_parquet(out / "formulas" / "temporal" / "weights.parquet")
+    assert same.equals(pl.read_parquet(tiny_desk_workdir / "weights.parquet"))
+    conjunctive = pl.read_parquet(out / "formulas" / "conjunctive" / "weights.parquet")
+    assert not conjunctive.equals(same)
