@@ -24,7 +24,7 @@ def sweep(
     out: Annotated[Optional[Path], typer.Option(help="Where the workflow, the runs and results.parquet go \\[default: sweep/ beside the sweep file].", file_okay=False)] = None,
     yes: Annotated[bool, typer.Option("--yes", help="Run a grid of more than 1,000 configs.")] = False,
 ) -> None:
-    """Read SWEEP_FILE and its dataset workdir (frames, predicates, weights and fold weights); write OUT/Snakefile, OUT/sweep.json, per config and seed OUT/runs/CONFIG/seed-N (train, conflate --decode all, eval, the inputs linked) and OUT/results.parquet: per config its cross-validated segment and frame accuracy and edit (means over seeds, with spreads), the test figures for display only, and the `mlnseq export` command that deploys it. A rerun does only what is missing or stale. The last line names the best config by cross-validation."""
+    """Read SWEEP_FILE and its dataset workdir (frames, predicates, weights and fold weights); write OUT/Snakefile, OUT/sweep.json, per config and seed OUT/runs/CONFIG/seed-N (train, conflate --decode all, eval, the inputs linked), with a grid key formulas OUT/formulas/STEM (formulas, learn-weights --folds K) and OUT/results.parquet: per config its cross-validated segment and frame accuracy and edit (means over seeds, with spreads), the test figures for display only, and the `mlnseq export` command that deploys it. A rerun does only what is missing or stale. The last line names the best config by cross-validation."""
     with reported_errors():
         try:
             chosen = stage.Executor(executor)
