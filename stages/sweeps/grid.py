@@ -12,19 +12,20 @@ export.method = ["auto"]      # a name two stages share is qualified: train.meth
 ```
 
 A bare key names a train option, else a conflate option, else an export option (``mln_mode`` goes to conflate
-and export, ``decode`` to export: conflate always predicts every decoding so that each has figures).
+and export, ``decode`` to export: conflate always predicts every decoding so that each has figures). The key
+``formulas`` lists .mln files, each learned with the dataset's folds (stages/sweeps/workflow.py).
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import itertools
+import json
 import re
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from collections.abc import Mapping
 from typing import Any
 
 from mlnseq.catalog.errors import BadInput
