@@ -34,4 +34,4 @@ def refused(result, *words: str) -> str:
         assert word in lines[0], lines[0]
     return lines[0]
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
