@@ -15,7 +15,7 @@ help: ## List the targets
 
 setup: $(SETUP_DONE) $(PRACMLN_DONE) ## Create .venv with mlnseq, its test dependencies and pracmln
 
-$(SETUP_DONE): pyproject.toml scripts/setup.sh
+$(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/link_ros1.py
 	bash scripts/setup.sh
 
 # pracmln (the paper's MLN engine) is optional: the tests compare against it, the reproduction does not use it.

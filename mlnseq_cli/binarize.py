@@ -15,10 +15,11 @@ from mlnseq import binarize as stage
 def binarize(
     spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: the built-in spec of the frames' source, stages/specs/<source>.binarize.toml].", dir_okay=False)] = None,
     table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true.")] = False,
+    max_columns: Annotated[int, typer.Option(help="Refuse a spec that makes more predicate columns than this (a pair makes one per combination).")] = stage.BinarizeOptions.max_columns,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet and a predicate spec; write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
-    options = stage.BinarizeOptions(spec=spec)
+    options = stage.BinarizeOptions(spec=spec, max_columns=max_columns)
     with reported_errors():
         path, binarized = stage.run(workdir, options)
     columns = binarized.meta["predicates"]

@@ -12,12 +12,21 @@ from mlnseq import conflate as stage
 
 
 def conflate(
-    mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper (the authors' normalised clamped sums) or exact (softmax of the scores).")] = stage.ConflateOptions.mln_mode,
-    decode: Annotated[str, typer.Option(help="none (per frame, the paper), filter (online chain decoding), viterbi (offline), all, or a comma list.")] = "none",
-    network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, auto (chosen on the validation part) or a number.")] = "auto",
+    mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper (the authors' normalised floored sums, "
+                                               "floored as the networks were trained: train --paper-floor) or exact "
+                                               "(softmax of the scores).")] = stage.ConflateOptions.mln_mode.value,
+    decode: Annotated[str, typer.Option(help="none (per frame, the paper), filter (online chain decoding), viterbi "
+                                             "(offline), all, or a comma list.")] = "none",
+    network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, "
+                                                     "auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln, priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight learned on the out-of-fold predictions of networks trained with --folds, else chosen on the validation part; with fold networks also every method's cross-validated figures on the training split, in the metadata)."""
+    """Read WORKDIR/frames.parquet, models/*.pt, predicates.parquet and weights.parquet; write
+    WORKDIR/predictions.parquet (keys, then per method METHOD_pred and METHOD_p0.. class probabilities for lstm, mln,
+    priorlayer, conflation = lstm+MLN and combined = priorlayer+MLN, eq. 16; with --decode also METHOD+filter and
+    METHOD+viterbi, decoded over each episode with the MLN's temporal formulas, the network factor's weight learned
+    on the out-of-fold predictions of networks trained with --folds, else chosen on the validation part; with fold
+    networks also every method's cross-validated figures on the training split, in the metadata)."""
     with reported_errors():
         options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
                                         network_weight=stage.parse_network_weight(network_weight))
@@ -29,5 +38,6 @@ def conflate(
         if choice.how == "learned":
             console.print(f"{name}: network factor weight {choice.weight:.3g} (learned on out-of-fold predictions)")
         elif choice.accuracy is not None:
-            console.print(f"{name}: network factor weight {choice.weight:g} (validation frame accuracy {choice.accuracy:.1%})")
+            console.print(f"{name}: network factor weight {choice.weight:g} "
+                          f"(validation frame accuracy {choice.accuracy:.1%})")
     console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)})")

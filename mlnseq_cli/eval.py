@@ -14,12 +14,19 @@ from mlnseq.timeline.metrics import EARLY_FRACTIONS
 
 
 def evaluate(
-    method: Annotated[str, typer.Option(help="lstm, mln, priorlayer, conflation, combined (each optionally +filter or +viterbi, as conflate --decode made them) or all.")] = stage.EvalOptions.method,
-    fraction: Annotated[float, typer.Option(help="Recognise each segment at frame max(int(len*F)-1, 0), 0 < F <= 1 (the paper: 0.5).")] = stage.EvalOptions.fraction,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of tables.")] = False,
+    method: Annotated[str, typer.Option(help="network (the network alone; also lstm), mln, priorlayer, conflation, "
+                                             "combined (each optionally +filter or +viterbi, as conflate --decode made "
+                                             "them) or all.")] = stage.EvalOptions.method,
+    fraction: Annotated[float, typer.Option(help="Recognise each segment at frame max(int(len*F)-1, 0), 0 < F <= 1 "
+                                                 "(the paper: 0.5).")] = stage.EvalOptions.fraction,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of "
+                                                         "tables.")] = False,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy at the fraction, per-class and early-recognition accuracy, frame accuracy, macro F1 over segments (per-class F1 of the segments recognised at the fraction, averaged over the classes), confusion and, without segment boundaries, edit score and F1@10/25/50."""
+    """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy
+    at the fraction, per-class and early-recognition accuracy, frame accuracy, macro F1 over segments (per-class F1
+    of the segments recognised at the fraction, averaged over the classes), confusion and, without segment
+    boundaries, edit score and F1@10/25/50."""
     options = stage.EvalOptions(method=method, fraction=fraction)
     with reported_errors():
         result = stage.run(workdir, options)

@@ -12,6 +12,7 @@ import functools
 import importlib
 import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
@@ -43,6 +44,7 @@ COMMANDS = {
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
+    "ros": Command("ros", "ros", "A ROS 1 node recognising the model's topics live: the activity on a topic."),
     "sweep": Command("sweep", "sweep", "Run a grid of options x seeds through Snakemake, locally or on SLURM: "
                      "OUT/results.parquet."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
@@ -115,7 +117,18 @@ class MlnseqGroup(FlagGroup):
                 path = project_config.find(ctx.params.get("config"), _workdir_in(args[1:]))
                 if path is not None:
                     ctx.default_map = project_config.load(path, self.stage_commands(ctx))
-        return super().invoke(ctx)
+        try:
+            return super().invoke(ctx)
+        except ImportError as error:  # a command whose module imports an optional library at its top
+            from mlnseq.catalog.errors import missing_extra
+            from mlnseq_cli.console import fail, verbose
+
+            missing = missing_extra(error)
+            if missing is None:
+                raise
+            if verbose():
+                traceback.print_exc(file=sys.stderr)
+            raise fail(str(missing), missing.exit_code) from None
 
     def stage_commands(self, ctx: Any) -> dict[str, Any]:
         return {name: self.get_command(ctx, name) for name in self.list_commands(ctx) if name != "config"}

@@ -17,7 +17,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.predicates import rules as predicate_rules
 from mlnseq.catalog.errors import BadInput
-from mlnseq.predicates.spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
+from mlnseq.predicates.spec import (
+    MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec,
+)
 
 __all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
            "parse_spec", "run", "true_shares"]
@@ -28,8 +30,11 @@ class BinarizeOptions:
     """Options of `mlnseq binarize`."""
 
     spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
+    max_columns: int = MAX_COLUMNS  # refuse a spec that makes more predicate columns
 
     def validate(self) -> None:
+        if self.max_columns < 1:
+            raise BadInput(f"--max-columns {self.max_columns}: allow at least 1 column")
         if self.spec is not None and not Path(self.spec).is_file():
             raise BadInput(f"--spec {self.spec} not found: point it at a .binarize.toml file")
 
@@ -88,7 +93,7 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
     if options.spec is None and not spec_path.is_file():
         raise BadInput(f"no built-in spec for frames of source {source!r} ({spec_path} not found); pass --spec FILE")
-    spec = load_spec(spec_path)
+    spec = load_spec(spec_path, options.max_columns)
     predicates = binarize(frames, spec)
     meta = {
         "predicates": spec.columns(),

@@ -44,7 +44,8 @@ class WrittenFormulas:
 def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...], class_names: list[str]) -> str:
     """formulas.mln: provenance, the training constants as comments, declarations, formulas (classes as the
     frames name them)."""
-    order = [f"// label order (the paper's C0 .. C{len(class_names) - 1}): {', '.join(class_names)}"] if class_names else []
+    order = ([f"// label order (the paper's C0 .. C{len(class_names) - 1}): {', '.join(class_names)}"]
+             if class_names else [])
     lines = [
         f"// mlnseq formulas from {spec.name}: templates are expanded by `mlnseq learn-weights`",
         f"// word = {{{', '.join(words)}}}",

@@ -72,7 +72,8 @@ def build_objective(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace
     entries: dict[bool, list[list[np.ndarray]]] = {False: [[], [], []], True: [[], [], []]}
     determined = np.zeros(n_unique * n_atoms, dtype=bool)
 
-    def add(column: int, hard: bool, grounding, pair_rows: np.ndarray, where: np.ndarray, pair_space, slot: int) -> None:
+    def add(column: int, hard: bool, grounding, pair_rows: np.ndarray, where: np.ndarray, pair_space,
+            slot: int) -> None:
         observed = truth(grounding, pair_rows, pair_space)
         for index in atom_indices(grounding, pair_space):
             if not slot <= index < slot + n_atoms:

@@ -105,7 +105,7 @@ class Objective:
         unary = frame_counts(per_frame, hard[~temporal].tolist(), rows, _subspace(space, frame_columns))
         pairwise = pair_counts(between, hard[temporal].tolist(), *pair_columns.rows(pairs),
                                _subspace(space, pair_columns.read))
-        self.unary_counts, self.pairwise_counts = unary.matrix, pairwise.matrix
+        self.unary_counts, self.pairwise_counts = unary.sparse(), pairwise.sparse()
         self.unary_forbidden = unary.forbidden.reshape(self.data.n_rows, n_classes)
         self.pairwise_forbidden = pairwise.forbidden.reshape(self.data.n_pairs, n_classes, n_classes)
         data = self.data
@@ -120,7 +120,8 @@ class Objective:
             (data.link[joined] * n_classes + data.labels[joined - 1]) * n_classes + data.labels[joined],
             minlength=data.n_pairs * n_classes ** 2)
         per_formula = np.argsort(np.concatenate([np.flatnonzero(~temporal), np.flatnonzero(temporal)]))
-        self.counts = sparse.block_diag([self.unary_counts, self.pairwise_counts]).tocsc()[:, per_formula][:, self.learned]
+        self.counts = sparse.block_diag([self.unary_counts, self.pairwise_counts]).tocsc()[:, per_formula][
+            :, self.learned]
         self.repeats = Repeats.of(data.row, data.link)
         self.evaluations = 0
 
@@ -220,7 +221,8 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
             for run, iterations in enumerate(runs):
                 if run:
                     metric = objective.hessian(learned)
-                metric += 1e-9 * max(np.trace(metric) / n_learned, 1e-12) * np.eye(n_learned)  # l2 = 0: keep it definite
+                # l2 = 0: keep it definite
+                metric += 1e-9 * max(np.trace(metric) / n_learned, 1e-12) * np.eye(n_learned)
                 factor = linalg.cholesky(metric, lower=True)  # learned + factor^-T z
 
                 def whitened(z: np.ndarray) -> tuple[float, np.ndarray]:

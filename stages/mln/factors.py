@@ -62,10 +62,11 @@ def frame_space(columns: Sequence[str], n_classes: int) -> AtomSpace:
     return AtomSpace(tuple(columns), tuple(class_constant(k) for k in range(n_classes)))
 
 
-def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...], hard_weight: float | None) -> np.ndarray:
+def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...],
+            hard_weight: float | None) -> np.ndarray:
     weights = np.array([0.0 if f.hard and hard_weight is None else (hard_weight if f.hard else f.weight)
                         for f in formulas])
-    scores = (counts.matrix @ weights if len(formulas) else np.zeros(counts.matrix.shape[0])).reshape(shape)
+    scores = counts.dot(weights).reshape(shape)
     if hard_weight is None:
         scores[counts.forbidden.reshape(shape)] = -np.inf
     return scores

@@ -84,7 +84,7 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         rows, starts = chains(held, data.episodes, folds.fold)
         fold_mln: MLNInputs | None = cv.mln[k] if cv.mln else None
         p_mln = None if fold_mln is None else np.exp(classifier.class_log_probs(fold_mln.scores, mln_mode,
-                                                                                  inputs.source))
+                                                                                  inputs.paper_floor))
         factors = None
         if fold_mln is not None and any(d != "none" for d in decodes):
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)

@@ -14,6 +14,7 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.parts import Part
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
@@ -36,18 +37,18 @@ class Folds:
 
     def splits(self, k: int) -> np.ndarray:
         """The splits with fold ``k``'s rows marked ``heldout``: what a fold's network and MLN are fitted without."""
-        return np.where(self.fold == k, "heldout", np.where(self.fold >= 0, "train", "test"))
+        return np.where(self.fold == k, Part.HELDOUT, np.where(self.fold >= 0, Part.TRAIN, Part.TEST))
 
 
 def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
     """The largest K the training split allows: its episodes, or its blocks of MIN_BLOCK_FRAMES frames."""
-    train = np.asarray(splits) == "train"
+    train = np.asarray(splits) == Part.TRAIN
     return max(len(np.unique(np.asarray(episodes)[train])), int(train.sum()) // MIN_BLOCK_FRAMES)
 
 
 def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--folds") -> Folds:
     """Cut the training rows into ``k`` folds (deterministic); refuse a K the split cannot make."""
-    episodes, train = np.asarray(episodes), np.asarray(splits) == "train"
+    episodes, train = np.asarray(episodes), np.asarray(splits) == Part.TRAIN
     most = largest(episodes, splits)
     if k < 2 or k > most:
         raise BadInput(f"{option} {k}: cross-validation needs at least 2 folds and this training split allows at "

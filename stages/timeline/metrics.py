@@ -57,7 +57,8 @@ def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
 def overlap_counts(predicted: np.ndarray, truth: np.ndarray, overlap: float) -> tuple[int, int, int]:
     """tp, fp, fn of segmental F1@overlap: a predicted segment is a hit when its IoU with a not yet
     matched true segment of the same class reaches ``overlap`` (MS-TCN's f_score)."""
-    p, t = np.array(label_runs(predicted), dtype=np.int64).reshape(-1, 3), np.array(label_runs(truth), dtype=np.int64).reshape(-1, 3)
+    p = np.array(label_runs(predicted), dtype=np.int64).reshape(-1, 3)
+    t = np.array(label_runs(truth), dtype=np.int64).reshape(-1, 3)
     matched = np.zeros(len(t), dtype=bool)
     if not len(t):
         return 0, len(p), 0

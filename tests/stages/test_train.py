@@ -139,3 +139,30 @@ def test_select_last_holds_out_a_validation_part_and_keeps_the_last_epoch(desk_w
     assert trained.log.filter(pl.col("split") == "val").height == 3
     spans = checkpoints.load_checkpoint(desk_workdir, "lstm").config["val_spans"]
     assert [tuple(s) for s in spans] == trained.val_spans and spans
+
+
+def test_the_paper_floor_is_chosen_at_train_time_and_conflate_floors_the_mln_with_it(tmp_path, desk_mln_workdir):
+    """--paper-floor is recorded in the checkpoint (default: the dataset's, clamp for DESK, shift for the Fetch
+    simulation); conflate floors the MLN's sums as the networks were trained, and refuses networks that disagree."""
+    from mlnseq import conflate
+    from mlnseq.catalog.methods import PaperFloor
+    from mlnseq.mln import classifier
+
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    assert PaperFloor.for_recordings("fetch") == "shift" and PaperFloor.for_recordings("desk") == "clamp"
+    train.run(tmp_path, train.TrainOptions(method="priorlayer", mode="stream", epochs=1, folds=0, paper_floor="shift"))
+    config = checkpoints.load_checkpoint(tmp_path, "priorlayer").config
+    assert config["paper_floor"] == config["options"]["paper_floor"] == "shift"
+    conflate.run(tmp_path, conflate.ConflateOptions())
+    predictions, meta = artifacts.read_table(tmp_path / artifacts.PREDICTIONS, "predictions")
+    scores = classifier.class_scores(pl.read_parquet(tmp_path / artifacts.PREDICATES),
+                                     pl.read_parquet(tmp_path / artifacts.WEIGHTS), meta["classes"])
+    mln = predictions.select(artifacts.prob_columns("mln", 7)).to_numpy()
+    assert meta["paper_floor"] == "shift"
+    assert np.allclose(mln, np.exp(classifier.class_log_probs(scores, "paper", "shift")), atol=1e-6)
+    assert not np.allclose(mln, np.exp(classifier.class_log_probs(scores, "paper", "clamp")), atol=1e-3)
+    train.run(tmp_path, train.TrainOptions(method="network", mode="stream", epochs=1, folds=0))
+    assert checkpoints.load_checkpoint(tmp_path, "lstm").config["paper_floor"] == "clamp"  # DESK's
+    with pytest.raises(BadInput, match="trained with different --paper-floor"):
+        conflate.run(tmp_path, conflate.ConflateOptions())

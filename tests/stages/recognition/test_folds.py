@@ -92,11 +92,11 @@ def test_the_learned_weight_follows_how_informative_the_network_is(desk_folds_wo
 def test_export_auto_picks_the_best_cross_validated_method(desk_folds_workdir, tmp_path):
     exported = export.run(desk_folds_workdir, export.ExportOptions(method="auto", decode="viterbi",
                                                                     output=tmp_path / "auto.mlnseq"))
-    chosen = exported.manifest["chosen_by_cross_validation"]
+    chosen = exported.manifest.chosen_by_cross_validation
     figures = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]["figures"]
     best = max((n for n in figures if n.endswith("+viterbi")), key=lambda n: choice_score(figures[n], "viterbi"))
-    assert chosen["name"] == best and exported.manifest["method"] == best.partition("+")[0]
-    assert exported.manifest["decode"] == "viterbi"
+    assert chosen.name == best and exported.manifest.method == best.partition("+")[0]
+    assert exported.manifest.decode == "viterbi"
 
 
 def test_export_auto_without_folds_says_to_train_with_folds(desk_stream_workdir, tmp_path):
