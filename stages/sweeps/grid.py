@@ -18,11 +18,14 @@ and export, ``decode`` to export: conflate always predicts every decoding so tha
 
 from __future__ import annotations
 
+import enum
 import hashlib
 import itertools
 import json
 import re
 import tomllib
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -34,7 +37,7 @@ STAGES = ("train", "conflate", "export")
 # The options dataclass of each stage in STAGES, given by the caller (the command line wires the stages: a library
 # imports no stage); each has a default for every field and validate() raising BadInput.
 StageOptions = Mapping[str, type]
-FIXED = {"train": ("seed",), "conflate": ("decode",), "export": ("output",)}  # set by the sweep itself
+FIXED = {"train": ("seed",), "conflate": ("decode",), "export": ("output", "force")}  # set by the sweep itself
 SHARED_BARE = {"mln_mode": ("conflate", "export"), "decode": ("export",)}  # bare keys with their own stages
 # What the sweep runs unless the grid says otherwise: stream networks whose folds follow the MLN's fold
 # weights, and the deployed method chosen by cross-validation among the online decoders.
@@ -198,40 +201,41 @@ def expand(grid: dict[str, list[Any]], path: Path, text: str, stages: StageOptio
 def option_value(options: type, name: str, value: Any, place: str, key: str = "") -> Any:
     """``value`` as the option ``name`` of the stage whose dataclass is ``options`` takes it; a wrong type or value
     names ``place`` and the choices. Without ``place``, the value is only converted."""
-    import enum
-
-    field = next(f for f in fields(options) if f.name == name)
-    default = getattr(options(), name)
-    kind = str(field.type)
     try:
-        if isinstance(default, enum.Enum):
-            choices = [m.value for m in type(default)]
-            if value not in choices:
-                raise ValueError(f"choose one of {', '.join(map(str, choices))}")
-            value = type(default)(value)
-        elif kind.startswith("bool"):
-            if type(value) is not bool:
-                raise ValueError("use true or false")
-        elif kind.startswith("int"):
-            if type(value) is not int:
-                raise ValueError("use a whole number")
-        elif kind.startswith("float"):
-            if value == "auto" and "None" in kind:
-                value = None
-            elif type(value) not in (int, float):
-                raise ValueError("use a number" + (" or \"auto\"" if "None" in kind else ""))
-            else:
-                value = float(value)
-        elif kind.startswith("tuple"):
-            value = tuple(value) if isinstance(value, list) else tuple(str(value).split(","))
-        elif kind.startswith("str") and not isinstance(value, str):
-            raise ValueError("use a quoted name")
+        value = converted(typing.get_type_hints(options)[name], value)
         if place:
             replace(options(), **{name: value}).validate()
-    except ValueError as error:
+    except (ValueError, BadInput) as error:
         raise BadInput(f"{place}: grid key {key or name!r} value {value!r}: {error}") from None
-    except BadInput as error:
-        raise BadInput(f"{place}: grid key {key or name!r} value {value!r}: {error}") from None
+    return value
+
+
+def converted(hint: Any, value: Any) -> Any:
+    """A TOML value as a field of type ``hint`` holds it (an enum member, a float, a tuple, None for "auto"); a
+    value of the wrong kind raises ValueError saying what to write."""
+    kinds = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    enums = [k for k in kinds if isinstance(k, type) and issubclass(k, enum.Enum)]
+    for kind in enums:
+        if value in [m.value for m in kind]:
+            return kind(value)
+    if enums and str not in kinds:
+        raise ValueError(f"choose one of {', '.join(str(m.value) for k in enums for m in k)}")
+    if value == "auto" and type(None) in kinds and str not in kinds:
+        return None  # conflate's network_weight: auto, the weight learned
+    if bool in kinds:
+        if type(value) is not bool:
+            raise ValueError("use true or false")
+    elif int in kinds and float not in kinds:
+        if type(value) is not int:
+            raise ValueError("use a whole number")
+    elif float in kinds:
+        if type(value) not in (int, float):
+            raise ValueError("use a number" + (' or "auto"' if type(None) in kinds else ""))
+        return float(value)
+    elif typing.get_origin(hint) is tuple or tuple in kinds:
+        return tuple(value) if isinstance(value, list) else tuple(str(value).split(","))
+    elif str in kinds and not isinstance(value, str):
+        raise ValueError("use a quoted name")
     return value
 
 
@@ -249,8 +253,6 @@ def hashed(values: dict[str, Any]) -> str:
 
 def flags(stage: str, options: Any) -> list[str]:
     """The command-line flags that give ``options`` of ``stage`` where they differ from the stage's defaults."""
-    import enum
-
     defaults = type(options)()
     out: list[str] = []
     for f in fields(options):
