@@ -8,7 +8,7 @@ MLNSEQ := $(VENV)/bin/mlnseq
 SETUP_DONE := $(VENV)/.setup-done
 PRACMLN_DONE := $(VENV)/.pracmln-done
 
-.PHONY: help setup test bench reproduce report clean
+.PHONY: help setup test test-slurm bench reproduce report clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -22,8 +22,11 @@ $(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/link_ros1.py
 $(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
 	bash scripts/install_pracmln.sh $(VENV) && touch $@
 
-test: setup ## Run the test suite
-	$(VENV)/bin/pytest -q
+test: setup ## Run the test suite (without the SLURM cluster's test)
+	$(VENV)/bin/pytest -q -m "not slurm"
+
+test-slurm: setup ## Run the sweep through a real one-node SLURM cluster started on this machine (root; minutes)
+	$(VENV)/bin/pytest -q -m slurm tests/sweeps
 
 bench: setup ## Run the benchmarks (figures and ratios measured side by side)
 	$(PY) -m benchmarks

@@ -47,6 +47,8 @@ COMMANDS = {
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
     "ros": Command("ros", "ros", "A ROS 1 node recognising the model's topics live: the activity on a topic."),
+    "sweep": Command("sweep", "sweep", "Run a grid of options x seeds through Snakemake, locally or on SLURM: "
+                     "OUT/results.parquet."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
 }
 GLOBAL_FLAGS = ("--verbose",)
