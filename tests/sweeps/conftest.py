@@ -47,7 +47,8 @@ def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
     path = write_sweep(folder, tiny_desk_workdir, TINY_GRID)
     command = [str(Path(sys.executable).with_name("mlnseq")), "sweep", str(path), "--cores", "2"]
     process = subprocess.Popen(command, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               start_new_session=True,  # hears Ctrl-C even when the tests run in the background:
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     out = folder / "sweep"
     deadline = time.monotonic() + 600
     while not finished_trainings(out) and process.poll() is None and time.monotonic() < deadline:
