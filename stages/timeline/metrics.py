@@ -70,12 +70,16 @@ def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float(100 * (1 - levenshtein(p, t) / max(len(p), len(t))))
 
 
-def _runs_array(labels: np.ndarray) -> np.ndarray:
-    """[label, start, stop] int64 rows of the maximal runs of one label (label_runs as an array)."""
+def _runs_array(labels: np.ndarray, episodes: np.ndarray | None = None) -> np.ndarray:
+    """[label, start, stop] int64 rows of the maximal runs of one label (label_runs as an array), also cut where
+    ``episodes`` changes."""
     labels = np.asarray(labels)
     if not len(labels):
         return np.zeros((0, 3), dtype=np.int64)
-    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+    change = labels[1:] != labels[:-1]
+    if episodes is not None:
+        change |= np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]
+    starts = np.flatnonzero(np.r_[True, change])
     stops = np.r_[starts[1:], len(labels)]
     return np.stack([labels[starts].astype(np.int64), starts, stops], axis=1).astype(np.int64)
 
@@ -116,12 +120,15 @@ def best_matches(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return best, best_iou
 
 
-def overlap_counts_all(predicted: np.ndarray, truth: np.ndarray,
-                       overlaps: tuple[float, ...] = OVERLAPS) -> dict[float, tuple[int, int, int]]:
+def overlap_counts_all(predicted: np.ndarray, truth: np.ndarray, overlaps: tuple[float, ...] = OVERLAPS,
+                       episodes: np.ndarray | None = None) -> dict[float, tuple[int, int, int]]:
     """tp, fp, fn of segmental F1 at each of ``overlaps``: a predicted segment is a hit when its IoU with a not yet
     matched true segment of the same class reaches the overlap (MS-TCN's f_score). Each predicted segment's best true
-    segment is found once for every overlap (:func:`best_matches`)."""
-    p, t = _runs_array(predicted), _runs_array(truth)
+    segment is found once for every overlap (:func:`best_matches`). With ``episodes``, the sums over its blocks
+    (segments cut where it changes) in one pass: a hit needs a positive IoU, so only overlaps above 0."""
+    if episodes is not None and min(overlaps) <= 0:
+        raise ValueError(f"overlaps over several episodes must be positive, got {min(overlaps)}")
+    p, t = _runs_array(predicted, episodes), _runs_array(truth, episodes)
     if not len(t):
         return {o: (0, len(p), 0) for o in overlaps}
     best, best_iou = best_matches(p, t)
@@ -171,12 +178,8 @@ def score_method(
         "n_segments": len(spans),
     }
     if segmental:
-        edits, counts = [], {o: np.zeros(3, dtype=np.int64) for o in OVERLAPS}
-        for block in sequences.runs(episodes):
-            edits.append(edit_score(predictions[block], labels[block]))
-            for o, found in overlap_counts_all(predictions[block], labels[block]).items():
-                counts[o] += found
-        result["edit"] = float(np.mean(edits))
+        result["edit"] = float(np.mean([edit_score(predictions[b], labels[b]) for b in sequences.runs(episodes)]))
+        counts = overlap_counts_all(predictions, labels, OVERLAPS, episodes)  # tp, fp, fn summed over episodes
         for o in OVERLAPS:
-            result[f"f1@{int(o * 100)}"] = f1(*map(int, counts[o]))
+            result[f"f1@{int(o * 100)}"] = f1(*counts[o])
     return result

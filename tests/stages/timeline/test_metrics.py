@@ -152,3 +152,27 @@ def test_overlap_counts_equal_the_quadratic_matching_on_random_label_sequences()
         assert stage.edit_score(predicted, truth) == reference_edit_score(predicted, truth)  # bit-parallel = table
 
     check()
+
+
+def test_overlap_counts_over_episodes_in_one_pass_are_the_sums_over_each_episode():
+    """score_method's F1@k: one pass over every episode gives the per-episode counts' sums (random episodes)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=200, deadline=None, derandomize=True, database=None)
+    @given(_label_sequences(), st.lists(st.integers(1, 15), min_size=1, max_size=8))
+    def check(pair, lengths):
+        predicted, truth = pair
+        n = min(len(predicted), len(truth))
+        predicted, truth = predicted[:n], truth[:n]
+        episodes = np.resize(np.repeat(np.arange(len(lengths)) % 3, lengths), n)  # an id may come back later
+        together = stage.overlap_counts_all(predicted, truth, stage.OVERLAPS, episodes)
+        for overlap in stage.OVERLAPS:
+            summed = np.zeros(3, dtype=np.int64)
+            for block in stage.sequences.runs(episodes):
+                summed += quadratic_overlap_counts(predicted[block], truth[block], overlap)
+            assert together[overlap] == tuple(summed.tolist())
+
+    check()
+    with pytest.raises(ValueError):
+        stage.overlap_counts_all(np.zeros(3, int), np.zeros(3, int), (0.0,), np.zeros(3, int))
