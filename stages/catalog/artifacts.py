@@ -83,7 +83,7 @@ def log_probs_cache_path(checkpoint: Path) -> Path:
     """Where a checkpoint's class log-probabilities over its workdir's frames are cached: beside the file it links to
     (mlnseq.model.log_prob_cache), so every workdir linking it shares them."""
     real = Path(checkpoint).resolve()
-    return real.with_name(f"{real.stem}.log-probs.npz")
+    return real.with_name(f"{real.stem}.log-probs.npy")
 
 
 def log_prob_columns(n_classes: int) -> list[str]:

@@ -1,5 +1,5 @@
 """A trained network's class log-probabilities over a workdir's frames, kept beside its checkpoint
-(``models/METHOD.log-probs.npz``, :func:`mlnseq.catalog.artifacts.log_probs_cache_path`), so that the workdirs
+(``models/METHOD.log-probs.npy``, :func:`mlnseq.catalog.artifacts.log_probs_cache_path`), so that the workdirs
 that link one network (the reproduction's D-temporal, D-order ... link D's LSTM) run it once and read it back.
 
 The cache is keyed by the digests of everything the values depend on: the checkpoint, the frames, the network's
@@ -9,7 +9,6 @@ only a cache: one that cannot be read is recomputed, one that cannot be written 
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -44,15 +43,16 @@ def cached_log_probs(checkpoint: Path, frames: Path, prior: np.ndarray | None,
     path = artifacts.log_probs_cache_path(checkpoint)
     key = cache_key(checkpoint, frames, prior)
     try:
-        with np.load(path, allow_pickle=False) as stored:
-            if str(stored["key"]) == key:
-                return stored["log_probs"]
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
-        pass  # absent, unreadable or of an older layout: computed again
+        with open(path, "rb") as handle:  # the key's line, then the array as np.save writes it
+            if handle.readline().decode("ascii", "replace").strip() == key:
+                return np.load(handle, allow_pickle=False)
+    except (OSError, ValueError, EOFError):
+        pass  # absent or unreadable: computed again
     values = compute()
     try:
         with artifacts.atomic_path(path) as staged, open(staged, "wb") as handle:
-            np.savez(handle, key=np.array(key), log_probs=values)
+            handle.write(key.encode("ascii") + b"\n")
+            np.save(handle, values, allow_pickle=False)  # no time stamp: the same values, the same bytes
     except BadInput:
         pass  # a folder we cannot write to: the values are still right, only not kept
     return values

@@ -19,6 +19,12 @@ def _linked_copy(source, target):
     os.symlink(source / "models" / "lstm.pt", target / "models" / "lstm.pt")
 
 
+def _store(cache, key, values):
+    with open(cache, "wb") as handle:
+        handle.write(key.encode() + b"\n")
+        np.save(handle, values)
+
+
 def test_a_linked_network_is_run_once_and_read_back(tmp_path, desk_full_workdir):
     source = tmp_path / "source"
     shutil.copytree(desk_full_workdir, source)
@@ -29,12 +35,10 @@ def test_a_linked_network_is_run_once_and_read_back(tmp_path, desk_full_workdir)
     assert artifacts.log_probs_cache_path(tmp_path / "linked" / "models" / "lstm.pt") == cache
     # the stored values are what a linked workdir reads: mark them to see that they, not a new run, come back
     key = log_prob_cache.cache_key(source / "models" / "lstm.pt", source / artifacts.FRAMES, None)
-    with open(cache, "wb") as handle:
-        np.savez(handle, key=np.array(key), log_probs=first + 1)
+    _store(cache, key, first + 1)
     np.testing.assert_array_equal(read_workdir(tmp_path / "linked", ["lstm"]).networks["lstm"].log_probs, first + 1)
     # other frames: another key, computed again (and stored again)
-    with open(cache, "wb") as handle:
-        np.savez(handle, key=np.array("stale"), log_probs=first + 1)
+    _store(cache, "stale", first + 1)
     np.testing.assert_array_equal(read_workdir(tmp_path / "linked", ["lstm"]).networks["lstm"].log_probs, first)
     cache.write_bytes(b"not a cache")
     np.testing.assert_array_equal(read_workdir(source, ["lstm"]).networks["lstm"].log_probs, first)
