@@ -192,9 +192,13 @@ $(RUNS)/%/weights.folds.parquet: $(RUNS)/%/weights.parquet
 stem_word = $(word $(1),$(subst /, ,$*))
 dataset_dir = $(RUNS)/$(call stem_word,1)
 mode_of = $(call stem_word,2)
+# The runs the report draws per-epoch curves of (Fig. 7, 8, Table III's best epoch: the paper datasets' segment mode)
+# measure every epoch; every other run measures its last (train --measure).
+CURVES := fetch desk
 train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
   --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
-  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn --folds 0,$(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0))
+  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn --folds 0,$(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0)) \
+  $(if $(and $(filter $(CURVES),$(call stem_word,1)),$(filter segment,$(mode_of))),--measure every-epoch)
 # The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
 # only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
 networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\

@@ -27,6 +27,10 @@ HELP = {
     "select": "none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a "
               "validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, "
               "keep the best epoch on it.",
+    "measure": "After which epochs the train, val and test parts are measured over all their frames and logged "
+               "(models/METHOD.log.parquet): every-epoch (the per-epoch curves; a pass over every frame after each "
+               "epoch) or last-epoch (the kept network only). Default: every-epoch with --select val_accuracy, which "
+               "needs it, else last-epoch.",
     "folds": "Cross-validation: also train K networks, each without one fold of the training split (whole episodes, "
              "else contiguous blocks), and write their out-of-fold predictions of every training frame "
              "(models/METHOD.oof.parquet), on which conflate learns the network factor's weight and chooses. Default: "
@@ -48,6 +52,7 @@ def train(
     cell: Annotated[str, typer.Option(help=HELP["cell"])] = Defaults.cell,
     prior: Annotated[str, typer.Option(help=HELP["prior"])] = Defaults.prior.value,
     select: Annotated[str, typer.Option(help=HELP["select"])] = Defaults.select.value,
+    measure: Annotated[Optional[str], typer.Option(help=HELP["measure"], show_default=False)] = None,
     folds: Annotated[Optional[int], typer.Option(help=HELP["folds"], show_default=False)] = None,
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
     train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, "
@@ -60,11 +65,11 @@ def train(
 ) -> None:
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write
     WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch,
-    split, accuracy, loss)."""
+    split, accuracy, loss: after the last epoch, or every epoch with --measure every-epoch)."""
     options = stage.TrainOptions(
-        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, folds=folds,
-        device=device, train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing,
-        paper_floor=paper_floor,
+        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
+        folds=folds, device=device, train_fraction=train_fraction, batch_size=batch_size, window=window,
+        smoothing=smoothing, paper_floor=paper_floor,
     )
     with reported_errors():
         options.validate()
@@ -135,5 +140,7 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
 
 
 def _scores(done: stage.EpochDone) -> str:
+    if done.loss is None:
+        return "not measured (--measure last-epoch)"
     val = "–" if done.val_accuracy is None else f"{done.val_accuracy:.1%}"
     return f"loss {done.loss:.3f}, train {done.train_accuracy:.1%}, val {val}"

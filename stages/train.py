@@ -9,6 +9,8 @@ units (segments in segment mode, windows in stream mode, in file order) is held 
 each epoch; the checkpoint records it, and conflate chooses its weights on it. ``last`` keeps the last
 epoch, ``val_accuracy`` the epoch with the best frame accuracy on that part. With ``none`` every training
 unit is used and the last epoch is kept. The test split is only ever logged (for the curves), never used.
+The parts' accuracy and loss are measured (a pass over every frame) and logged after every epoch with
+``measure="every-epoch"`` (the curves; ``select="val_accuracy"`` needs them), else after the last only.
 """
 
 from __future__ import annotations
@@ -49,6 +51,13 @@ class Select(StrEnum):
     VAL_ACCURACY = "val_accuracy"  # a validation part; the epoch of best frame accuracy on it
 
 
+class Measure(StrEnum):
+    """After which epochs fit measures the parts (train, val, test) over all their frames and logs them."""
+
+    EVERY_EPOCH = "every-epoch"  # the per-epoch curves (the report's figures); what --select val_accuracy reads
+    LAST_EPOCH = "last-epoch"  # the kept network's only (the default without --select val_accuracy)
+
+
 METHODS = NETWORKS
 SELECTS = tuple(Select)
 DEVICES = ("auto", "cpu", "cuda")
@@ -65,6 +74,7 @@ class TrainOptions:
     cell: str = "lstm"  # the network type: a name in mlnseq.networks.TYPES
     prior: Prior = Prior.PAPER  # c2c input of PriorLayer: paper (floored MLN sums) | logprob (MLN log-probs)
     select: Select = Select.NONE
+    measure: Measure | None = None  # None: every-epoch with select val_accuracy, else last-epoch
     device: str = "auto"
     train_fraction: float = 1.0
     batch_size: int = 4
@@ -78,7 +88,7 @@ class TrainOptions:
 
     def __post_init__(self) -> None:
         for name, kind, aliases in (("method", Method, ALIASES), ("prior", Prior, None), ("select", Select, None),
-                                    ("paper_floor", PaperFloor, None)):
+                                    ("measure", Measure, None), ("paper_floor", PaperFloor, None)):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, member(kind, getattr(self, name), aliases))
 
@@ -90,6 +100,10 @@ class TrainOptions:
             check_choice(name, getattr(self, name), allowed)
         if self.paper_floor is not None:
             check_choice("paper-floor", self.paper_floor, tuple(PaperFloor))
+        if self.measure is not None:
+            check_choice("measure", self.measure, tuple(Measure))
+        if self.select == Select.VAL_ACCURACY and self.measure == Measure.LAST_EPOCH:
+            raise BadInput("--select val_accuracy compares every epoch: use --measure every-epoch (or leave it out)")
         self._check_numbers()
         if self.device == "cuda":
             import torch
@@ -112,9 +126,16 @@ class TrainOptions:
         if not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
 
+    @property
+    def measured(self) -> Measure:
+        """After which epochs the parts are measured: ``measure``, else what ``select`` needs."""
+        every = self.select == Select.VAL_ACCURACY
+        return self.measure or (Measure.EVERY_EPOCH if every else Measure.LAST_EPOCH)
+
     def record(self) -> dict[str, Any]:
-        """The options as artifacts store them: plain values (a checkpoint loads without our types)."""
-        return {k: v.value if isinstance(v, Enum) else v for k, v in asdict(self).items()}
+        """The options as artifacts store them: plain values (a checkpoint loads without our types); not ``measure``:
+        the network does not depend on it, and the log's metadata says what it holds (``measured``)."""
+        return {k: v.value if isinstance(v, Enum) else v for k, v in asdict(self).items() if k != "measure"}
 
 
 @dataclass
@@ -161,9 +182,9 @@ class EpochDone:
 
     epoch: int
     epochs: int
-    loss: float  # on the training sequences
-    train_accuracy: float
-    val_accuracy: float | None  # None without a validation part (--select none)
+    loss: float | None  # on the training sequences; None: not measured after this epoch (Measure)
+    train_accuracy: float | None
+    val_accuracy: float | None  # None without a validation part (--select none), or not measured
 
 
 Progress = Callable[[EpochDone], None]
@@ -219,21 +240,22 @@ class Rows:
 
 def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.device,
         progress: Progress | None = None) -> Trained:
-    """Train a network on the training split of ``data``; log train/val/test accuracy after every epoch; keep the
-    last epoch, or with ``select`` val_accuracy the one of best frame accuracy on the validation part."""
+    """Train a network on the training split of ``data``; log train/val/test accuracy after every epoch (measure
+    every-epoch) or the last; keep the last epoch, or with ``select`` val_accuracy the one of best frame accuracy on
+    the validation part."""
     rows = Rows.of(data, options)
     fitting = rows.start(data, config, options, device)
     log_rows: list[dict[str, Any]] = []
     best_state, best_accuracy, kept_epoch = None, -1.0, options.epochs
+    every_epoch = options.measured == Measure.EVERY_EPOCH
     for epoch in range(1, options.epochs + 1):
         fitting.epoch(options.batch_size, options.learning_rate)
-        measured = rows.measure(fitting, data, options.mode)
+        measured = rows.measure(fitting, data, options.mode) if every_epoch or epoch == options.epochs else {}
         log_rows += [{"epoch": epoch, "split": str(name), "accuracy": accuracy, "loss": nll}
                      for name, (accuracy, nll) in measured.items()]
         if progress is not None:
-            val = measured.get(Part.VAL)
-            progress(EpochDone(epoch, options.epochs, measured[Part.TRAIN][1], measured[Part.TRAIN][0],
-                               None if val is None else val[0]))
+            train, val = measured.get(Part.TRAIN, (None, None)), measured.get(Part.VAL)
+            progress(EpochDone(epoch, options.epochs, train[1], train[0], None if val is None else val[0]))
         if options.select == Select.VAL_ACCURACY and measured[Part.VAL][0] > best_accuracy:
             best_accuracy, kept_epoch = measured[Part.VAL][0], epoch
             best_state = {k: v.detach().clone() for k, v in fitting.model.state_dict().items()}
@@ -342,7 +364,8 @@ def _write(workdir: Path, options: TrainOptions, trained: Trained, checkpoint_co
     with artifacts.atomic_path(checkpoint) as staged:
         save_checkpoint(staged, trained.model, checkpoint_config)
         artifacts.write_table(trained.log, log_path, "train_log",
-                              {"options": options.record(), "kept_epoch": trained.kept_epoch}, inputs=inputs)
+                              {"options": options.record(), "kept_epoch": trained.kept_epoch,
+                               "measured": str(options.measured)}, inputs=inputs)
         if out_of_fold is not None:
             table = folding.out_of_fold_table(frames.select("episode", "frame"), folds, out_of_fold.log_probs)
             artifacts.write_table(table, oof_path, "out_of_fold",

@@ -15,6 +15,7 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import PaperFloor
+from mlnseq.mln.distinct_rows import distinct_rows
 
 HARD_WEIGHT = 1000.0  # a hard formula's weight in the scores: far above any learned weight
 MODES = ("paper", "exact")
@@ -32,8 +33,8 @@ def class_scores(predicates: pl.DataFrame, weights: pl.DataFrame, classes: int |
     evidence = predicates.select(words).to_numpy().astype(bool) if words else np.zeros((predicates.height, 0), bool)
     per_frame = [f for f in parse_weights(weights, words, classes) if not f.temporal]
     n_classes = classes if isinstance(classes, int) else len(classes)
-    unique, inverse = np.unique(evidence, axis=0, return_inverse=True)
-    return frame_scores(per_frame, unique, words, n_classes, hard_weight=HARD_WEIGHT)[inverse.reshape(-1)]
+    unique, inverse = distinct_rows(evidence)
+    return frame_scores(per_frame, unique, words, n_classes, hard_weight=HARD_WEIGHT)[inverse]
 
 
 def paper_prior(scores: np.ndarray, floor: PaperFloor) -> np.ndarray:

@@ -17,6 +17,7 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.chain import ChainFactors
+from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.features import PairColumns, frame_counts, pair_counts, read_columns
 from mlnseq.mln.grounding import EVIDENCE, AtomSpace, class_aliases, class_constant, is_temporal, rename_classes
 from mlnseq.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
@@ -142,11 +143,10 @@ class MLNFactors:
         if n_frames:
             starts[0] = True
         joined = np.flatnonzero(~starts)
-        distinct, inverse = np.unique(self._pair_columns.keys(evidence[joined - 1], evidence[joined]), axis=0,
-                                      return_inverse=True)
+        distinct, inverse = distinct_rows(self._pair_columns.keys(evidence[joined - 1], evidence[joined]))
         pairwise = self._many(self._pairwise, distinct, self._pair_scores)
         link = np.full(n_frames, -1, dtype=np.int64)
-        link[joined] = inverse.reshape(-1)
+        link[joined] = inverse
         return ChainFactors(unary, pairwise, link)
 
     @staticmethod
@@ -159,11 +159,11 @@ class MLNFactors:
 
     @staticmethod
     def _many(cache: dict[bytes, np.ndarray], keys: np.ndarray, compute) -> np.ndarray:
-        distinct, inverse = np.unique(keys, axis=0, return_inverse=True)
+        distinct, inverse = distinct_rows(keys)
         missing = [i for i, row in enumerate(distinct) if row.tobytes() not in cache]
         if missing:
             for row, values in zip(distinct[missing], compute(distinct[missing])):
                 cache[row.tobytes()] = values
         if not len(distinct):
             return compute(distinct)
-        return np.stack([cache[row.tobytes()] for row in distinct])[inverse.reshape(-1)]
+        return np.stack([cache[row.tobytes()] for row in distinct])[inverse]

@@ -88,6 +88,7 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         factors = None
         if fold_mln is not None and any(d != "none" for d in decodes):
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
+        learned: dict[str, float] = {}  # method -> its network factor's weight on this fold: one for every decoding
         for method in usable:
             network = network_of(method)
             log_p = cv.log_probs.get(network)
@@ -100,8 +101,10 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                     continue
                 weight = 1.0
                 if network is not None:
-                    weight = fixed_weight if fixed_weight is not None else learned_weight(
-                        method, factors, fold_mln.evidence, *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                    if fixed_weight is None and method not in learned:
+                        learned[method] = learned_weight(method, factors, fold_mln.evidence,
+                                                         *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                    weight = fixed_weight if fixed_weight is not None else learned[method]
                     result.fold_weights.setdefault(name, []).append(weight)
                 chained = chain_of(method, factors, fold_mln.evidence[rows], starts,
                                    None if log_p is None else log_p[rows], weight)

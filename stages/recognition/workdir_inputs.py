@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.timeline import sequences
 from mlnseq.model.checkpoints import Checkpoint, checkpoint_config, load_checkpoint
+from mlnseq.model.log_prob_cache import cached_log_probs
 from mlnseq.catalog.errors import BadInput, StaleArtifact
 from mlnseq.recognition.folds import Folds
 from mlnseq.catalog.methods import NETWORKS, Method, PaperFloor
@@ -156,7 +158,8 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
                                                                    floor)
         parts = parts_of(checkpoint.config, data.splits)
         spans = sequences.sequences(checkpoint.mode, data.episodes, parts, data.labels)
-        log_probs = checkpoint.network.log_probs(spans, data.features, prior)
+        log_probs = cached_log_probs(path, frames_path, prior,
+                                     partial(checkpoint.network.log_probs, spans, data.features, prior))
         result.networks[network] = TrainedNetwork(checkpoint, parts, log_probs)
     result.folds = read_folds(workdir, result)
     return result
