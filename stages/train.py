@@ -30,7 +30,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor, Prior, member
 from mlnseq.catalog.parts import Part
-from mlnseq.model.checkpoints import save_checkpoint
+from mlnseq.model.checkpoints import write_checkpoint
 from mlnseq.networks.fitting import Fitting, accuracy_and_loss, predict_log_probs, resolve_device, set_threads
 from mlnseq.recognition import folds as folding
 from mlnseq.recognition.recognizer import prior_input
@@ -362,7 +362,7 @@ def _write(workdir: Path, options: TrainOptions, trained: Trained, checkpoint_co
     checkpoint = artifacts.checkpoint_path(workdir, options.method)
     oof_path = artifacts.out_of_fold_path(workdir, options.method)
     with artifacts.atomic_path(checkpoint) as staged:
-        save_checkpoint(staged, trained.model, checkpoint_config)
+        write_checkpoint(staged, trained.model, checkpoint_config)
         artifacts.write_table(trained.log, log_path, "train_log",
                               {"options": options.record(), "kept_epoch": trained.kept_epoch,
                                "measured": str(options.measured)}, inputs=inputs)

@@ -116,3 +116,20 @@ def test_export_never_writes_over_a_workdir_file_and_needs_force_for_an_existing
     refused(tmp_path, "export", "--method", "lstm", "-o", out, "-w", workdir, needles=("exists; pass --force",))
     again = runner.invoke(app, ["export", "--method", "lstm", "-o", str(out), "--force", "-w", str(workdir)])
     assert again.exit_code == 0, again.output
+
+
+def test_a_full_disk_while_training_is_one_line_and_keeps_the_workdir_as_it_was(desk_full_workdir, tmp_path):
+    """torch.save on a full disk raises its own RuntimeError ("enforce fail at inline_container.cc"): one line naming
+    the checkpoint and the full disk, exit 2, no temporary file left in models/."""
+    workdir = Path(shutil.copytree(desk_full_workdir, tmp_path / "work"))
+    shutil.rmtree(workdir / "models")
+    (workdir / "models").mkdir()
+    if shutil.which("mount") is None or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=16k", "tmpfs", str(workdir / "models")], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        refused(workdir, "train", "--epochs", "1", "--workdir", workdir,
+                needles=("cannot write", "models/lstm.pt:", "No space left on device"))
+        assert not list((workdir / "models").iterdir())
+    finally:
+        subprocess.run(["umount", str(workdir / "models")], check=True)

@@ -6,6 +6,8 @@ torch is imported only here and in training: a model file (``.mlnseq``) is recog
 
 from __future__ import annotations
 
+import errno
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,12 +36,28 @@ class Checkpoint:
 
 def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any]) -> Path:
     """Write a checkpoint atomically: an interrupted save leaves the previous file as it was."""
+    with artifacts.atomic_path(path) as tmp:
+        write_checkpoint(tmp, model, config)
+    return path
+
+
+def write_checkpoint(target: Path, model: SequenceClassifier, config: dict[str, Any]) -> None:
+    """Write a checkpoint to ``target`` (a file the caller stages); a failed write is an OSError."""
     import torch
 
-    with artifacts.atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:  # a file object: the archive is named 'archive', not the random temp name
+    with open(target, "wb") as handle:  # a file object: the archive is named 'archive', not the random temp name
+        try:
             torch.save({"config": {**config, "format": CHECKPOINT_FORMAT}, "state_dict": model.state_dict()}, handle)
-    return path
+        except RuntimeError as error:  # torch's own words for a failed write, a full disk among them
+            full = _full(target)
+            raise OSError(errno.ENOSPC if full else errno.EIO,
+                          os.strerror(errno.ENOSPC) if full else str(error).splitlines()[0]) from error
+
+
+def _full(path: Path) -> bool:
+    """Whether the folder holding ``path`` has no room left (under a block)."""
+    stats = os.statvfs(path.parent)
+    return stats.f_bavail * stats.f_frsize < 4096
 
 
 def _read(path: Path, method: str) -> dict[str, Any]:

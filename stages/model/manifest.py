@@ -18,6 +18,7 @@ MODEL_FORMAT = 3  # 3: the paper floor of the MLN's sums; 2: members' sizes and 
 MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
 AGAIN = "export the model again with `mlnseq export`"
 NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
+MAX_LEVELS = 16  # a TCN's dilated levels: 2**16 frames of dilation at most
 KIND_WORDS = {"int": "an integer", "float": "a number >= 0", "bool": "true or false", "str": "a string"}
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # cross-validated figures (cross_validation)
 
@@ -193,8 +194,12 @@ class NetworkEntry:
                     or (expected is not None and config[key] != expected):
                 declared = expected if expected is not None else f"a count up to {NETWORK_SIZE_LIMIT}"
                 refuse(f"its network's {key} is {config[key]!r}, but the manifest declares {declared}")
-        if "levels" in config and (config["kernel_size"] - 1) * 2 ** min(config["levels"], 64) > RECEPTIVE_FIELD_LIMIT:
-            refuse(f"its network's receptive field is over {RECEPTIVE_FIELD_LIMIT:,} frames")
+        if "levels" in config:  # each level doubles the dilation: bounded by the levels, whatever the kernel
+            if config["kernel_size"] < 2 or config["levels"] > MAX_LEVELS:
+                refuse(f"its network's kernel_size must be 2 or more and levels at most {MAX_LEVELS}, got "
+                       f"{config['kernel_size']} and {config['levels']}")
+            if (config["kernel_size"] - 1) * 2 ** config["levels"] > RECEPTIVE_FIELD_LIMIT:
+                refuse(f"its network's receptive field is over {RECEPTIVE_FIELD_LIMIT:,} frames")
 
 
 @dataclass(frozen=True)

@@ -356,6 +356,10 @@ TCN_MODEL = {"n_features": 3, "n_classes": 7, "hidden_size": 32, "cell": "tcn", 
     ({"network": {"model": TCN_MODEL | {"smoothing": -1.0}}}, "its network's smoothing is -1.0, not a number >= 0"),
     ({"network": {"model": TCN_MODEL | {"levels": 2.5}}}, "its network's levels is 2.5, not an integer"),
     ({"network": {"model": TCN_MODEL | {"prior_layer": 1}}}, "its network's prior_layer is 1, not true or false"),
+    ({"network": {"model": TCN_MODEL | {"kernel_size": 1, "levels": 64}}},
+     "kernel_size must be 2 or more and levels at most 16, got 1 and 64"),
+    ({"network": {"model": TCN_MODEL | {"kernel_size": 2, "levels": 17}}},
+     "kernel_size must be 2 or more and levels at most 16, got 2 and 17"),
 ])
 def test_every_manifest_field_is_checked(exported, tmp_path, change, needle):
     manifest = manifest_of(exported["combined"])
