@@ -78,19 +78,25 @@ def frame_factor(method: str, mln_unary: np.ndarray, log_p_network: np.ndarray |
 
 
 def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
-             log_p_network: np.ndarray | None, weight: float) -> chain.ChainFactors:
-    """The chain a decoded method runs: its frame factors and the MLN's transition factors."""
+             log_p_network: np.ndarray | None, weight: float, start: np.ndarray | None = None) -> chain.ChainFactors:
+    """The chain a decoded method runs: its frame factors and the MLN's transition factors, and the start
+    distribution ``start`` (log [C]) at each chain's first frame, if given."""
+    from mlnseq.mln.lag import with_start
+
     factors = mln.chain(evidence, starts)
-    return replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight))
+    return with_start(replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight)), start)
 
 
 def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
     """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
     filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
     forward-backward marginals as probabilities)."""
-    if kind not in ("filter", "viterbi"):
-        raise BadInput(f"unknown decoding {kind!r}: choose filter or viterbi")
-    return chain.decode(factors, kind)
+    if kind in ("filter", "viterbi"):
+        return chain.decode(factors, kind)
+    from mlnseq.recognition.decoding import decode  # the lagged, posterior and legal decoders
+
+    decoded = decode(factors, kind)
+    return chain.Decoded(decoded.probabilities, decoded.path, decoded.restarts)
 
 
 def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:
