@@ -108,6 +108,7 @@ class WorkdirPredictions:
     restarts: dict[str, list[tuple[Any, int]]] = field(default_factory=dict)  # decoded method -> (episode, frame)
     forbidden: dict[str, int] = field(default_factory=dict)  # decoded method -> forbidden transitions on test
     start: list[float] | None = None  # the chains' start distribution (log), from the training split's episodes
+    hard_rules: bool = False  # the chain's transition factors forbid some transition outright (-inf)
 
 
 def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("none",),
@@ -186,6 +187,7 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
                                runs[network].log_probs if network is not None else None, weight, start)
             decoded = decoders.decode(factors, kind)
+            result.hard_rules |= bool(np.isneginf(factors.pairwise).any())
             result.predicted[name] = decoded.path
             if "@" not in kind:
                 result.probabilities[name] = decoded.probabilities
@@ -225,6 +227,7 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
         "notes": [n.text for n in predicted.notes], "note_codes": [n.code for n in predicted.notes],
         "cross_validation": None, "lags": list(options.lags), "start": predicted.start,
+        "hard_rules": predicted.hard_rules,
         "forbidden_transitions": {m: predicted.forbidden[m] for m in methods if m in predicted.forbidden},
     }
     cv = predicted.cross_validated

@@ -19,11 +19,13 @@ from mlnseq.model import model_file
 from mlnseq.recognition import network_weight, recognizer
 from mlnseq.model.checkpoints import load_checkpoint
 from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.catalog.methods import DECODES, METHODS, MLN_MODES, decoded_name, needs_mln, network_of
+from mlnseq.catalog.decoders import Decoder, Decoding
+from mlnseq.catalog.methods import METHODS, MLN_MODES, decoded_name, needs_mln, network_of
 from mlnseq.catalog.notes import Note
 
 
-AUTO = "auto"  # --method auto: the decoded method with the best cross-validated figures in the workdir
+AUTO = "auto"  # --method auto: the method, decoder and lag with the best cross-validated figures in the workdir
+SCORED_ALWAYS = ("none", "filter", "viterbi")  # decoders export runs without asking conflate whether it scored them
 
 
 @dataclass(frozen=True)
@@ -34,19 +36,24 @@ class ExportOptions:
     decode: str = "none"
     mln_mode: str = "paper"
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
+    lag: int | None = None  # frames: a lagged decoder's lag, or with --method auto the budget
+    latency: float | None = None  # seconds: the same where the recordings' rate is known
 
     def validate(self) -> None:
         check_choice("method", self.method, (*METHODS, AUTO))
-        if self.method == AUTO and self.decode not in ("filter", "viterbi"):
-            raise BadInput(f"--method {AUTO} chooses among decoded methods: add --decode filter (online) or "
-                           "--decode viterbi (offline)")
-        check_choice("decode", self.decode, DECODES)
+        check_choice("decode", self.decode, [d.value for d in Decoder])
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
+        if self.lag is not None and self.lag < 0:
+            raise BadInput(f"--lag {self.lag}: a lag is at least 0 frames")
+        if self.latency is not None and not self.latency >= 0:
+            raise BadInput(f"--latency {self.latency:g}: a latency is at least 0 seconds")
+        if self.lag is not None and self.latency is not None:
+            raise BadInput("give --lag FRAMES or --latency SECONDS, not both")
 
-    def output_path(self, workdir: Path) -> Path:
+    def output_path(self, workdir: Path, decode: str | None = None) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
+        return Path(workdir) / f"{decoded_name(self.method, decode or self.decode)}{model_file.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -59,12 +66,9 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
     workdir = Path(workdir)
-    chosen = None
-    if options.method == AUTO:
-        chosen = choose_method(workdir, options.decode)
-        options = replace(options, method=chosen["method"])
     frames_path = workdir / artifacts.FRAMES
     frames_meta = artifacts.read_metadata(frames_path, "frames")
+    options, decoding, chosen, timing = decoding_of(workdir, options, frames_meta)
     inputs = [frames_path]
     notes: list[str] = []
     network_name = network_of(options.method)
@@ -92,7 +96,7 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
 
     choice = None
     if options.decode != "none" and network_name is not None:
-        choice, said = weight_choice(workdir, options)
+        choice, said = weight_choice(workdir, replace(options, decode=decoding.name))
         notes += [n.text for n in said]
 
     manifest = {
@@ -113,32 +117,75 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         "network": network,
         "inputs": {p.name: artifacts.file_digest(p) for p in inputs},
         "notes": notes,
+        **timing,
     }
     entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
-    return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
+    return Exported(model_file.write_model(options.output_path(workdir, decoding.name), entries), manifest)
 
 
-def choose_method(workdir: Path, decode: str) -> dict[str, Any]:
-    """``--method auto``: among the decoded methods conflate predicted in ``workdir`` with ``decode``, the one with
-    the best cross-validated choice score (cross_validation.choice_score), with its figures and the others'."""
-    from mlnseq.recognition.cross_validation import choice_score
+def decoding_of(workdir: Path, options: ExportOptions,
+                frames_meta: dict[str, Any]) -> tuple[ExportOptions, Decoding, dict[str, Any] | None, dict[str, Any]]:
+    """The method and decoding to export (``--method auto``: chosen by cross-validation within the budget), the
+    choice's record, and the manifest's lag, latency, rate and start distribution."""
+    from mlnseq.recognition import live
 
+    rate = live.rate_of(frames_meta)
+    decoder = Decoder(options.decode)
+    chosen = None
+    if options.method == AUTO:
+        budget = live.budget_frames(options.lag, options.latency, rate, str(workdir))
+        meta = _scored(workdir, f"--method {AUTO}")
+        figures = (meta.get("cross_validation") or {}).get("figures") or {}
+        if not figures:
+            raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated figures; train its networks with "
+                           f"folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
+                           f"`mlnseq conflate --decode all`")
+        best, fitting = live.choose(figures, budget, None if decoder is Decoder.NONE else decoder,
+                                    bool(meta.get("hard_rules")), str(workdir))
+        chosen = {**best.record(), "figures": best.figures, "budget_frames": budget,
+                  "candidates": {c.name: c.figures for c in fitting}, "folds": meta["cross_validation"]["folds"]["k"]}
+        options, decoding = replace(options, method=best.method, decode=best.decoding.decoder.value), best.decoding
+    else:
+        lag = options.lag
+        if options.latency is not None and decoder.lagged:
+            lag = live.budget_frames(None, options.latency, rate, str(workdir))
+        if decoder.lagged and lag is None:
+            raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES (or --latency SECONDS)")
+        decoding = Decoding(decoder, lag)
+        if decoder.value not in SCORED_ALWAYS:
+            name = decoded_name(options.method, decoding.name)
+            if name not in _scored(workdir, f"--decode {decoding.name}").get("methods", []):
+                raise BadInput(f"--decode {decoding.name}: {workdir} has no {name} predictions; run `mlnseq conflate "
+                               f"--decode {decoder.value}" + (f" --lags {decoding.lag}`" if decoder.lagged else "`")
+                               + " first")
+    timing = {"lag": decoding.lag, "latency_s": decoding.latency_s(rate) if not decoder.offline else None,
+              "rate_hz": rate, "start": None}
+    if decoding.decoder is not Decoder.NONE:
+        timing["start"] = start_distribution(workdir).tolist()
+    return options, decoding, chosen, timing
+
+
+def _scored(workdir: Path, option: str) -> dict[str, Any]:
     path = workdir / artifacts.PREDICTIONS
     if not path.exists():
-        raise BadInput(f"--method {AUTO} chooses on the cross-validated figures conflate records: {path} not found; "
-                       f"run `mlnseq train --folds K` and `mlnseq conflate --decode {decode}` first")
-    meta = artifacts.read_metadata(path, "predictions")
-    figures = (meta.get("cross_validation") or {}).get("figures") or {}
-    candidates = {name: f for name, f in figures.items() if name.endswith(f"+{decode}")}
-    if not candidates:
-        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated {decode} figures; train its networks "
-                       f"with folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
-                       f"`mlnseq conflate --decode {decode}`")
-    best = max(candidates, key=lambda name: choice_score(candidates[name], decode))
-    return {"method": best.partition("+")[0], "name": best, "figures": candidates[best],
-            "score": choice_score(candidates[best], decode), "candidates": candidates,
-            "folds": meta["cross_validation"]["folds"]["k"]}
+        raise BadInput(f"{option} reads the figures conflate records: {path} not found; run `mlnseq conflate "
+                       "--decode all` first")
+    return artifacts.read_metadata(path, "predictions")
+
+
+def start_distribution(workdir: Path):
+    """The chains' start distribution (log [C]) from the training split's episodes, as conflate fits it."""
+    import numpy as np
+    import polars as pl
+
+    from mlnseq.recognition.decoding import start_of
+
+    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
+    meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
+    train = frames["split"].to_numpy() != "test"
+    return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,
+                    len(meta["classes"]))
 
 
 def weight_choice(workdir: Path, options: ExportOptions) -> tuple[network_weight.WeightChoice, list[Note]]:

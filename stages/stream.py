@@ -3,8 +3,11 @@
 Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
 frame); the first line that is not blank decides which. An ``episode`` key or column starts a new
 episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
-next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}}``. Everything is causal
-and stateful (the previous frame for the change predicates, the network's state, the filter's belief).
+next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the
+input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames answers frame t
+once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the end of the
+input). Everything is causal and stateful (the previous frame for the change predicates, the network's state,
+the decoder's belief and its last L frames).
 
 A bad line (not JSON, not UTF-8, a missing feature, NaN, inf or a non-number) is reported on stderr with
 its line number and skipped; with ``strict`` it stops the stream (exit 2). Keys the model does not use (a
@@ -28,6 +31,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.recognition.recognizer import Recognizer
 
 EPISODE = "episode"
+TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line
 MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes
 CHUNK_BYTES = 64 * 1024  # read at most this much at once; a chunk holds many frames, or part of one
 
@@ -167,12 +171,25 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     model = Recognizer.load(options.model)
     for note in model.manifest.get("notes", []):
         warn(f"note: {note}")
-    if model.decode == "viterbi":
-        warn("note: viterbi needs a whole recording; a stream filters online with the same factors")
-    used = set(model.features) | {EPISODE}
+    if model.decoding.decoder.offline:
+        warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
+    used = set(model.features) | {EPISODE, *TIMES}
     ignored: set[str] = set()
     summary = StreamSummary()
     episode: Any = None
+    times: dict[int, Any] = {}  # the input time of each frame not answered yet (at most lag + 1)
+    lag = model.lag if model.decoding.decoder.lagged else 0
+
+    def answer(predictions: Iterable[Any], episode: Any) -> None:
+        for prediction in predictions:
+            line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
+                    "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())), "lag": lag}
+            time = times.pop(prediction.frame, None)
+            if time is not None:
+                line["time"] = time
+            emit(json.dumps(line))
+            summary.frames += 1
+
     with answering_before_interrupt() as busy:
         for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
             busy(True)
@@ -185,10 +202,15 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
                     warn(f"note: line {number}: keys the model does not use are ignored: {', '.join(sorted(unused))}")
                 if not summary.episodes or frame.get(EPISODE) != episode:
                     if summary.episodes:
+                        answer(model.finish(), episode)  # the episode's pending frames, decided at once
+                        times.clear()
                         model.reset()
                     episode = frame.get(EPISODE)
                     summary.episodes += 1
                 try:
+                    time = next((frame[key] for key in TIMES if key in frame), None)
+                    if time is not None:
+                        times[model.next_frame] = time
                     prediction = model.step(frame)
                 except BadInput as error:
                     raise InputLine(f"line {number}: {error}") from None
@@ -199,10 +221,9 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
                 warn(f"error: {error}")
                 busy(False)
                 continue
-            emit(json.dumps({
-                EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
-                "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
-            }))
-            summary.frames += 1
+            answer(prediction.final, episode)
             busy(False)
+        busy(True)
+        answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
+        busy(False)
     return summary

@@ -35,8 +35,14 @@ def method_names() -> list[str]:
 
 def parse_method(name: str, option: str = "--method") -> tuple[str, str]:
     """(method, decode) of a name such as ``combined+viterbi``; an unknown one is a BadInput naming ``option``."""
+    from mlnseq.catalog.decoders import Decoder, parse_decoding
+
     method, plus, decode = name.partition("+")
-    if method not in METHODS or (plus and decode not in DECODES[1:]):
+    known = plus and decode not in DECODES[1:] and decode.partition("@")[0] in {d.value for d in Decoder} - {"none"}
+    if known:
+        parse_decoding(decode, option)  # a lagged decoder names its lag: smooth@5
+    if method not in METHODS or (plus and decode not in DECODES[1:] and not known):
         raise BadInput(f"unknown {option} {name!r}: choose one of {', '.join(METHODS)}, "
-                       f"optionally with +filter or +viterbi (e.g. combined+filter)")
+                       f"optionally with +filter or +viterbi (e.g. combined+filter), or another decoder "
+                       f"(e.g. conflation+smooth-legal@5)")
     return method, decode or "none"

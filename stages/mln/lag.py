@@ -314,6 +314,17 @@ class Online:
         self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
         self._emitted: int | None = None  # the class emitted last within the chain (None: none yet)
         self._matrix = (b"", None)  # the last pairwise matrix's bytes and its forms
+        self._dead = False
+
+    @property
+    def current(self) -> np.ndarray:
+        """The last frame's class probabilities given the frames so far (its filtered belief; max: normalised)."""
+        return probabilities_of(self._previous, self.semiring)[0]
+
+    @property
+    def restarted(self) -> bool:
+        """Whether the last frame was a dead end (the chain started anew there)."""
+        return self._dead
 
     @property
     def pending(self) -> int:
@@ -341,7 +352,7 @@ class Online:
             forward, dead = _max_forward(self._previous, log_transition, unary)
         if dead[0]:
             self._segment += 1
-        self._previous = forward
+        self._previous, self._dead = forward, bool(dead[0])
         self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear,
                              unary, transition is None, bool(dead[0])))
         self._index += 1

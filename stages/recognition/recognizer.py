@@ -21,10 +21,13 @@ import polars as pl
 from mlnseq.model import model_file
 from mlnseq.timeline import sequences
 from mlnseq.catalog.errors import BadInput
-from mlnseq.catalog.methods import DECODES, FUSED, METHODS, MLN_MODES, NETWORKS, PRIORS, decoded_name, needs_mln, network_of
+from mlnseq.catalog.decoders import Decoder
+from mlnseq.catalog.methods import FUSED, METHODS, MLN_MODES, NETWORKS, PRIORS, decoded_name, needs_mln, network_of
 from mlnseq.model.model_file import NETWORK, SPEC, WEIGHTS
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
+from mlnseq.mln.lag import Online
+from mlnseq.recognition import live
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
@@ -119,6 +122,7 @@ class Prediction:
     name: str
     probabilities: np.ndarray
     restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
+    final: tuple[Prediction, ...] = ()  # the frames of the episode decided by this step (a lagged decoder: t - lag)
 
 
 class Recognizer:
@@ -138,7 +142,9 @@ class Recognizer:
         self.manifest = manifest = model.manifest
         self.method, self.decode = manifest["method"], manifest["decode"]
         network = manifest["network"]
-        if (self.method not in METHODS or self.decode not in DECODES or manifest["mln_mode"] not in MLN_MODES
+        self.timing = live.read_timing(manifest, where, len(manifest["classes"]))
+        self.decoding, self.lag, self.start = self.timing.decoding, self.timing.decoding.lag, self.timing.start
+        if (self.method not in METHODS or manifest["mln_mode"] not in MLN_MODES
                 or (network or {}).get("name") != network_of(self.method)
                 or (network or {}).get("prior") not in (None, *PRIORS)):
             raise BadInput(f"{where}: its manifest's method {self.method!r}, decoding {self.decode!r}, mln-mode "
@@ -183,8 +189,16 @@ class Recognizer:
         self._evidence: np.ndarray | None = None
         self._network = StreamingNetwork(self.network) if self.network is not None else None
         self._filter = chain.Filter(len(self.classes)) if self.decode != "none" else None
+        self._online = None  # a lagged or legal decoder's buffer (filter and the offline decoders: the filter)
+        if self.decode != "none" and self.decoding.decoder is not Decoder.FILTER and not self.decoding.decoder.offline:
+            self._online = Online(len(self.classes), self.decoding)
         if self.spec is not None:
             self.binarizer.reset()
+
+    @property
+    def next_frame(self) -> int:
+        """The index within the episode that the next ``step``'s frame gets."""
+        return self._frame
 
     def vector(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> np.ndarray:
         """A frame's feature values in the model's order, as float64; refuses missing and non-finite values."""
@@ -221,14 +235,37 @@ class Recognizer:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
         else:
             factor = frame_factor(self.method, unary, log_p_network, self.network_weight)
+            if self._evidence is None and self.start is not None:  # an episode's first frame: the start distribution
+                factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            if self._online is not None:
+                return self._step_online(evidence, factor, pairwise)
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
         restarted = self._filter is not None and self._filter.restarted
         prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
         self._frame += 1
+        return replace(prediction, final=(prediction,))
+
+    def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None) -> Prediction:
+        """A lagged or legal decoder's step: the current frame's filtered belief, and the frames decided by it."""
+        final = self._finals(self._online.step(factor, pairwise))
+        self._evidence = evidence
+        probabilities = self._online.current
+        label = int(np.argmax(probabilities))
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, self._online.restarted,
+                                final)
+        self._frame += 1
         return prediction
+
+    def _finals(self, finals: list) -> tuple[Prediction, ...]:
+        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted) for f in finals)
+
+    def finish(self) -> list[Prediction]:
+        """The episode (or the input) ended: decide its pending frames at once (a lagged decoder's last ``lag``
+        frames); ``reset`` then starts the next. Decoders without a lag have none pending."""
+        return [] if self._online is None else list(self._finals(self._online.finish()))
 
     def _mln_of(self, evidence: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The MLN's per-frame class probabilities, PriorLayer input and chain factor of one evidence row."""
@@ -258,8 +295,8 @@ class Recognizer:
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
         ``restarts`` then lists (episode, frame within it) of each."""
-        decode = self.decode if decode is None else decode
-        if decode != self.decode and decode != "none" and self.mln is None:
+        decode = self.decoding.name if decode is None else decode
+        if decode != self.decoding.name and decode != "none" and self.mln is None:
             raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
                            "transition factors; export it again with --decode filter or viterbi")
         features = np.asarray(features, dtype=np.float64)
@@ -281,7 +318,7 @@ class Recognizer:
         if decode == "none":
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
             return probabilities, probabilities.argmax(1)
-        factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight)
+        factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight, self.start)
         decoded = decode_chain(decode, factors)
         self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
         return decoded.probabilities, decoded.path
