@@ -155,7 +155,7 @@ MANIFEST_FIELDS = {
     "inputs": (lambda v: isinstance(v, dict) and all(isinstance(x, str) for x in [*v, *v.values()]),
                "an object of file name -> digest"),
     "formulas": (_count, "a count"),
-    "network_weight": (lambda v: v is None or (_number(v) and 0 < v < math.inf), "null or a positive number"),
+    "network_weight": (lambda v: v is None or (_number(v) and 0 <= v < math.inf), "null or a number >= 0"),
     "validation_frame_accuracy": (lambda v: v is None or (_number(v) and 0 <= v <= 1), "null or a fraction"),
     "members": (lambda v: isinstance(v, dict) and all(
         name in MEMBERS[1:] and isinstance(d, dict) and set(d) == {"bytes", "sha256"} and _count(d["bytes"])

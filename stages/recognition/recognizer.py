@@ -157,7 +157,8 @@ class Recognizer:
                            "model needs: export it again with `mlnseq export`")
         self.classes: list[str] = list(manifest["classes"])
         self.features: list[str] = list(manifest["features"])
-        self.network_weight = float(manifest.get("network_weight") or 1.0)
+        weight = manifest.get("network_weight")  # a learned weight may be 0: the network adds nothing
+        self.network_weight = 1.0 if weight is None else float(weight)
         self._feature_index = {name: i for i, name in enumerate(self.features)}
         self.network = model.network
         self.prior = (manifest.get("network") or {}).get("prior")  # PriorLayer's MLN input, if it has one
