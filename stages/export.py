@@ -151,7 +151,8 @@ def decoding_of(workdir: Path, options: ExportOptions,
         if options.latency is not None and decoder.lagged:
             lag = live.budget_frames(None, options.latency, rate, str(workdir))
         if decoder.lagged and lag is None:
-            raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES (or --latency SECONDS)")
+            raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES "
+                           "(or --latency SECONDS)")
         decoding = Decoding(decoder, lag)
         if decoder.value not in SCORED_ALWAYS:
             name = decoded_name(options.method, decoding.name)

@@ -163,6 +163,16 @@ def answering_before_interrupt() -> Iterator[Callable[[bool], None]]:
         signal.signal(signal.SIGINT, previous)
 
 
+def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> dict[str, Any]:
+    """A decided frame's output: its episode, frame (and input time), class, probabilities and the model's lag."""
+    line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
+            "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
+            "lag": model.lag if model.decoding.decoder.lagged else 0}
+    if time is not None:
+        line["time"] = time
+    return line
+
+
 def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn: Callable[[str], None]) -> StreamSummary:
     """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
@@ -178,16 +188,10 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     summary = StreamSummary()
     episode: Any = None
     times: dict[int, Any] = {}  # the input time of each frame not answered yet (at most lag + 1)
-    lag = model.lag if model.decoding.decoder.lagged else 0
 
     def answer(predictions: Iterable[Any], episode: Any) -> None:
         for prediction in predictions:
-            line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
-                    "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())), "lag": lag}
-            time = times.pop(prediction.frame, None)
-            if time is not None:
-                line["time"] = time
-            emit(json.dumps(line))
+            emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
 
     with answering_before_interrupt() as busy:

@@ -97,7 +97,8 @@ class Decoding:
 
 
 def parse_decoding(text: str, option: str = "--decode") -> Decoding:
-    """A decoding as written: ``filter``, ``smooth@5``, ``posterior-legal``; bad ones are a BadInput naming ``option``."""
+    """A decoding as written: ``filter``, ``smooth@5``, ``posterior-legal``; a bad one is a BadInput naming
+    ``option``."""
     name, at, lag_text = text.partition("@")
     try:
         decoder = Decoder(name)

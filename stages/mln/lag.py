@@ -88,7 +88,8 @@ def _normal(values: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.nd
     return values / total[:, None], dead
 
 
-def _sum_forward(previous: np.ndarray | None, transition: np.ndarray, linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _sum_forward(previous: np.ndarray | None, transition: np.ndarray,
+                 linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """alpha rows after one step [B, C] and the rows that were dead ends (restarted from the unary alone)."""
     if previous is None:
         alpha, _ = _normal(linear, linear)
@@ -171,7 +172,8 @@ class _Tables:
     @classmethod
     def of(cls, factors: ChainFactors) -> _Tables:
         pairwise = factors.pairwise
-        return cls(factors.link, _linear(pairwise, (-2, -1)), pairwise, allowed(pairwise), _linear(factors.unary), factors.unary)
+        return cls(factors.link, _linear(pairwise, (-2, -1)), pairwise, allowed(pairwise), _linear(factors.unary),
+                   factors.unary)
 
 
 def _positions(link: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -133,7 +133,8 @@ def test_the_start_distribution_is_fitted_from_the_chains_first_frames(fetch_tem
     first = int(np.bincount(labels[starts]).argmax())  # every Fetch episode begins with the same class (reach)
     assert start.argmax() == first
     primed = lag.with_start(factors, start)
-    np.testing.assert_allclose(primed.unary[starts] - factors.unary[starts], np.broadcast_to(start, (starts.sum(), len(start))))
+    np.testing.assert_allclose(primed.unary[starts] - factors.unary[starts],
+                               np.broadcast_to(start, (starts.sum(), len(start))))
     assert (primed.unary[~starts] == factors.unary[~starts]).all()
 
 

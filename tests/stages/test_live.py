@@ -43,7 +43,8 @@ def recording(tmp_path_factory, live_workdir):
 @pytest.fixture(scope="module")
 def lagged_model(tmp_path_factory, live_workdir):
     path = tmp_path_factory.mktemp("model") / "live.mlnseq"
-    return export.run(live_workdir, export.ExportOptions(method="conflation", decode="smooth-legal", lag=3, output=path))
+    options = export.ExportOptions(method="conflation", decode="smooth-legal", lag=3, output=path)
+    return export.run(live_workdir, options)
 
 
 def test_conflate_scores_every_decoder_at_every_lag_with_forbidden_transitions(live_workdir):
@@ -72,7 +73,7 @@ def test_auto_chooses_within_the_budget_and_refuses_what_cannot_fit(live_workdir
     assert auto.manifest["latency_s"] is None or auto.manifest["lag"] == 0  # DESK's frame rate is unknown
     for options, needle in (
         (export.ExportOptions(method="auto", latency=1.0), "frame rate .* not known; give the budget as --lag"),
-        (export.ExportOptions(method="auto", decode="smooth", lag=2), r"no cross-validated smooth candidate .* within 2"),
+        (export.ExportOptions(method="auto", decode="smooth", lag=2), r"no cross-validated smooth candidate .* 2 fr"),
         (export.ExportOptions(method="conflation", decode="smooth", lag=5), r"no conflation\+smooth@5 predictions"),
         (export.ExportOptions(method="conflation", decode="lagviterbi", lag=3), r"conflate --decode lagviterbi"),
         (export.ExportOptions(method="conflation", decode="smooth"), "give --lag FRAMES"),
