@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from mlnseq import conflate
 from mlnseq.catalog import artifacts, methods
 from mlnseq.reporting import loading
 
@@ -99,8 +100,8 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert (fixed / "models" / "lstm.pt").resolve() == (stream / "lstm.pt").resolve()
         meta = artifacts.read_metadata(fixed / artifacts.PREDICTIONS)
         assert meta["network_weight_option"] == 1.0 and meta["network_weights"] == {}
-        assert meta["methods"] == [methods.decoded_name(m, d) for d in methods.DECODES
-                                   for m in ("lstm", "mln", "conflation")]
+        every = conflate.ConflateOptions(decode=conflate.parse_decode("all")).decodes  # each decoder at each lag
+        assert meta["methods"] == [methods.decoded_name(m, d) for d in every for m in ("lstm", "mln", "conflation")]
         paper = artifacts.read_metadata(runs / dataset / "stream" / "seed-0" / artifacts.PREDICTIONS)
         assert "conflation+filter" in paper["methods"] and paper["cross_validation"]["folds"]["k"] == 5
         assert set(paper["cross_validation"]["figures"]) == set(paper["methods"])
@@ -108,7 +109,9 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert artifacts.read_metadata(runs / dataset / "segment" / "seed-0" / artifacts.PREDICTIONS)["methods"] == [
             "lstm", "mln", "priorlayer", "conflation", "combined"]
         tcn = runs / f"{dataset}-tcn"
-        assert (tcn / "weights.parquet").resolve() == (runs / dataset / "weights.parquet").resolve()
+        assert (tcn / "weights.parquet").resolve() == (runs / f"{dataset}-temporal" / "weights.parquet").resolve()
+        tcn_meta = artifacts.read_metadata(tcn / "stream" / "seed-0" / artifacts.PREDICTIONS)
+        assert "conflation+filter" in tcn_meta["methods"] and tcn_meta["cross_validation"]["folds"]["k"] == 5
         assert not (tcn / "segment").exists()
         for method in ("lstm", "priorlayer"):
             assert torch.load(tcn / "stream/seed-0/models" / f"{method}.pt", weights_only=True)["config"]["model"][
