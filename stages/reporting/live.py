@@ -1,0 +1,145 @@
+"""Live recognition in the report (issue 24): per paper dataset, accuracy against latency (every decoder at every
+lag conflate scored, its best method by cross-validation, with its test figures), and the choices within a
+latency budget that reports/summary.json records: ``live`` (DESK: 25 frames, Fetch: 1 s), ``online`` (lag 0)
+and ``offline`` (no budget). Choices read the cross-validated figures only (stages/recognition/live.py's
+criterion); the test figures stand beside them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.decoders import Decoder
+from mlnseq.recognition import live
+from mlnseq.reporting.loading import PAPER_DATASETS, TCN, Run
+from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, lookup, sequence_stats
+
+BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
+FOLDERS = (*DEPLOY_VARIANTS, TCN)
+SHOWN = ("segment_accuracy", "frame_accuracy", "edit")
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A decoded method of one folder: cross-validated and test means over seeds, test forbidden transitions."""
+
+    folder: str
+    candidate: live.Candidate
+    test: dict[str, float | None]
+    forbidden: float | None  # mean over seeds, on test
+    hard_rules: bool
+
+    def record(self, rate: float | None) -> dict[str, Any]:
+        decoding = self.candidate.decoding
+        lag = decoding.lag if not decoding.decoder.offline else None
+        latency = None if decoding.decoder.offline else decoding.latency_s(rate) if decoding.lag else 0.0
+        return {"method": self.candidate.name, "folder": self.folder, "decoder": decoding.decoder.value,
+                "lag_frames": lag, "latency_s": latency,
+                "cv": {**{k: self.candidate.figures.get(k) for k in (*SHOWN, "f1_50", "log_likelihood")},
+                       "forbidden_transitions": self.candidate.figures.get("forbidden_transitions")},
+                "test": {**self.test, "forbidden_transitions": self.forbidden}}
+
+
+def _forbidden_and_rules(run: Run, folder: str) -> tuple[dict[str, float], bool]:
+    """Per method, the forbidden transitions on test (mean over seeds), and whether the chain has hard rules."""
+    counts: dict[str, list[int]] = {}
+    rules = False
+    for path in sorted((run.runs / folder / "stream").glob(f"seed-*/{artifacts.PREDICTIONS}")) if run.runs else []:
+        meta = artifacts.read_metadata(path, "predictions")
+        rules |= bool(meta.get("hard_rules"))
+        for name, count in (meta.get("forbidden_transitions") or {}).items():
+            counts.setdefault(name, []).append(count)
+    return {name: float(np.mean(values)) for name, values in counts.items()}, rules
+
+
+def scored(run: Run, dataset: str) -> list[Scored]:
+    """Every cross-validated method of the dataset's deployable folders (stream mode)."""
+    stats, cv = sequence_stats(run), cv_stats(run)
+    extra = {k: run.cv.filter((run.cv["mode"] == "stream") & (run.cv["metric"] == k))
+             for k in ("log_likelihood", "forbidden_transitions")}
+    out = []
+    for suffix in FOLDERS:
+        folder = dataset + suffix
+        names = cv["segment_accuracy"].filter(cv["segment_accuracy"]["dataset"] == folder)["method"].to_list()
+        if not names:
+            continue
+        forbidden, rules = _forbidden_and_rules(run, folder)
+        for name in names:
+            figures = {CV_METRICS[m]: lookup(cv[m], dataset=folder, method=name)[0] for m in CV_METRICS}
+            for key, table in extra.items():
+                values = table.filter((table["dataset"] == folder) & (table["method"] == name))["value"]
+                if len(values):
+                    figures[key] = float(values.mean())
+            test = {CV_METRICS[m]: lookup(stats[m], dataset=folder, method=name)[0] for m in CV_METRICS}
+            if test["segment_accuracy"] is None:
+                continue
+            (candidate,) = live.candidates({name: figures})
+            out.append(Scored(folder, candidate, test, forbidden.get(name), rules))
+    return out
+
+
+def choose(candidates: list[Scored], budget: int | None, offline: bool = False) -> Scored | None:
+    """The best by the cross-validated criterion within ``budget`` frames (hard rules kept where a folder has
+    them); ``offline``: among the offline decoders only."""
+    fitting = [s for s in candidates if live.within(s.candidate, budget, None, s.hard_rules)
+               and (not offline or s.candidate.decoding.decoder.offline)]
+    return max(fitting, key=lambda s: s.candidate.score) if fitting else None
+
+
+def rate_of(run: Run, dataset: str) -> float | None:
+    """The frame rate of a dataset's recordings (its own folder's frames, or a variant's: they link the same)."""
+    for folder in (dataset, *(dataset + suffix for suffix in FOLDERS)):
+        if folder in run.datasets:
+            return live.rate_of(run.datasets[folder])
+    return None
+
+
+def live_budget(run: Run, dataset: str) -> int | None:
+    frames, seconds = BUDGETS.get(dataset, (None, None))
+    rate = rate_of(run, dataset)
+    return frames if frames is not None else (None if rate is None else int(math.floor(seconds * rate + 1e-9)))
+
+
+def live_summary(run: Run, dataset: str) -> dict[str, Any]:
+    """summary.json's live, online and offline entries of a dataset."""
+    candidates, rate = scored(run, dataset), rate_of(run, dataset)
+    out = {}
+    for use, (budget, offline) in {"live": (live_budget(run, dataset), False), "online": (0, False),
+                                   "offline": (None, True)}.items():
+        best = choose(candidates, budget, offline)
+        if best is not None:
+            out[use] = {**best.record(rate), "budget_frames": budget}
+    return out
+
+
+def latency_rows(run: Run) -> list[list[str]]:
+    """Per paper dataset, decoder and lag: the method the criterion picks there, its cross-validated criterion and
+    its test figures (means over seeds), the forbidden transitions it emits on test."""
+    rows = []
+    for dataset in PAPER_DATASETS:
+        candidates, rate = scored(run, dataset), rate_of(run, dataset)
+        by: dict[tuple[str, int | None], list[Scored]] = {}
+        for s in candidates:
+            decoding = s.candidate.decoding
+            if decoding.decoder is not Decoder.NONE:
+                by.setdefault((decoding.decoder.value, decoding.lag), []).append(s)
+        for (decoder, lag), group in sorted(by.items(), key=lambda kv: (kv[0][0], -1 if kv[0][1] is None else kv[0][1])):
+            best = max(group, key=lambda s: s.candidate.score)
+            seconds = "offline" if lag is None else ("?" if rate is None and lag else f"{(lag or 0) / (rate or 1):.2f}")
+            rows.append([dataset, decoder, "whole" if lag is None else str(lag), seconds,
+                         f"{best.candidate.name} (`{best.folder}`)", f"{best.candidate.score[0]:.1f}",
+                         *(_cell(best.test[m]) for m in SHOWN),
+                         "–" if best.forbidden is None else f"{best.forbidden:.0f}"])
+    return rows
+
+
+def _cell(value: float | None) -> str:
+    return "–" if value is None or value != value else f"{value:.1f}"
+
+
+LATENCY_HEADER = ["dataset", "decoder", "lag (frames)", "latency (s)", "method chosen by CV (folder)",
+                  "CV criterion", "test segment", "test frame", "test edit", "test forbidden"]
