@@ -104,15 +104,22 @@ def live_budget(run: Run, dataset: str) -> int | None:
     return frames if frames is not None else (None if rate is None else int(math.floor(seconds * rate + 1e-9)))
 
 
-def live_summary(run: Run, dataset: str) -> dict[str, Any]:
-    """summary.json's live, online and offline entries of a dataset."""
+def live_summary(run: Run, dataset: str, entry: dict[str, Any]) -> dict[str, Any]:
+    """summary.json's entries of a dataset with ``live`` added (the choice within its budget, when conflate scored
+    lagged decoders) and each of ``online`` and ``offline`` given its decoder, lag and forbidden transitions."""
     candidates, rate = scored(run, dataset), rate_of(run, dataset)
-    out = {}
-    for use, (budget, offline) in {"live": (live_budget(run, dataset), False), "online": (0, False),
-                                   "offline": (None, True)}.items():
-        best = choose(candidates, budget, offline)
-        if best is not None:
-            out[use] = {**best.record(rate), "budget_frames": budget}
+    out = dict(entry)
+    budget = live_budget(run, dataset)
+    best = choose(candidates, budget) if any(s.candidate.decoding.decoder.lagged for s in candidates) else None
+    if best is not None:
+        out["live"] = {**best.record(rate), "budget_frames": budget}
+    for use in ("online", "offline"):
+        if use in out:
+            decode = out[use]["method"].partition("+")[2] or "none"
+            forbidden, _ = _forbidden_and_rules(run, out[use]["folder"]) if run.runs else ({}, False)
+            out[use] = {**out[use], "decoder": decode.partition("@")[0],
+                        "lag_frames": 0 if use == "online" else None,
+                        "forbidden_transitions": forbidden.get(out[use]["method"])}
     return out
 
 

@@ -263,8 +263,7 @@ def summary(run: Run) -> dict[str, Any]:
                                   for m in SEQUENCE_METRICS}}
         from mlnseq.reporting.live import live_summary  # issue 24: live, and online/offline with their decoder
 
-        entry.update(live_summary(run, dataset))
-        out[dataset] = entry
+        out[dataset] = live_summary(run, dataset, entry)
     return out
 
 

@@ -188,7 +188,8 @@ def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
     assert "desk: stream mode, seed 0, test episode 1 (the first wholly in the test split), frames 0–599" in text
     assert "- desk: deploy **" in text and "- desk, online choice (" in text
     summary = json.loads((tmp_path / report.SUMMARY).read_text())
-    assert set(summary["desk"]) == {"online", "offline", "lstm"}
+    assert {"online", "offline", "lstm"} <= set(summary["desk"]) <= {"online", "offline", "lstm", "live"}
+    assert summary["desk"]["online"]["decoder"] == "filter" and "forbidden_transitions" in summary["desk"]["online"]
     assert set(summary["desk"]["online"]["cv"]) == {"segment_accuracy", "frame_accuracy", "edit", "f1_50"}
     assert result.n_seed_runs == 3
 
