@@ -26,6 +26,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.reporting.figures import (
     FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_timeline, figure_train_vs_test, pyplot,
 )
+from mlnseq.reporting.live import with_live
 from mlnseq.reporting.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from mlnseq.reporting.rendering import render
 from mlnseq.reporting.tables import deploy_choices, efficiency_points, method_name, summary
@@ -76,7 +77,7 @@ def run(options: ReportOptions) -> ReportResult:
         plt.close(figure)
         written.append(out / name)
     path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines))
-    artifacts.write_text(out / SUMMARY, json.dumps(summary(loaded), indent=1, sort_keys=True) + "\n")
+    artifacts.write_text(out / SUMMARY, json.dumps(with_live(loaded, summary(loaded)), indent=1, sort_keys=True) + "\n")
     n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
     return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)
 

@@ -134,7 +134,8 @@ def latency_rows(run: Run) -> list[list[str]]:
             decoding = s.candidate.decoding
             if decoding.decoder is not Decoder.NONE:
                 by.setdefault((decoding.decoder.value, decoding.lag), []).append(s)
-        for (decoder, lag), group in sorted(by.items(), key=lambda kv: (kv[0][0], -1 if kv[0][1] is None else kv[0][1])):
+        order = sorted(by, key=lambda key: (key[0], -1 if key[1] is None else key[1]))
+        for (decoder, lag), group in ((key, by[key]) for key in order):
             best = max(group, key=lambda s: s.candidate.score)
             seconds = "offline" if lag is None else ("?" if rate is None and lag else f"{(lag or 0) / (rate or 1):.2f}")
             rows.append([dataset, decoder, "whole" if lag is None else str(lag), seconds,
@@ -150,3 +151,8 @@ def _cell(value: float | None) -> str:
 
 LATENCY_HEADER = ["dataset", "decoder", "lag (frames)", "latency (s)", "method chosen by CV (folder)",
                   "CV criterion", "test segment", "test frame", "test edit", "test forbidden"]
+
+
+def with_live(run: Run, summary: dict[str, Any]) -> dict[str, Any]:
+    """summary.json (tables.summary) with each dataset's live entry and its online/offline decoders."""
+    return {dataset: live_summary(run, dataset, entry) for dataset, entry in summary.items()}
