@@ -156,3 +156,47 @@ LATENCY_HEADER = ["dataset", "decoder", "lag (frames)", "latency (s)", "method c
 def with_live(run: Run, summary: dict[str, Any]) -> dict[str, Any]:
     """summary.json (tables.summary) with each dataset's live entry and its online/offline decoders."""
     return {dataset: live_summary(run, dataset, entry) for dataset, entry in summary.items()}
+
+
+FIGURE = "latency_{dataset}.png"
+
+
+def latency_points(run: Run, dataset: str) -> dict[str, list[tuple[int, float, float]]]:
+    """Per online decoder, (lag, test segment accuracy, test edit) of the method CV picks at each lag."""
+    by: dict[tuple[str, int], list[Scored]] = {}
+    for s in scored(run, dataset):
+        decoding = s.candidate.decoding
+        if decoding.decoder is not Decoder.NONE and not decoding.decoder.offline:
+            by.setdefault((decoding.decoder.value, decoding.lag or 0), []).append(s)
+    points: dict[str, list[tuple[int, float, float]]] = {}
+    for (decoder, lag), group in sorted(by.items()):
+        best = max(group, key=lambda s: s.candidate.score)
+        family = decoder.replace("filter", "smooth")  # the filter is smoothing at lag 0
+        points.setdefault(family, []).append((lag, best.test["segment_accuracy"] or math.nan,
+                                              best.test["edit"] or math.nan))
+    return {k: sorted(v) for k, v in points.items()}
+
+
+def figure_latency(run: Run, dataset: str):
+    """Test segment accuracy and edit against the lag, per decoder (the method CV picks at each lag), or None."""
+    from mlnseq.reporting.figures import pyplot
+
+    points = latency_points(run, dataset)
+    if not points:
+        return None
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for family, values in points.items():
+        lags = [max(lag, 0.5) for lag, _, _ in values]  # lag 0 drawn at 0.5 on the log axis
+        style = "--" if family.endswith("-legal") else "-"
+        for ax, column in zip(axes, (1, 2)):
+            ax.plot(lags, [v[column] for v in values], marker="o", linestyle=style, label=family)
+    rate = rate_of(run, dataset)
+    unit = f"lag (frames; {rate:g} per second)" if rate else "lag (frames; lag 0 at 0.5)"
+    for ax, name in zip(axes, ("test segment accuracy (%)", "test edit")):
+        ax.set(xscale="log", xlabel=unit, ylabel=name)
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{dataset}: accuracy against latency (each point: the method cross-validation picks)")
+    fig.tight_layout()
+    return fig

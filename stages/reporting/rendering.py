@@ -225,11 +225,13 @@ def sequential_logic(run: Run, figures: dict[str, str], timelines: dict[str, str
 
 def live_section(run: Run) -> list[str]:
     """Issue 24: accuracy against latency, per decoder and lag, and the live choice within its budget."""
-    from mlnseq.reporting.live import LATENCY_HEADER, latency_rows
+    from mlnseq.reporting.live import FIGURE, LATENCY_HEADER, latency_rows
 
     rows = latency_rows(run)
     if not rows:
         return []
+    figures = [f"![{d}: accuracy against latency]({FIGURE.format(dataset=d)})\n" for d in PAPER_DATASETS
+               if any(row[0] == d for row in rows)]
     return ["### Live recognition: accuracy against latency\n",
             "Per decoder and lag (frame t decided once frame t + lag has arrived; Fetch runs at 25 Hz, DESK's rate is "
             "unknown), the method of the deployable folders with the best cross-validated criterion (the mean of "
@@ -237,4 +239,4 @@ def live_section(run: Run) -> list[str]:
             "log-likelihood of the true labels), its test figures (means over seeds) and the transitions it emits "
             "on test that the chain forbids. `-legal` decoders take the argmax among the classes allowed after the "
             "one emitted last. summary.json's `live` entry is the choice within 25 frames (DESK) or 1 s (Fetch).\n",
-            markdown_table(LATENCY_HEADER, rows)]
+            markdown_table(LATENCY_HEADER, rows), *figures]
