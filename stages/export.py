@@ -128,20 +128,20 @@ def decoding_of(workdir: Path, options: ExportOptions,
                 frames_meta: dict[str, Any]) -> tuple[ExportOptions, Decoding, dict[str, Any] | None, dict[str, Any]]:
     """The method and decoding to export (``--method auto``: chosen by cross-validation within the budget), the
     choice's record, and the manifest's lag, latency, rate and start distribution."""
-    from mlnseq.recognition import live
+    from mlnseq.recognition import latency
 
-    rate = live.rate_of(frames_meta)
+    rate = latency.rate_of(frames_meta)
     decoder = Decoder(options.decode)
     chosen = None
     if options.method == AUTO:
-        budget = live.budget_frames(options.lag, options.latency, rate, str(workdir))
+        budget = latency.budget_frames(options.lag, options.latency, rate, str(workdir))
         meta = _scored(workdir, f"--method {AUTO}")
         figures = (meta.get("cross_validation") or {}).get("figures") or {}
         if not figures:
             raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated figures; train its networks with "
                            f"folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
                            f"`mlnseq conflate --decode all`")
-        best, fitting = live.choose(figures, budget, None if decoder is Decoder.NONE else decoder,
+        best, fitting = latency.choose(figures, budget, None if decoder is Decoder.NONE else decoder,
                                     bool(meta.get("hard_rules")), str(workdir))
         chosen = {**best.record(), "figures": best.figures, "budget_frames": budget,
                   "candidates": {c.name: c.figures for c in fitting}, "folds": meta["cross_validation"]["folds"]["k"]}
@@ -149,7 +149,7 @@ def decoding_of(workdir: Path, options: ExportOptions,
     else:
         lag = options.lag
         if options.latency is not None and decoder.lagged:
-            lag = live.budget_frames(None, options.latency, rate, str(workdir))
+            lag = latency.budget_frames(None, options.latency, rate, str(workdir))
         if decoder.lagged and lag is None:
             raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES "
                            "(or --latency SECONDS)")

@@ -26,7 +26,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.reporting.figures import (
     FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_timeline, figure_train_vs_test, pyplot,
 )
-from mlnseq.reporting.live import FIGURE as LATENCY_FIGURE, figure_latency, with_live
+from mlnseq.reporting.latency import FIGURE as LATENCY_FIGURE, figure_latency, with_live
 from mlnseq.reporting.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from mlnseq.reporting.rendering import render
 from mlnseq.reporting.tables import deploy_choices, efficiency_points, method_name, summary

@@ -27,7 +27,7 @@ from mlnseq.model.model_file import NETWORK, SPEC, WEIGHTS
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
 from mlnseq.mln.lag import Online
-from mlnseq.recognition import live
+from mlnseq.recognition import latency
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
@@ -142,7 +142,7 @@ class Recognizer:
         self.manifest = manifest = model.manifest
         self.method, self.decode = manifest["method"], manifest["decode"]
         network = manifest["network"]
-        self.timing = live.read_timing(manifest, where, len(manifest["classes"]))
+        self.timing = latency.read_timing(manifest, where, len(manifest["classes"]))
         self.decoding, self.lag, self.start = self.timing.decoding, self.timing.decoding.lag, self.timing.start
         if (self.method not in METHODS or manifest["mln_mode"] not in MLN_MODES
                 or (network or {}).get("name") != network_of(self.method)

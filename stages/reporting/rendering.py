@@ -225,7 +225,7 @@ def sequential_logic(run: Run, figures: dict[str, str], timelines: dict[str, str
 
 def live_section(run: Run) -> list[str]:
     """Issue 24: accuracy against latency, per decoder and lag, and the live choice within its budget."""
-    from mlnseq.reporting.live import FIGURE, LATENCY_HEADER, latency_rows
+    from mlnseq.reporting.latency import FIGURE, LATENCY_HEADER, latency_rows
 
     rows = latency_rows(run)
     if not rows:

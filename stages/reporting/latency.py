@@ -1,7 +1,7 @@
 """Live recognition in the report (issue 24): per paper dataset, accuracy against latency (every decoder at every
 lag conflate scored, its best method by cross-validation, with its test figures), and the choices within a
 latency budget that reports/summary.json records: ``live`` (DESK: 25 frames, Fetch: 1 s), ``online`` (lag 0)
-and ``offline`` (no budget). Choices read the cross-validated figures only (stages/recognition/live.py's
+and ``offline`` (no budget). Choices read the cross-validated figures only (stages/recognition/latency.py's
 criterion); the test figures stand beside them."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
-from mlnseq.recognition import live
+from mlnseq.recognition import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, Run
 from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, lookup, sequence_stats
 
@@ -28,7 +28,7 @@ class Scored:
     """A decoded method of one folder: cross-validated and test means over seeds, test forbidden transitions."""
 
     folder: str
-    candidate: live.Candidate
+    candidate: latency.Candidate
     test: dict[str, float | None]
     forbidden: float | None  # mean over seeds, on test
     hard_rules: bool
@@ -77,7 +77,7 @@ def scored(run: Run, dataset: str) -> list[Scored]:
             test = {CV_METRICS[m]: lookup(stats[m], dataset=folder, method=name)[0] for m in CV_METRICS}
             if test["segment_accuracy"] is None:
                 continue
-            (candidate,) = live.candidates({name: figures})
+            (candidate,) = latency.candidates({name: figures})
             out.append(Scored(folder, candidate, test, forbidden.get(name), rules))
     return out
 
@@ -85,7 +85,7 @@ def scored(run: Run, dataset: str) -> list[Scored]:
 def choose(candidates: list[Scored], budget: int | None, offline: bool = False) -> Scored | None:
     """The best by the cross-validated criterion within ``budget`` frames (hard rules kept where a folder has
     them); ``offline``: among the offline decoders only."""
-    fitting = [s for s in candidates if live.within(s.candidate, budget, None, s.hard_rules)
+    fitting = [s for s in candidates if latency.within(s.candidate, budget, None, s.hard_rules)
                and (not offline or s.candidate.decoding.decoder.offline)]
     return max(fitting, key=lambda s: s.candidate.score) if fitting else None
 
@@ -94,7 +94,7 @@ def rate_of(run: Run, dataset: str) -> float | None:
     """The frame rate of a dataset's recordings (its own folder's frames, or a variant's: they link the same)."""
     for folder in (dataset, *(dataset + suffix for suffix in FOLDERS)):
         if folder in run.datasets:
-            return live.rate_of(run.datasets[folder])
+            return latency.rate_of(run.datasets[folder])
     return None
 
 
