@@ -173,6 +173,17 @@ def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> 
     return line
 
 
+def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
+    """One frame through the model, its input time kept until its frame is answered; a bad frame names its line."""
+    time = next((frame[key] for key in TIMES if key in frame), None)
+    if time is not None:
+        times[model.next_frame] = time
+    try:
+        return model.step(frame)
+    except BadInput as error:
+        raise InputLine(f"line {number}: {error}") from None
+
+
 def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn: Callable[[str], None]) -> StreamSummary:
     """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
@@ -195,38 +206,37 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
             summary.frames += 1
 
     with answering_before_interrupt() as busy:
-        for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
-            busy(True)
-            try:
-                if isinstance(frame, InputLine):
-                    raise frame
-                unused = set(frame) - used - ignored
-                if unused:
-                    ignored |= unused
-                    warn(f"note: line {number}: keys the model does not use are ignored: {', '.join(sorted(unused))}")
-                if not summary.episodes or frame.get(EPISODE) != episode:
-                    if summary.episodes:
-                        answer(model.finish(), episode)  # the episode's pending frames, decided at once
-                        times.clear()
-                        model.reset()
-                    episode = frame.get(EPISODE)
-                    summary.episodes += 1
+        try:
+            for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
+                busy(True)
                 try:
-                    time = next((frame[key] for key in TIMES if key in frame), None)
-                    if time is not None:
-                        times[model.next_frame] = time
-                    prediction = model.step(frame)
-                except BadInput as error:
-                    raise InputLine(f"line {number}: {error}") from None
-            except InputLine as error:
-                summary.skipped += 1
-                if options.strict:
-                    raise
-                warn(f"error: {error}")
+                    if isinstance(frame, InputLine):
+                        raise frame
+                    unused = set(frame) - used - ignored
+                    if unused:
+                        ignored |= unused
+                        warn(f"note: line {number}: keys the model does not use are ignored: "
+                             f"{', '.join(sorted(unused))}")
+                    if not summary.episodes or frame.get(EPISODE) != episode:
+                        if summary.episodes:
+                            answer(model.finish(), episode)  # the episode's pending frames, decided at once
+                            times.clear()
+                            model.reset()
+                        episode = frame.get(EPISODE)
+                        summary.episodes += 1
+                    prediction = _step(model, frame, number, times)
+                except InputLine as error:
+                    summary.skipped += 1
+                    if options.strict:
+                        raise
+                    warn(f"error: {error}")
+                    busy(False)
+                    continue
+                answer(prediction.final, episode)
                 busy(False)
-                continue
-            answer(prediction.final, episode)
-            busy(False)
+        except KeyboardInterrupt:  # Ctrl-C: the frames read so far are answered, the pending ones at once
+            answer(model.finish(), episode)
+            raise
         busy(True)
         answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
         busy(False)
