@@ -15,7 +15,7 @@ import numpy as np
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.recognition import latency
-from mlnseq.reporting.loading import PAPER_DATASETS, TCN, Run
+from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
 from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, lookup, sequence_stats
 
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
@@ -105,14 +105,20 @@ def live_budget(run: Run, dataset: str) -> int | None:
 
 
 def live_summary(run: Run, dataset: str, entry: dict[str, Any]) -> dict[str, Any]:
-    """summary.json's entries of a dataset with ``live`` added (the choice within its budget, when conflate scored
-    lagged decoders) and each of ``online`` and ``offline`` given its decoder, lag and forbidden transitions."""
+    """summary.json's entries of a dataset: where conflate scored the lagged decoders, ``live`` (the choice within the
+    dataset's budget), ``online`` (lag 0) and ``offline`` (the offline decoders) chosen by the CV criterion among
+    every decoder; otherwise ``online`` and ``offline`` as tables.summary chose them, given their decoder, lag and
+    forbidden transitions."""
     candidates, rate = scored(run, dataset), rate_of(run, dataset)
     out = dict(entry)
-    budget = live_budget(run, dataset)
-    best = choose(candidates, budget) if any(s.candidate.decoding.decoder.lagged for s in candidates) else None
-    if best is not None:
-        out["live"] = {**best.record(rate), "budget_frames": budget}
+    if any(s.candidate.decoding.decoder.lagged for s in candidates):  # conflate --decode all: choose by the criterion
+        for use, budget, offline in (("live", live_budget(run, dataset), False), ("online", 0, False),
+                                     ("offline", None, True)):
+            best = choose(candidates, budget, offline)
+            if best is not None:
+                out[use] = {**best.record(rate), "budget_frames": budget, "variant": VARIANTS.get(
+                    best.folder.removeprefix(dataset), best.folder), "chosen_by": "mean of CV segment, frame, edit"}
+        return out
     for use in ("online", "offline"):
         if use in out:
             decode = out[use]["method"].partition("+")[2] or "none"
