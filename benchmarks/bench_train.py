@@ -20,6 +20,7 @@ import torch
 
 from mlnseq import collect, train
 from mlnseq.timeline import sequences
+from mlnseq.networks import fitting
 from mlnseq.networks.classifier import SequenceClassifier
 from mlnseq.networks.recurrent import Config as ModelConfig
 
@@ -65,7 +66,7 @@ def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
         for parameter in parameters:
             parameter.grad = None
         loss.backward()
-        train.sgd_step(parameters, options.learning_rate)
+        fitting.sgd_step(parameters, options.learning_rate)
     return time.perf_counter() - started
 
 
@@ -80,7 +81,7 @@ def compare(name: str, data: train.FrameData) -> None:
     default_threads = os.cpu_count() or 1  # torch's default; mlnseq itself pins one thread (stages/__init__)
     torch.set_num_threads(default_threads)
     base_default = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
-    train.set_threads()
+    fitting.set_threads()
     base_one = min(baseline_epoch(SequenceClassifier(config), segments) for _ in range(REPEATS))
     ours = min(batched_epoch(data, options) for _ in range(REPEATS))
     wide = train.TrainOptions(batch_size=16)

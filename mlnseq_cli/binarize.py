@@ -8,19 +8,32 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
+from mlnseq_cli.headings import legend, short_names
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, fail, reported_errors
 from mlnseq import binarize as stage
+
+SUGGESTED = "suggested.binarize.toml"  # --suggest's spec in the workdir
 
 
 def binarize(
     spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: the built-in spec of the frames' source, stages/specs/<source>.binarize.toml].", dir_okay=False)] = None,
-    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true.")] = False,
+    suggest: Annotated[bool, typer.Option("--suggest", help="Write a starter spec from these frames (thresholds from the training split, change predicates per channel, grippers where the data looks like one), commented, to --output; then binarize with it.")] = False,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/suggested.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output even if edited by hand.")] = False,
+    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas.")] = False,
+    max_columns: Annotated[int, typer.Option(help="Refuse a spec that makes more predicate columns than this (a pair makes one per combination).")] = stage.BinarizeOptions.max_columns,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/frames.parquet and a predicate spec; write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
-    options = stage.BinarizeOptions(spec=spec)
+    """Read WORKDIR/frames.parquet and a predicate spec (--spec, the source's built-in one, or --suggest: one written from the frames); write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
+    if output is not None and not suggest:
+        raise fail("--output names the spec --suggest writes: add --suggest", 2)
+    suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
+    options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force, max_columns=max_columns)
     with reported_errors():
         path, binarized = stage.run(workdir, options)
+    if suggested is not None:
+        console.print(f"binarize: suggested a spec from the frames: {suggested} (edit it, then "
+                      f"`mlnseq binarize --spec {suggested}`)", highlight=False)
     columns = binarized.meta["predicates"]
     console.print(
         f"[green]binarize[/]: wrote {path} ({counted(len(columns), 'predicate')}, "
@@ -28,7 +41,34 @@ def binarize(
         f"spec {binarized.meta['spec']['path']})"
     )
     if table:
-        shown = Table("predicate", "column", "true", box=None)
-        for name, column, share in stage.true_shares(binarized.predicates, columns):
-            shown.add_row(name, column, f"{share:.1%}")
-        console.print(shown)
+        print_class_table(binarized.predicates, columns, list(binarized.meta["classes"]))
+
+
+def print_class_table(predicates, columns: dict[str, list[str]], classes: list[str]) -> None:
+    """The predicate values' shares of frames true (all frames, then per class on the training split), readable
+    at 80 columns, then the value that most marks each class."""
+    from mlnseq.predicates.separation import class_shares
+
+    names = [c for group in columns.values() for c in group]
+    shares = class_shares(predicates, names, classes)
+    headings = short_names(shares.classes)
+    wide = len(headings) <= 8
+    shown = Table("column", "true", *(headings if wide else ("most in", "least in")), "spread", box=None,
+                  padding=(0, 1), pad_edge=False,
+                  title=f"share of frames true: all frames, then % of each class's {shares.frames:,} training frames")
+    for i, name in enumerate(names):
+        row = shares.shares[i]
+        per_class = [f"{100 * v:.0f}" for v in row] if wide else [
+            f"{headings[int(row.argmax())]} {100 * row.max():.0f}",
+            f"{headings[int(row.argmin())]} {100 * row.min():.0f}"]
+        shown.add_row(name, f"{shares.overall[i]:.1%}", *per_class, f"{100 * shares.spread[i]:.0f}")
+    for column in shown.columns[1:]:
+        column.justify = "right"
+    console.print(shown)
+    for line in legend(headings, shares.classes):
+        console.print(line, highlight=False)
+    console.print("marks each class (% of its frames true; for Has(...) => Topic(...)):")
+    for k, heading in enumerate(headings):
+        column, inside, elsewhere = shares.marker(k)
+        console.print(f"  {heading}: {column} ({inside:.0%}; other classes at most {elsewhere:.0%})",
+                      highlight=False)

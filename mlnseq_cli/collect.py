@@ -24,7 +24,7 @@ def collect(
     label_column: Annotated[str, typer.Option(help="table: the label column (class index or name).")] = "label",
     episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
-    classes: Annotated[Optional[str], typer.Option(help="table: class names in label order, comma-separated.")] = None,
+    classes: Annotated[Optional[str], typer.Option(help="Class names in label order, comma-separated (any source with named labels: a table's label column, a bag's label topic, --labels) \\[default: sorted by name, or a numeric label's own order].")] = None,
     features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column]; hdf5: dataset paths in a demo (obs/joint_pos, actions).")] = None,
     labels: Annotated[Optional[Path], typer.Option(help="Labels as intervals: a CSV/TSV of episode,start,end,label (every recording env).", dir_okay=False)] = None,
     labels_unit: Annotated[Optional[str], typer.Option(help="--labels' start and end: seconds or frames \\[default: seconds for rosbag, frames otherwise].")] = None,
@@ -35,16 +35,11 @@ def collect(
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
-    options = stage.CollectOptions(
-        env=env, source=source, channels=channels, episodes=episodes, seed=seed,
-        train_frames=train_frames, goals=goals, cache=cache,
-        columns=stage.TableColumns(
-            label=label_column, episode=episode_column, time=time_column,
-            classes=_names(classes), features=_names(features),
-        ),
-        recordings=stage.SourceOptions(labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
-                                       topics=_names(topics), rate=rate, label_topic=label_topic),
-    )
+    options = collect_options(env=env, source=source, channels=channels, episodes=episodes, seed=seed,
+                              train_frames=train_frames, goals=goals, cache=cache, label_column=label_column,
+                              episode_column=episode_column, time_column=time_column, classes=classes,
+                              features=features, labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
+                              topics=topics, rate=rate, label_topic=label_topic)
     with reported_errors():
         options.validate()
         with Progress(
@@ -55,6 +50,25 @@ def collect(
             path, collected = stage.run(
                 workdir, options, progress=lambda done, total: bar.update(task, completed=done, total=total)
             )
+    print_collected(path, collected)
+
+
+def collect_options(*, label_column: str, episode_column: Optional[str], time_column: Optional[str],
+                    classes: Optional[str], features: Optional[str], labels: Optional[Path], labels_unit: Optional[str],
+                    unlabelled: Optional[str], topics: Optional[str], rate: Optional[float], label_topic: Optional[str],
+                    **rest) -> stage.CollectOptions:
+    """The stage's options from the command's flags (also `mlnseq fit`'s source flags)."""
+    return stage.CollectOptions(
+        **rest,
+        columns=stage.TableColumns(label=label_column, episode=episode_column, time=time_column,
+                                   classes=_names(classes), features=_names(features)),
+        recordings=stage.SourceOptions(labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
+                                       topics=_names(topics), rate=rate, label_topic=label_topic),
+    )
+
+
+def print_collected(path: Path, collected: stage.Collected) -> None:
+    """collect's summary: the frames, episodes, split and features, the classes and notes."""
     frames = collected.frames
     split_sizes = dict(frames.group_by("split").len().iter_rows())
     console.print(

@@ -93,6 +93,10 @@ def load(path: Path, commands: dict[str, Any]) -> dict[str, dict[str, Any]]:
         raise BadInput(f"cannot read {path}: {error.strerror or error}") from error
     except tomllib.TOMLDecodeError as error:
         raise BadInput(f"{path}: {error}") from error
+    except RecursionError:  # tomllib recurses once per nested array or table
+        raise BadInput(f"{path}: invalid TOML: its arrays or tables are nested too deep to read") from None
+    except UnicodeDecodeError as error:
+        raise BadInput(f"cannot read {path}: not UTF-8 text ({error})") from None
     default_map: dict[str, dict[str, Any]] = {}
     for section, values in document.items():
         command = commands.get(section)

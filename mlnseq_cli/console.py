@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 
 from mlnseq.catalog.artifacts import DEFAULT_WORKDIR
-from mlnseq.catalog.errors import MlnseqError
+from mlnseq.catalog.errors import MlnseqError, missing_extra
 
 # soft_wrap: a printed line is never broken at the terminal's width (a summary names a file people copy and
 # grep; the terminal folds a long line itself); tables still fit the width.
@@ -57,6 +57,11 @@ def reported_errors() -> Iterator[None]:
     except (typer.Exit, typer.Abort):
         raise
     except Exception as error:  # a bug or an unforeseen input: still one line, the traceback on request
+        missing = missing_extra(error) if isinstance(error, ImportError) else None
+        if missing is not None:  # an optional library absent: the extra that installs it
+            if verbose():
+                traceback.print_exc(file=sys.stderr)
+            raise fail(str(missing), missing.exit_code) from None
         if verbose():
             raise
         raise fail(

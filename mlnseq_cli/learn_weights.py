@@ -25,13 +25,16 @@ def learn_weights(
     folds: Annotated[int, typer.Option(
         help="K >= 2: also learn each of K folds' weights without that fold, for cross-validation "
              "(the folds of `train --folds K`); 0: none.")] = 0,
+    max_formulas: Annotated[int, typer.Option(
+        help="Refuse formulas whose templates and variables expand to more ground formulas than this.")] = 20_000,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predicates.parquet (training split) and FORMULAS; write WORKDIR/weights.parquet and WORKDIR/learned.mln (with --folds K also WORKDIR/weights.folds.parquet, each fold's weights learned without it)."""
     from mlnseq import learn_weights as stage  # the engine's scipy loads when the command runs, not for --help
     from mlnseq.mln.weights_table import strongest, strongest_temporal
 
-    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2, folds=folds)
+    options = stage.LearnWeightsOptions(formulas=formulas, engine=engine, objective=objective, l2=l2, folds=folds,
+                                        max_formulas=max_formulas)
     with reported_errors():
         options.validate()
         path, learned = stage.run(workdir, options)
@@ -52,5 +55,14 @@ def learn_weights(
         for row in transitions.iter_rows(named=True):
             table.add_row("hard" if row["hard"] else f"{row['weight']:.3f}", row["formula"])
         console.print(table)
+    also = ""
+    if folds:
+        from mlnseq.recognition.folds import describe
+
+        meta = artifacts.read_metadata(path.parent / artifacts.FOLD_WEIGHTS, "fold_weights")
+        record, episodes = meta["folds"], meta.get("training_episodes", 0)
+        across = (f" across episodes: the training split has {episodes} and `--folds {min(episodes, 5)}` cuts whole "
+                  "ones;" if record["kind"] == "blocks" and episodes >= 2 else ";")
+        also = f", and {artifacts.FOLD_WEIGHTS} ({describe(record)}{across} each fold's weights learned without it)"
     console.print(f"[green]learn-weights[/] ({engine}, {learned.objective}, l2 {learned.l2:g}): wrote {path} "
-                  f"({counted(learned.weights.height, 'formula')}) and {artifacts.LEARNED_MLN}")
+                  f"({counted(learned.weights.height, 'formula')}) and {artifacts.LEARNED_MLN}{also}")

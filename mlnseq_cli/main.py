@@ -12,6 +12,7 @@ import functools
 import importlib
 import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
@@ -37,12 +38,17 @@ COMMANDS = {
     "conflate": Command("conflate", "conflate",
                         "Run every trained model and the MLN on all frames and combine them: "
                         "WORKDIR/predictions.parquet."),
+    "fit": Command("fit", "fit", "Your recordings to a model file in one command: every stage, with folds, choosing by "
+                   "cross-validation."),
     "eval": Command("eval", "evaluate", "Score the predictions on the test split: WORKDIR/metrics.parquet."),
     "report": Command("report", "report", "The paper's tables and figures from a `make reproduce` run: REPORT.md."),
     "export": Command("export", "export", "Gather a trained method into one model file: WORKDIR/METHOD.mlnseq."),
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
+    "ros": Command("ros", "ros", "A ROS 1 node recognising the model's topics live: the activity on a topic."),
+    "sweep": Command("sweep", "sweep", "Run a grid of options x seeds through Snakemake, locally or on SLURM: "
+                     "OUT/results.parquet."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),
 }
 GLOBAL_FLAGS = ("--verbose",)
@@ -113,7 +119,18 @@ class MlnseqGroup(FlagGroup):
                 path = project_config.find(ctx.params.get("config"), _workdir_in(args[1:]))
                 if path is not None:
                     ctx.default_map = project_config.load(path, self.stage_commands(ctx))
-        return super().invoke(ctx)
+        try:
+            return super().invoke(ctx)
+        except ImportError as error:  # a command whose module imports an optional library at its top
+            from mlnseq.catalog.errors import missing_extra
+            from mlnseq_cli.console import fail, verbose
+
+            missing = missing_extra(error)
+            if missing is None:
+                raise
+            if verbose():
+                traceback.print_exc(file=sys.stderr)
+            raise fail(str(missing), missing.exit_code) from None
 
     def stage_commands(self, ctx: Any) -> dict[str, Any]:
         return {name: self.get_command(ctx, name) for name in self.list_commands(ctx) if name != "config"}

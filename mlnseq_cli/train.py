@@ -17,32 +17,64 @@ from mlnseq import networks
 from mlnseq import train as stage
 
 Defaults = stage.TrainOptions
+HELP = {
+    "method": "network: the network alone, of any --cell (also written lstm, its name in the workdir: "
+              "models/lstm.pt); or priorlayer: the network with the MLN's PriorLayer input (needs predicates.parquet "
+              "and weights.parquet).",
+    "mode": "segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.",
+    "cell": f"Network type: {', '.join(networks.CELLS)} (tcn: a causal temporal convolutional network).",
+    "prior": "priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).",
+    "select": "none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a "
+              "validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, "
+              "keep the best epoch on it.",
+    "measure": "After which epochs the train, val and test parts are measured over all their frames and logged "
+               "(models/METHOD.log.parquet): every-epoch (the per-epoch curves; a pass over every frame after each "
+               "epoch) or last-epoch (the kept network only). Default: every-epoch with --select val_accuracy, which "
+               "needs it, else last-epoch.",
+    "folds": "Cross-validation: also train K networks, each without one fold of the training split (whole episodes, "
+             "else contiguous blocks), and write their out-of-fold predictions of every training frame "
+             "(models/METHOD.oof.parquet), on which conflate learns the network factor's weight and chooses. Default: "
+             "in stream mode with --select none, the K of the MLN's fold weights when `mlnseq learn-weights --folds "
+             "K` wrote them, else 0 (none).",
+    "smoothing": "tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.",
+    "paper_floor": "How the authors' code made the MLN's per-class sums non-negative (PriorLayer's paper input, "
+                   "conflate's mln-mode paper): clamp (negative sums to 0, their DESK code) or shift (by each frame's "
+                   "minimum, their Fetch code). Default: shift for --env fetch recordings, else clamp. Recorded in the "
+                   "checkpoint.",
+}
 
 
 def train(
-    method: Annotated[str, typer.Option(help="lstm, or priorlayer (needs predicates.parquet and weights.parquet).")] = Defaults.method,
+    method: Annotated[str, typer.Option(help=HELP["method"])] = "network",
     seed: Annotated[int, typer.Option(help="Seed of initial weights and batch order.")] = Defaults.seed,
     epochs: Annotated[int, typer.Option(help="Passes over the training sequences.")] = Defaults.epochs,
-    mode: Annotated[str, typer.Option(help="segment: each true segment is a sequence (the paper); stream: whole episodes, no boundaries.")] = Defaults.mode,
-    cell: Annotated[str, typer.Option(help=f"Network type: {', '.join(networks.CELLS)} (tcn: a causal temporal convolutional network).")] = Defaults.cell,
-    prior: Annotated[str, typer.Option(help="priorlayer's MLN input: paper (clamped weight sums, as the authors) or logprob (MLN log-probabilities).")] = Defaults.prior,
-    select: Annotated[str, typer.Option(help="none: train on every training sequence, keep the last epoch; last: hold out the last 20% of them as a validation part (conflate chooses its weights there), keep the last epoch; val_accuracy: hold it out, keep the best epoch on it.")] = Defaults.select,
-    folds: Annotated[Optional[int], typer.Option(help="Cross-validation: also train K networks, each without one fold of the training split (whole episodes, else contiguous blocks), and write their out-of-fold predictions of every training frame (models/METHOD.oof.parquet), on which conflate learns the network factor's weight and chooses. Default: in stream mode with --select none, the K of the MLN's fold weights when `mlnseq learn-weights --folds K` wrote them, else 0 (none).", show_default=False)] = None,
+    mode: Annotated[str, typer.Option(help=HELP["mode"])] = Defaults.mode,
+    cell: Annotated[str, typer.Option(help=HELP["cell"])] = Defaults.cell,
+    prior: Annotated[str, typer.Option(help=HELP["prior"])] = Defaults.prior.value,
+    select: Annotated[str, typer.Option(help=HELP["select"])] = Defaults.select.value,
+    measure: Annotated[Optional[str], typer.Option(help=HELP["measure"], show_default=False)] = None,
+    folds: Annotated[Optional[int], typer.Option(help=HELP["folds"], show_default=False)] = None,
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
-    train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, 0 < F <= 1.")] = Defaults.train_fraction,
+    train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, "
+                                                       "0 < F <= 1.")] = Defaults.train_fraction,
     batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
     window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
-    smoothing: Annotated[float, typer.Option(help="tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.")] = Defaults.smoothing,
+    smoothing: Annotated[float, typer.Option(help=HELP["smoothing"])] = Defaults.smoothing,
+    paper_floor: Annotated[Optional[str], typer.Option(help=HELP["paper_floor"], show_default=False)] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
-    """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch, split, accuracy, loss)."""
+    """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write
+    WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch,
+    split, accuracy, loss: after the last epoch, or every epoch with --measure every-epoch)."""
     options = stage.TrainOptions(
-        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, folds=folds, device=device,
-        train_fraction=train_fraction, batch_size=batch_size, window=window, smoothing=smoothing,
+        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
+        folds=folds, device=device, train_fraction=train_fraction, batch_size=batch_size, window=window,
+        smoothing=smoothing, paper_floor=paper_floor,
     )
     with reported_errors():
         options.validate()
-        with epoch_progress(f"{method} ({mode} mode)", epochs) as progress:
+        what = options.cell if options.method == "lstm" else str(options.method)  # the network alone: its cell
+        with epoch_progress(f"{what} ({mode} mode)" + _then_folds(workdir, options), epochs) as progress:
             result = stage.run(workdir, options, progress)
     trained = result.trained
     for warning in trained.warnings:
@@ -50,9 +82,36 @@ def train(
     last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
     shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
     console.print(
-        f"[green]train[/]: wrote {result.checkpoint} ({method}, {counted(trained.n_train_units, 'training sequence')}, "
+        f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
         f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
+        + _folds_said(result.checkpoint, folds)
     )
+
+
+FOLD_NETWORKS = "fold networks"  # named in the bar's label when they train after its epochs
+
+
+def _then_folds(workdir, options: stage.TrainOptions) -> str:
+    """What trains after the bar's epochs: K fold networks (asked for, or as learn-weights cut them), or nothing."""
+    from mlnseq.catalog import artifacts
+
+    k = options.folds
+    path = workdir / artifacts.FOLD_WEIGHTS
+    if k is None and options.mode == "stream" and options.select == "none" and path.exists():
+        k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
+    return f", then {k} {FOLD_NETWORKS}" if k else ""
+
+
+def _folds_said(checkpoint, asked: Optional[int]) -> str:
+    """With folds: which, and where they came from (asked, or inherited from learn-weights)."""
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.folds import describe
+
+    oof = artifacts.out_of_fold_path(checkpoint.parent.parent, checkpoint.stem)
+    if not oof.exists():
+        return ""
+    how = "" if asked is not None else f", as learn-weights cut them ({artifacts.FOLD_WEIGHTS})"
+    return f"; with {describe(artifacts.read_metadata(oof)['folds'])}{how}: out-of-fold predictions {oof}"
 
 
 @contextlib.contextmanager
@@ -64,19 +123,24 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
                    TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
         with Progress(*columns, console=console, transient=True) as bar:
             task = bar.add_task(what, total=epochs, scores="")
-            yield lambda done: bar.update(task, completed=done.epoch, scores=_scores(done), refresh=True)
+            yield lambda done: bar.update(task, completed=done.epoch, refresh=True, scores=_scores(done) + (
+                "; now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else ""))
         return
     started = time.monotonic()
 
     def line(done: stage.EpochDone) -> None:
         if done.epoch == done.epochs or 10 * done.epoch // done.epochs > 10 * (done.epoch - 1) // done.epochs:
             left = (time.monotonic() - started) / done.epoch * (done.epochs - done.epoch)
-            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {left:.0f} s left",
+            then = "now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else \
+                f"{left:.0f} s left"
+            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {then}",
                           soft_wrap=True, highlight=False)
 
     yield line
 
 
 def _scores(done: stage.EpochDone) -> str:
+    if done.loss is None:
+        return "not measured (--measure last-epoch)"
     val = "–" if done.val_accuracy is None else f"{done.val_accuracy:.1%}"
     return f"loss {done.loss:.3f}, train {done.train_accuracy:.1%}, val {val}"

@@ -24,8 +24,9 @@ import sys
 import traceback
 from pathlib import Path
 
-PRELOAD = ("numpy", "polars", "pyarrow.parquet", "scipy.special", "torch", "typer", "rich.console", "rich.progress",
-           "rich.table")
+# scipy.optimize, .sparse and .linalg: the MLN learners (learn-weights) and conflate's network-weight learning (cll)
+PRELOAD = ("numpy", "polars", "pyarrow.parquet", "scipy.special", "scipy.optimize", "scipy.sparse", "scipy.linalg",
+           "torch", "typer", "rich.console", "rich.progress", "rich.table")
 STREAMS = (0, 1, 2)
 MESSAGE_BYTES = 1 << 20
 

@@ -17,7 +17,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.predicates import rules as predicate_rules
 from mlnseq.catalog.errors import BadInput
-from mlnseq.predicates.spec import Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec
+from mlnseq.predicates.spec import (
+    MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec,
+)
 
 __all__ = ["BinarizeOptions", "Binarized", "PredicateSpec", "binarize", "default_spec_path", "load_spec",
            "parse_spec", "run", "true_shares"]
@@ -28,10 +30,18 @@ class BinarizeOptions:
     """Options of `mlnseq binarize`."""
 
     spec: Path | None = None  # default: the built-in stages/specs/<frames source>.binarize.toml
+    suggest: Path | None = None  # write a starter spec from the frames here (stages/predicates/suggest.py), then use it
+    replace: bool = False  # --suggest may overwrite a file edited by hand
+    max_columns: int = MAX_COLUMNS  # refuse a spec that makes more predicate columns
 
     def validate(self) -> None:
+        if self.max_columns < 1:
+            raise BadInput(f"--max-columns {self.max_columns}: allow at least 1 column")
+        if self.spec is not None and self.suggest is not None:
+            raise BadInput("--spec and --suggest: give one (--suggest writes a spec from the data, --spec reads yours)")
         if self.spec is not None and not Path(self.spec).is_file():
             raise BadInput(f"--spec {self.spec} not found: point it at a .binarize.toml file")
+
 
 
 @dataclass(frozen=True)
@@ -85,17 +95,28 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     frames_path = Path(workdir) / artifacts.FRAMES
     frames, frames_meta = artifacts.read_table(frames_path, "frames")
     source = frames_meta.get("source", "")
-    spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
+    if options.suggest is not None:
+        from mlnseq.predicates.suggest import edited, suggest_spec
+
+        if not options.replace and edited(Path(options.suggest), Path(workdir)):
+            raise BadInput(f"{options.suggest} was edited since it was suggested: binarize with it by --spec "
+                           f"{options.suggest}, or remove it (or --force) to suggest again")
+        artifacts.write_text(Path(options.suggest), suggest_spec(frames, source))
+        spec_path = Path(options.suggest)
+    else:
+        spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
     if options.spec is None and not spec_path.is_file():
-        raise BadInput(f"no built-in spec for frames of source {source!r} ({spec_path} not found); pass --spec FILE")
-    spec = load_spec(spec_path)
+        raise BadInput(f"no built-in spec for frames of source {source!r}: pass --spec FILE, or --suggest to write a "
+                       "starter spec from these frames (`mlnseq binarize --suggest`)")
+    spec = load_spec(spec_path, options.max_columns)
     predicates = binarize(frames, spec)
     meta = {
         "predicates": spec.columns(),
         "spec": {"path": str(spec_path.resolve()), "text": spec.text},
         "classes": frames_meta.get("classes", []),
         "source": source,
-        "options": {"spec": str(options.spec) if options.spec is not None else None},
+        "options": {"spec": str(options.spec) if options.spec is not None else None,
+                    "suggest": str(options.suggest) if options.suggest is not None else None},
     }
     path = artifacts.write_table(
         predicates, Path(workdir) / artifacts.PREDICATES, "predicates", meta, inputs=[frames_path, spec_path]

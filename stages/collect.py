@@ -47,6 +47,9 @@ class CollectOptions:
             raise BadInput(f"--episodes must be at least 1, got {self.episodes}")
         if self.train_frames is not None and self.train_frames < 0:
             raise BadInput(f"--train-frames must be 0 or more, got {self.train_frames}")
+        if self.env == "fetch" and self.source is not None:  # the default env simulates: --source would be ignored
+            raise BadInput(f"--source {self.source} is for recordings, but --env is fetch (the default: simulated "
+                           f"episodes); name the format with --env {', --env '.join(RECORDING_ENVS)} or --env desk")
         if self.env in RECORDING_ENVS and self.source is None:
             raise BadInput(f"--env {self.env} needs --source PATH, the recordings to read")
         if self.env not in RECORDING_ENVS and self.recordings != SourceOptions():
@@ -71,10 +74,13 @@ def collect_recordings(options: CollectOptions) -> Collected:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))
     meta["source"] = options.env
     resolved = {k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}
-    meta["reading"] = reading_record(options.env, options.columns, **{**options.recordings.record(options.env), **resolved})
+    meta["reading"] = reading_record(options.env, options.columns,
+                                     **{**options.recordings.record(options.env), **resolved})
     meta["notes"] = list(dict.fromkeys(
         f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
-        for key, what in (("skipped_topics", "topics without a numeric field"), ("skipped_features", "image and video features"))
+        for key, what in (("skipped_topics", "topics without a numeric field"),
+                          ("skipped_features", "image and video features"),
+                          ("empty_columns", "columns without a value"))
         if r.resolved.get(key)))
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))

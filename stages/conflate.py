@@ -25,15 +25,15 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
-from mlnseq.recognition import network_weight
 from mlnseq.catalog.errors import BadInput, MissingArtifact, check_choice
 from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder, decodings
-from mlnseq.catalog.methods import METHODS, MLN_MODES, NETWORKS, decoded_name, network_of
-from mlnseq.mln import chain
-from mlnseq.recognition.cross_validation import CrossValidated, cross_validate, test_weight
-from mlnseq.recognition.network_weight import WeightChoice
+from mlnseq.catalog.methods import METHODS, MLN_MODES, NETWORKS, MLNMode, decoded_name, member, network_of
 from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
+from mlnseq.catalog.parts import Part
+from mlnseq.mln import chain
 from mlnseq.recognition import decoding as decoders
+from mlnseq.recognition.cross_validation import CrossValidated, cross_validate
+from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
 from mlnseq.recognition.recognizer import chain_of, fuse, restart_note
 from mlnseq.recognition.workdir_inputs import WorkdirInputs, read_workdir
 
@@ -42,10 +42,13 @@ from mlnseq.recognition.workdir_inputs import WorkdirInputs, read_workdir
 class ConflateOptions:
     """Options of `mlnseq conflate`."""
 
-    mln_mode: str = "paper"
+    mln_mode: MLNMode = MLNMode.PAPER
     decode: tuple[str, ...] = ("none",)  # decoders (stages/catalog/decoders.py): none, filter, viterbi, smooth, ...
     network_weight: float | None = None  # decoded methods' network factor: None = learned (folds) or chosen
     lags: tuple[int, ...] = DEFAULT_LAGS  # frames: each lagged decoder (smooth, lagviterbi) at each
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mln_mode", member(MLNMode, self.mln_mode))
 
     def validate(self) -> None:
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
@@ -125,22 +128,22 @@ def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("non
     result = WorkdirPredictions(notes=list(inputs.notes))
     p_mln = None
     if mln_inputs is not None:
-        p_mln = np.exp(classifier.class_log_probs(mln_inputs.scores, mln_mode, inputs.source))
-    runs = inputs.networks
-    available = [m for m in methods if (network_of(m) is None or network_of(m) in runs)
+        p_mln = np.exp(classifier.class_log_probs(mln_inputs.scores, mln_mode, inputs.paper_floor))
+    networks = inputs.networks
+    available = [m for m in methods if (network_of(m) is None or network_of(m) in networks)
                  and (m in NETWORKS or p_mln is not None)]
     if not available:
         raise MissingArtifact("nothing to predict with in this workdir: run `mlnseq learn-weights` "
                               "and/or `mlnseq train` first")
     for method in available:
         network = network_of(method)
-        probabilities = fuse(method, None if network is None else np.exp(runs[network].log_probs), p_mln)
+        probabilities = fuse(method, None if network is None else np.exp(networks[network].log_probs), p_mln)
         result.probabilities[method], result.predicted[method] = probabilities, probabilities.argmax(1)
-        result.modes[method] = "frame" if network is None else runs[network].checkpoint.mode
+        result.modes[method] = "frame" if network is None else networks[network].checkpoint.mode
 
-    validation = np.zeros(len(data.labels), dtype=bool)  # every network holds out the same units, given the same options
-    for run_ in runs.values():
-        validation |= run_.parts == "val"
+    validation = np.zeros(len(data.labels), dtype=bool)  # the networks hold out the same units, given the same options
+    for trained in networks.values():
+        validation |= trained.parts == Part.VAL
     decoding = [d for d in decodes if d != "none"]
     if decoding:
         if mln_inputs is None:
@@ -158,34 +161,26 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
             result: WorkdirPredictions) -> None:
     from mlnseq.mln.factors import MLNFactors
 
-    data, mln_inputs, runs = inputs.data, inputs.mln, inputs.networks
+    data, mln_inputs, networks = inputs.data, inputs.mln, inputs.networks
     mln = MLNFactors.from_weights(mln_inputs.weights, mln_inputs.columns, inputs.classes)
-    folded = set() if inputs.folds is None else set(inputs.folds.log_probs)
-    unvalidated = sorted(n for n, r in runs.items() if not r.checkpoint.config.get("val_spans") and n not in folded)
-    result.notes += network_weight.decoding_notes(mln.temporal, unvalidated if network_weight_option is None else [])
-    split_parts = np.where(data.splits == "test", "test", "train")
+    weights = WeightDecision(inputs, mln, network_weight_option)
+    result.notes += weights.notes(list(networks))
+    split_parts = np.where(data.splits == Part.TEST, Part.TEST, Part.TRAIN)
     start = decoders.start_of(data.labels, data.episodes, data.splits != "test", len(inputs.classes))
     result.start = start.tolist()
-    learned: dict[str, float] = {}  # method -> its network factor's weight learned on out-of-fold predictions
     test = data.splits == "test"
-    for kind in decoding:  # the network weights are learned once per method: the first decoding of each
+    for kind in decoding:
         for method in available:
             network, name = network_of(method), decoded_name(method, kind)
-            rows = runs[network].parts if network is not None else split_parts
+            rows = networks[network].parts if network is not None else split_parts
             weight = 1.0
-            if network is not None and network_weight_option is not None:
-                weight = network_weight_option
-            elif network in folded:
-                if method not in learned:
-                    learned[method] = test_weight(method, inputs, mln)
-                result.choices[name] = WeightChoice(learned[method], None, {}, "learned")
-                weight = learned[method]
-            elif network is not None:
-                choice = network_weight.choose(method, kind, mln, mln_inputs.evidence, data.episodes, rows,
-                                               runs[network].log_probs, data.labels)
-                result.choices[name], weight = choice, choice.weight
+            if network is not None:
+                choice = weights.choice(method, kind)
+                weight = choice.weight
+                if network_weight_option is None:  # a weight given by option is recorded as the option
+                    result.choices[name] = choice
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
-                               runs[network].log_probs if network is not None else None, weight, start)
+                               networks[network].log_probs if network is not None else None, weight, start)
             decoded = decoders.decode(factors, kind)
             result.hard_rules |= bool(np.isneginf(factors.pairwise).any())
             result.predicted[name] = decoded.path
@@ -220,9 +215,9 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
                                             if m in predicted.probabilities},
                               {m: predicted.predicted[m] for m in methods})
     meta: dict[str, Any] = {
-        "methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": options.mln_mode,
+        "methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": str(options.mln_mode),
         "decode": list(options.decodes), "network_weight_option": options.network_weight,
-        "classes": inputs.classes, "source": inputs.source,
+        "classes": inputs.classes, "paper_floor": str(inputs.paper_floor),
         "network_weights": {m: c.record() for m, c in predicted.choices.items()},
         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
         "notes": [n.text for n in predicted.notes], "note_codes": [n.code for n in predicted.notes],

@@ -24,7 +24,7 @@ from mlnseq.catalog import methods
 class EvalOptions:
     """Options of `mlnseq eval`."""
 
-    method: str = "all"
+    method: str = "all"  # a method name as predictions name it (``network`` for the network alone), or all
     fraction: float = 0.5
 
     def validate(self) -> None:
@@ -33,11 +33,16 @@ class EvalOptions:
         if not 0 < self.fraction <= 1:
             raise BadInput(f"--fraction must be in (0, 1], got {self.fraction}")
 
+    @property
+    def stored_name(self) -> str:
+        """The method as predictions.parquet names it (``network+filter`` is ``lstm+filter``), or all."""
+        return self.method if self.method == "all" else methods.decoded_name(*methods.parse_method(self.method))
+
 
 def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptions) -> dict[str, dict[str, Any]]:
     """Score the chosen methods on the test split of a predictions table."""
     available = meta["methods"]
-    chosen = available if options.method == "all" else [options.method]
+    chosen = available if options.method == "all" else [options.stored_name]
     for method in chosen:
         if method not in available:
             raise BadInput(f"predictions.parquet has no {method!r} predictions (it has {', '.join(available)}); "
@@ -57,9 +62,8 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
 
 def _remedy(method: str) -> str:
     base, decode = methods.parse_method(method)
-    stage = {"lstm": "train --method lstm", "priorlayer": "train --method priorlayer",
-             "conflation": "train --method lstm", "combined": "train --method priorlayer",
-             "mln": "learn-weights"}[base]
+    network = methods.network_of(base)
+    stage = "learn-weights" if network is None else f"train --method {network}"
     return f"run `mlnseq {stage}` then `mlnseq conflate" + ("`" if decode == "none" else f" --decode {decode}`")
 
 

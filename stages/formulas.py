@@ -14,6 +14,7 @@ from pathlib import Path
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.formula_spec import formulas_for, read_spec
+from mlnseq.mln import source_lines
 from mlnseq.mln.grounding import shown
 from mlnseq.mln.syntax import MLN, format_weighted
 
@@ -44,7 +45,8 @@ class WrittenFormulas:
 def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...], class_names: list[str]) -> str:
     """formulas.mln: provenance, the training constants as comments, declarations, formulas (classes as the
     frames name them)."""
-    order = [f"// label order (the paper's C0 .. C{len(class_names) - 1}): {', '.join(class_names)}"] if class_names else []
+    order = ([f"// label order (the paper's C0 .. C{len(class_names) - 1}): {', '.join(class_names)}"]
+             if class_names else [])
     lines = [
         f"// mlnseq formulas from {spec.name}: templates are expanded by `mlnseq learn-weights`",
         f"// word = {{{', '.join(words)}}}",
@@ -53,7 +55,9 @@ def render(mln: MLN, spec: Path, words: tuple[str, ...], classes: tuple[str, ...
         "",
         *(f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items()),
         "",
-        *(format_weighted(replace(item, formula=shown(item.formula, class_names))) for item in mln.formulas),
+        *(line for item in mln.formulas for line in (  # each formula under the mark of its line in the spec
+            source_lines.mark(spec, item.line),
+            format_weighted(replace(item, formula=shown(item.formula, class_names))))),
     ]
     return "\n".join(lines) + "\n"
 

@@ -28,11 +28,12 @@ from mlnseq.mln.grounding import (
     CLASS, NEXT, AtomSpace, Expanded, atom_matrix, class_constant, expand_templates, ground, is_temporal, next_atom,
     show, shown, space_of, truth,
 )
-from mlnseq.mln.syntax import MLN, Const, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
+from mlnseq.mln.syntax import MLN, Const, Var, WeightedFormula, atoms, format_formula, format_weighted, parse_formula
 
 ENGINES = ("native", "pracmln")
 OBJECTIVES = ("pll", "cll")
 SHOWN_FRAMES = 5  # frames named when a hard formula is broken
+MAX_FORMULAS = 20_000  # ground formulas the templates and variables may expand to (--max-formulas)
 
 
 @dataclass(frozen=True)
@@ -41,10 +42,14 @@ class LearnWeightsOptions:
     engine: str = "native"
     objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
-    folds: int = 0  # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
+    # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
+    folds: int = 0
+    max_formulas: int = MAX_FORMULAS  # refuse formulas whose templates and variables expand past this many
 
     def validate(self) -> None:
         check_choice("engine", self.engine, ENGINES)
+        if self.max_formulas < 1:
+            raise BadInput(f"--max-formulas {self.max_formulas}: allow at least 1 formula")
         if self.objective is not None:
             check_choice("objective", self.objective, OBJECTIVES)
         if self.l2 is not None and not (math.isfinite(self.l2) and self.l2 >= 0):
@@ -94,12 +99,14 @@ def training_data(predicates: pl.DataFrame, n_classes: int, class_names: Sequenc
     is_train = (predicates["split"] == "train").to_numpy()
     train = predicates.filter(pl.Series(is_train))
     if train.height == 0:
-        raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with training frames")
+        raise BadInput("predicates.parquet has no training frames (split 'train'); rerun `mlnseq collect` with "
+                       "training frames")
     columns = artifacts.feature_columns(predicates)
     evidence = train.select(columns).to_numpy().astype(bool)
     labels = train["label"].to_numpy().astype(np.int64)
     if labels.min() < 0 or labels.max() >= n_classes:
-        raise BadInput(f"predicates.parquet has labels outside the {n_classes} classes of its metadata; rerun `mlnseq binarize`")
+        raise BadInput(f"predicates.parquet has labels outside the {n_classes} classes of its metadata; "
+                       "rerun `mlnseq binarize`")
     words = [c for c, seen in zip(columns, evidence.any(axis=0)) if seen]
     present = sorted(set(labels.tolist()))
     warnings = [
@@ -123,14 +130,16 @@ def check_hard(expanded: list[Expanded], mln: MLN, training: Training, where: st
         if item.weight is not None:
             continue
         space = space_of(item.formula, training.space)
-        rows, frames = (pair_rows, pairs) if is_temporal(item.formula) else (training.rows, np.arange(len(training.rows)))
+        rows, frames = ((pair_rows, pairs) if is_temporal(item.formula)
+                        else (training.rows, np.arange(len(training.rows))))
         broken = np.zeros(len(rows), dtype=bool)
         for grounding in ground(item.formula, space):
             broken |= ~truth(grounding, rows, space)
         if broken.any():
             named = ", ".join(training.frame_name(i) for i in frames[broken][:SHOWN_FRAMES])
             more = f" and {broken.sum() - SHOWN_FRAMES} more" if broken.sum() > SHOWN_FRAMES else ""
-            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula {show(item.formula, class_names)} is "
+            raise BadInput(f"{where}:{mln.formulas[item.template].line}: hard formula "
+                           f"{show(item.formula, class_names)} is "
                            f"false at {broken.sum()} training frame(s): {named}{more}; fix their labels, or give the "
                            "formula a weight to make it soft")
 
@@ -184,8 +193,31 @@ def head_class(item: Expanded, class_names: Sequence[str] | None = None) -> str 
     return constant if class_names is None else class_names[int(constant[1:])]
 
 
+def check_expansion(mln: MLN, space: AtomSpace, limit: int, where: str) -> None:
+    """Count the ground formulas each formula's `+var`s and variables make over ``space`` before any is built;
+    refuse past ``limit``, naming the largest."""
+    counts = []
+    for item in mln.formulas:
+        count = 1
+        for predicate in _first_variables(item.formula).values():
+            count *= len(space.constants(predicate))
+        counts.append(count)
+    if counts and sum(counts) > limit:
+        largest = mln.formulas[int(np.argmax(counts))]
+        raise BadInput(f"{where}:{largest.line}: the formulas expand to {sum(counts):,} ground formulas over the "
+                       f"training split's constants ({max(counts):,} from this line's variables), over "
+                       f"--max-formulas {limit:,}: use fewer template variables, or raise --max-formulas")
+
+
+def _first_variables(formula) -> dict[str, str]:
+    """Every variable in a first-argument position (a `+var` or not) -> its predicate."""
+    return {a.args[0].name: a.predicate for a in atoms(formula)
+            if a.predicate != NEXT and a.args and isinstance(a.args[0], Var)}
+
+
 def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native", objective: str | None = None,
-          l2: float | None = None, where: str = artifacts.FORMULAS, class_names: Sequence[str] | None = None) -> Learned:
+          l2: float | None = None, where: str = artifacts.FORMULAS, class_names: Sequence[str] | None = None,
+          max_formulas: int = MAX_FORMULAS) -> Learned:
     """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure); ``where`` names
     the formulas in messages; ``class_names`` (label order) name the classes in the weights table, learned.mln
     and messages (None: the paper's C<k>)."""
@@ -193,6 +225,7 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
     options.validate()
     training = training_data(predicates, n_classes, class_names)
     warnings = list(training.warnings)
+    check_expansion(mln, training.space, max_formulas, where)
     expanded, left_out, expand_warnings = expand_templates(mln.formulas, training.space, class_names)
     warnings += expand_warnings
     uses_next = [item for item in mln.formulas if is_temporal(item.formula)]
@@ -225,7 +258,8 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         },
         schema=artifacts.WEIGHTS_SCHEMA,
     )
-    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings, objective, l2)
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings,
+                   objective, l2)
 
 
 def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
@@ -237,6 +271,17 @@ def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engi
     lines += [format_weighted(WeightedFormula(shown(e.formula, class_names), None if e.weight is None else float(w)))
               for e, w in zip(formulas, weights)]
     return "\n".join(lines) + "\n"
+
+
+def with_episode_names(predicates: pl.DataFrame, workdir: Path) -> pl.DataFrame:
+    """``predicates`` with each episode named as frames.parquet's recordings name it (a bag's folder, a file),
+    where the workdir's frames record the names; else as it is."""
+    path = Path(workdir) / artifacts.FRAMES
+    names = artifacts.read_metadata(path, "frames").get("episode_names") if path.exists() else None
+    index = predicates["episode"]
+    if not names or index.min() < 0 or index.max() >= len(names) or len(set(map(str, names))) != len(names):
+        return predicates
+    return predicates.with_columns(pl.Series("episode", [str(n) for n in names]).gather(index))
 
 
 def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
@@ -251,22 +296,28 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln = read_spec(formulas_path)
     classes = meta.get("classes") or []
     formulas_for(mln, formulas_path, artifacts.feature_columns(predicates), list(classes))
+    from mlnseq.mln import source_lines
+
+    mln, where = source_lines.to_source(mln, formulas_path.read_text(encoding="utf-8"), formulas_path)  # user's lines
     folds = None
     if options.folds:
         from mlnseq.recognition import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
-    learned = learn(predicates, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
-                    list(classes))
+    named = with_episode_names(predicates, workdir)  # messages name episodes as the recordings do
+    learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes),
+                    options.max_formulas)
+    learned.warnings[:] = source_lines.located(learned.warnings, where)
     record = {k: str(v) for k, v in asdict(options).items()}
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     per_fold = []
     if folds is not None:
         for k in range(folds.k):
-            held_out = predicates.with_columns(pl.Series("split", folds.splits(k)))
-            fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, str(formulas_path),
-                         list(classes))
+            held_out = named.with_columns(pl.Series("split", folds.splits(k)))
+            fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
+                         list(classes), options.max_formulas)
+            fold.warnings[:] = source_lines.located(fold.warnings, where)
             per_fold.append(fold.weights.with_columns(pl.lit(k, dtype=pl.Int32).alias("fold")))
             learned.warnings.extend(f"fold {k}: {w}" for w in fold.warnings if w not in learned.warnings)
     with artifacts.atomic_path(workdir / artifacts.LEARNED_MLN) as staged:  # all or none
@@ -275,5 +326,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                                      inputs=[predicates_path, formulas_path])
         if folds is not None:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
-                                  {**table_meta, "folds": folds.record()}, inputs=[predicates_path, formulas_path, path])
+                                  {**table_meta, "folds": folds.record(), "training_episodes": int(
+                                      predicates.filter(pl.col("split") == "train")["episode"].n_unique())},
+                                  inputs=[predicates_path, formulas_path, path])
     return path, learned

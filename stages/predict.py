@@ -9,6 +9,7 @@ scored as a stream: segment, frame, edit and F1@k).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -86,10 +87,11 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
 def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
     """The env, columns and source options to read new recordings with: the model's, overridden by options;
     and whether labels are required (a named label column) or optional."""
-    kept = model.manifest.get("reading") or {}
+    kept = model.manifest.reading or {}
     env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
     same = env == kept.get("env")
-    pick = lambda given, key, default=None: given if given is not None else (kept.get(key, default) if same else default)  # noqa: E731
+    pick = lambda given, key, default=None: (  # noqa: E731
+        given if given is not None else (kept.get(key, default) if same else default))
     columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
                            episode=pick(options.episode_column, "episode_column"),
                            time=pick(options.time_column, "time_column"),
@@ -100,16 +102,43 @@ def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableCo
     return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
 
 
+def check_outputs(options: PredictOptions, inputs: list) -> None:
+    """Refuse an output path that is another output or one of the inputs (even with --force)."""
+    outputs = [(flag, Path(path)) for flag, path in (("-o", options.output_path()), ("--intervals", options.intervals),
+                                                     ("--rerun", options.rerun)) if path is not None]
+    taken: dict[Path, str] = {}
+    for flag, path in outputs:
+        if path.resolve() in taken:
+            raise BadInput(f"{flag} {path} is also the file of {taken[path.resolve()]}: give each output its own name")
+        taken[path.resolve()] = flag
+    read = {Path(p).resolve() for p in inputs if p is not None}
+    for flag, path in outputs:
+        if path.resolve() in read:
+            raise BadInput(f"{flag} {path} is an input of this prediction (the model, a recording or the labels); "
+                           "name another file")
+
+
 def run(options: PredictOptions) -> Predicted:
-    """Read the model and the recordings; write the per-frame predictions (and metrics, given labels)."""
+    """Read the model and the recordings; write the per-frame predictions (and metrics, given labels): every
+    output to a temporary file beside it, all renamed at the end, or none (each temporary file removed)."""
+    with contextlib.ExitStack() as staged:
+        return _run(options, lambda final: staged.enter_context(artifacts.atomic_path(Path(final))))
+
+
+def _run(options: PredictOptions, stage) -> Predicted:
     options.validate()
+    check_outputs(options, [options.model, options.source, options.overrides.get("labels")])
     model = Recognizer.load(options.model)
     env, columns, source_options, label = reading_of(model, options)
     recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
     frames, meta, times = prediction_frames(recordings, columns.classes)
+    check_outputs(options, [*meta["source_files"], source_options.labels])
     table, predicted = predict(model, frames, options.decode)
     names = meta["episode_names"]
     table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
+    if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
+        table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
+    table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
@@ -123,8 +152,9 @@ def run(options: PredictOptions) -> Predicted:
     inputs = [Path(options.model), *map(Path, meta["source_files"])]
     if source_options.labels is not None:
         inputs.append(Path(source_options.labels))
-    path = artifacts.write_table(
-        table, options.output_path(), "predicted",
+    path = options.output_path()
+    artifacts.write_table(
+        table, stage(path), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
          "lag": decoding.lag,
          "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading,
@@ -135,12 +165,13 @@ def run(options: PredictOptions) -> Predicted:
     if options.intervals is not None:
         segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
                                       table["class"].to_list(), source_options.unit(env))
-        with artifacts.atomic_path(Path(options.intervals)) as tmp:
-            segments.write_csv(tmp)
+        # seconds to the nanosecond, never 1e-06
+        segments.with_columns(pl.col(pl.Float64).round(9)).write_csv(stage(options.intervals), float_scientific=False)
         written.append(Path(options.intervals))
     if options.rerun is not None:
         from mlnseq.sources import rerun
 
-        written.append(rerun.write(Path(options.rerun), table["episode"].to_list(), frames, times, table,
-                                   list(model.features), list(model.classes)))
+        rerun.write(stage(options.rerun), table["episode"].to_list(), frames, times, table, list(model.features),
+                    list(model.classes))
+        written.append(Path(options.rerun))
     return Predicted(path, table, scores, len(names), reading, tuple(written), restarts)

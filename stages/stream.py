@@ -1,7 +1,8 @@
 """stream: recognise live frames, one per input line, answering each at once.
 
 Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
-frame); the first line that is not blank decides which. An ``episode`` key or column starts a new
+frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
+no CSV header). An ``episode`` key or column starts a new
 episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
 next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the
 input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames answers frame t
@@ -14,13 +15,18 @@ its line number and skipped; with ``strict`` it stops the stream (exit 2). Keys 
 timestamp, say) are ignored, and said once. Input is read in chunks, and a line longer than
 ``max_line_bytes`` is never held: it is counted to its end, reported with its length and skipped (with
 ``strict``, the stream stops as soon as the line passes the limit).
+
+`rostopic echo -p TOPIC` (a CSV whose header starts with ``%time``) is read as the model's topic and put on its
+clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import itertools
 import json
+import math
 import signal
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -28,7 +34,9 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition import live as ros_live
 from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.sources import rostopic
 
 EPISODE = "episode"
 TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line
@@ -105,27 +113,54 @@ def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str,
             continue
         if not line.strip():
             continue
-        if json_lines is None:
-            json_lines = line.lstrip().startswith("{")
-            if not json_lines:
-                header = next(csv.reader([line]))
-                continue
+        if json_lines is None and line.lstrip().startswith("{"):
+            json_lines = True  # the first JSON frame decides, even after a line of text (a log banner)
+        if json_lines is None and header is None:
+            header = _csv_row(line, number)
+            if isinstance(header, InputLine):
+                yield number, header
+                header = None
+            continue
         if json_lines:
             try:
-                frame = json.loads(line)
-            except ValueError as error:
-                yield number, InputLine(f"line {number}: not JSON ({error})")
+                frame = _json(line)
+            except (ValueError, RecursionError) as error:
+                what = "nested too deep" if isinstance(error, RecursionError) else str(error)
+                yield number, InputLine(f"line {number}: not JSON ({what})")
                 continue
             if not isinstance(frame, dict):
                 yield number, InputLine(f"line {number}: expected a JSON object of feature -> value")
                 continue
             yield number, frame
             continue
-        row = next(csv.reader([line]))
+        row = _csv_row(line, number)
+        if isinstance(row, InputLine):
+            yield number, row
+            continue
+        json_lines = False  # a CSV row: the stream is CSV
         if len(row) != len(header):
             yield number, InputLine(f"line {number}: {len(row)} fields, the header has {len(header)}")
             continue
         yield number, {name: _number(value) if name != EPISODE else value for name, value in zip(header, row)}
+
+
+def _json(line: str) -> Any:
+    """A JSON line; an integer too long for a float is read as one (infinite, so refused as a value)."""
+    return json.loads(line, parse_int=lambda digits: int(digits) if len(digits) < 300 else float(digits))
+
+
+def _csv_row(line: str, number: int) -> list[str] | InputLine:
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as error:  # a field over the csv module's limit, say
+        return InputLine(f"line {number}: not a CSV row ({error})")
+
+
+def _check_episode(frame: dict[str, Any], number: int) -> None:
+    """An episode id must be echoed back as JSON: NaN or infinity is not an id."""
+    value = frame.get(EPISODE)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputLine(f"line {number}: episode {value} is not an id (NaN or infinite)")
 
 
 def _number(text: str) -> float | str:
@@ -190,10 +225,24 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``."""
     options.validate()
     model = Recognizer.load(options.model)
-    for note in model.manifest.get("notes", []):
+    for note in model.manifest.notes:
         warn(f"note: {note}")
     if model.decoding.decoder.offline:
         warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
+    lines = lines_of(source, options.max_line_bytes, stop_early=options.strict)
+    head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
+    for line in lines:
+        head.append(line)
+        if not isinstance(line, str) or line.strip():
+            break
+    if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
+        return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
+    return _serve(options, model, itertools.chain(head, lines), emit, warn)
+
+
+def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | InputLine], emit: Callable[[str], None],
+           warn: Callable[[str], None]) -> StreamSummary:
+    """JSON or CSV frames: frame t answered once frame t + lag has arrived, the pending ones at an episode's end."""
     used = set(model.features) | {EPISODE, *TIMES}
     ignored: set[str] = set()
     summary = StreamSummary()
@@ -207,11 +256,12 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
 
     with answering_before_interrupt() as busy:
         try:
-            for number, frame in frames_of(lines_of(source, options.max_line_bytes, stop_early=options.strict)):
+            for number, frame in frames_of(lines):
                 busy(True)
                 try:
                     if isinstance(frame, InputLine):
                         raise frame
+                    _check_episode(frame, number)
                     unused = set(frame) - used - ignored
                     if unused:
                         ignored |= unused
@@ -240,4 +290,30 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         busy(True)
         answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
         busy(False)
+    return summary
+
+
+def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterable[tuple[int, str | InputLine]],
+          emit: Callable[[str], None], warn: Callable[[str], None]) -> StreamSummary:
+    """A `rostopic echo -p` feed: its rows on the model's clock, one answer per tick with its time."""
+    live = ros_live.LiveRecognizer(model, warn)
+    topic = ros_live.echo_topic(live)
+    summary = StreamSummary(episodes=1)
+    with answering_before_interrupt() as busy:
+        try:
+            for _, answer in ros_live.feed_echo(live, topic, lines, header):
+                busy(True)
+                if isinstance(answer, BadInput):
+                    summary.skipped += 1
+                    if options.strict:
+                        raise InputLine(str(answer))
+                    warn(f"error: {answer}")
+                else:
+                    emit(answer.json(model.classes))
+                    summary.frames += 1
+                busy(False)
+        except KeyboardInterrupt:  # Ctrl-C: the ticks up to the last message read are answered too
+            for frame in live.finish():
+                emit(frame.json(model.classes))
+            raise
     return summary

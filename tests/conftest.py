@@ -164,3 +164,23 @@ def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
     model = export.run(workdir, export.ExportOptions(method="mln", decode="filter", output=folder / "mln.mlnseq")).path
     frame = g2 - recordings.filter(pl.col("trial") == 11)["row"][0]
     return {"csv": csv, "workdir": workdir, "model": model, "frame": frame}
+
+
+@pytest.fixture(scope="session")
+def joint_state_model(tmp_path_factory, shared_data) -> dict:
+    """An lstm (stream mode, 40 epochs: six classes on the live rows) trained on a ROS 1 bag of DESK's arm as
+    /joint_states at 100 Hz (the first 1,000 frames, tests/ros_episode.py) and exported: {model, live}, with
+    ``live`` the other 405 frames' rows."""
+    import ros_episode
+    from mlnseq import export, train
+    from mlnseq.sources import SourceOptions
+
+    folder = tmp_path_factory.mktemp("joint-states")
+    rows = ros_episode.desk_rows(shared_data)
+    bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
+    workdir = folder / "work"
+    collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
+        topics=("/joint_states",), label_topic="/phase")))
+    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
+    model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
+    return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:]}

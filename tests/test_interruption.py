@@ -47,6 +47,11 @@ def visible(files: dict[str, str]) -> dict[str, str]:
     return {name: digest for name, digest in files.items() if not Path(name).name.startswith(".")}
 
 
+def hear_ctrl_c() -> None:
+    """A child that hears Ctrl-C even when the tests run in the background (where a shell ignores SIGINT)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(workdir: Path, *args, where: str | None = None) -> tuple[subprocess.Popen, Path]:
     """Start ``mlnseq ARGS -w WORKDIR`` (through the stall driver when ``where`` is given)."""
     marker = workdir.parent / f"{workdir.name}.marker"
@@ -54,7 +59,7 @@ def start(workdir: Path, *args, where: str | None = None) -> tuple[subprocess.Po
     cli = [sys.executable, "-m", "mlnseq_cli.main"] if where is None else [sys.executable, str(DRIVER), str(marker), where]
     env = {**os.environ, "MLNSEQ_VERBOSE": ""}
     process = subprocess.Popen([*cli, *map(str, args), "-w", str(workdir)], cwd=REPO, env=env,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=hear_ctrl_c)
     return process, marker
 
 

@@ -24,7 +24,7 @@ from mlnseq_cli.main import app
 from mlnseq.catalog import artifacts
 from mlnseq import binarize
 from mlnseq.catalog.errors import BadInput
-from mlnseq.mln.grounding import check_mln
+from mlnseq.mln.formula_spec import check_mln
 from mlnseq.mln.syntax import format_weighted, parse_mln
 
 REPO = Path(__file__).resolve().parents[1]

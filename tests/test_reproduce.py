@@ -76,7 +76,7 @@ def test_the_report_has_every_section_and_figure(reduced):
         "fetch", "desk", "fetch-rich", "fetch-fraction-0.25", "fetch-fraction-0.5", *SEQUENTIAL_FOLDERS,
         "fetch-tcn", "desk-tcn"}
     for dataset in ("fetch", "desk"):  # the causal TCN's stream rows beside the LSTM's
-        assert f"| {dataset}-tcn | LSTM + PriorLayer |" in text
+        assert f"| {dataset}-tcn | TCN + PriorLayer |" in text
     for dataset in ("fetch", "desk"):
         assert f"- {dataset}: deploy **" in text and f"- {dataset}, online choice (" in text
     summary = json.loads((reports / "summary.json").read_text())

@@ -65,7 +65,7 @@ def test_stages_through_the_server_write_what_plain_processes_write(tmp_path, re
         assert served.returncode == plain.returncode == 0, served.stdout + served.stderr
         assert without_times(served.stdout.replace("served", "plain")) == without_times(plain.stdout), args
     assert snapshot(tmp_path / "served") == snapshot(tmp_path / "plain")
-    assert len(snapshot(tmp_path / "served")) == 11
+    assert len(snapshot(tmp_path / "served")) == 13  # 11 artifacts and the 2 networks' log-probability caches
 
 
 def test_a_refused_stage_keeps_its_status_and_error_line(tmp_path, repo_root, server):

@@ -4,7 +4,7 @@
 
 The robot's sensor is played back here from a recording (one row per frame, a column per feature; other
 columns, such as a label or a timestamp, are ignored); on a robot, `read_sensor` would read the arms'
-kinematics instead. Each frame goes through `Recognizer.step` as it arrives; a new value in the episode
+kinematics instead. Each frame goes through the recogniser's `step` as it arrives; a new value in the episode
 column (default `episode`, if the recording has one) is a new trial, and the loop calls `reset()` there.
 The loop reports each change of activity and what it spent per frame.
 """
@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 
-from mlnseq.recognition.recognizer import Recognizer
+import mlnseq
 
 
 def read_sensor(path: str, features: Sequence[str], episode_column: str) -> Iterator[tuple[str | None, dict[str, float]]]:
@@ -34,7 +34,7 @@ def read_sensor(path: str, features: Sequence[str], episode_column: str) -> Iter
 
 
 def main(model_path: str, recording: str, episode_column: str = "episode") -> None:
-    recognizer = Recognizer.load(model_path)  # once, at start-up
+    recognizer = mlnseq.load(model_path)  # once, at start-up
     episode, current, spent, frames = object(), None, 0.0, 0
     for frame_episode, frame in read_sensor(recording, recognizer.features, episode_column):
         if frame_episode != episode:  # a new trial: the next frame starts a new episode

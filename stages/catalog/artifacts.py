@@ -79,6 +79,13 @@ def out_of_fold_path(workdir: Path, method: str) -> Path:
     return workdir / MODELS_DIR / f"{method}.oof.parquet"
 
 
+def log_probs_cache_path(checkpoint: Path) -> Path:
+    """Where a checkpoint's class log-probabilities over its workdir's frames are cached: beside the file it links to
+    (mlnseq.model.log_prob_cache), so every workdir linking it shares them."""
+    real = Path(checkpoint).resolve()
+    return real.with_name(f"{real.stem}.log-probs.npy")
+
+
 def log_prob_columns(n_classes: int) -> list[str]:
     """The out-of-fold artifact's class log-probability columns."""
     return [f"lp{k}" for k in range(n_classes)]
@@ -291,9 +298,10 @@ def check_fresh(path: Path, meta: dict[str, Any]) -> None:
         except OSError as error:
             raise BadInput(f"cannot read {source}, an input of {path}: {error.strerror or error}") from error
         if changed:
-            raise StaleArtifact(
-                f"{path} was made from an older {source.name}; rerun `mlnseq {producer_of(path)}`"
-            )
+            from mlnseq.catalog.rerun import command
+
+            remake = command(producer_of(path).replace(" --folds K", ""), meta.get("options"))  # with its options
+            raise StaleArtifact(f"{path} was made from an older {source.name}; rerun `{remake}`")
 
 
 def _require(path: Path) -> None:

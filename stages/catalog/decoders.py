@@ -91,7 +91,7 @@ class Decoding:
         """The lag in seconds at ``rate_hz`` frames per second (None where the rate is unknown; inf offline)."""
         if self.decoder.offline:
             return math.inf
-        if self.lag == 0:
+        if not self.lag:  # lag 0, or none (per frame)
             return 0.0
         return None if not rate_hz else self.lag / rate_hz
 

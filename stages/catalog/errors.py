@@ -26,6 +26,34 @@ class StaleArtifact(BadInput):
     """An input artifact no longer matches the inputs it was made from: says which stage to rerun."""
 
 
+class MissingExtra(BadInput):
+    """An optional library is not installed: says which extra of mlnseq installs it."""
+
+
+# The optional libraries by import name: (what needs it, the package, the extra that installs it). The base
+# install (numpy, polars, pyarrow, typer, rich) recognises with a model file: info, predict, stream.
+EXTRAS = {
+    "torch": ("training", "torch", "train"),
+    "scipy": ("training", "scipy", "train"),
+    "mujoco": ("simulating Fetch", "mujoco", "sim"),
+    "gymnasium": ("simulating Fetch", "gymnasium-robotics", "sim"),
+    "gymnasium_robotics": ("simulating Fetch", "gymnasium-robotics", "sim"),
+    "matplotlib": ("the report's figures", "matplotlib", "report"),
+    "rosbags": ("reading this format", "rosbags", "recordings"),
+    "h5py": ("reading this format", "h5py", "recordings"),
+    "rerun": ("writing a Rerun recording", "rerun-sdk", "recordings"),
+}
+
+
+def missing_extra(error: ImportError) -> MissingExtra | None:
+    """The one-line refusal for an optional library that could not be imported, or None for any other module."""
+    name = (error.name or "").split(".")[0]
+    if name not in EXTRAS:
+        return None
+    purpose, package, extra = EXTRAS[name]
+    return MissingExtra(f"{purpose} needs {package}, which is not installed: pip install 'mlnseq[{extra}]'")
+
+
 
 def check_choice(option: str, value: Any, allowed: Iterable[Any], more: str = "") -> None:
     """Refuse a value of ``--option`` that is not one of ``allowed``: "unknown --option 'x': choose one of a, b"

@@ -29,6 +29,7 @@ import numpy as np
 from scipy import optimize, sparse
 
 from mlnseq.mln.blas import one_thread
+from mlnseq.mln.distinct_rows import distinct_row_counts
 from mlnseq.mln.grounding import AtomSpace, Expanded, atom_indices, ground, is_temporal, space_of, truth
 
 
@@ -61,7 +62,7 @@ def build_objective(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace
     """Ground every formula on the distinct training frames (rows of the atom matrix), with their neighbours
     in the chains that ``starts`` cuts (only when some formula is temporal)."""
     temporal = [is_temporal(item.formula) for item in formulas]
-    unique, counts = np.unique(contexts(rows, starts if any(temporal) else None), axis=0, return_counts=True)
+    unique, counts = distinct_row_counts(contexts(rows, starts if any(temporal) else None))
     n_unique, n_atoms = len(unique), space.size
     current = unique[:, :n_atoms]
     # where a temporal formula sees the frame: (pair rows, which contexts, the slot of the frame's atoms)
@@ -72,7 +73,8 @@ def build_objective(formulas: list[Expanded], rows: np.ndarray, space: AtomSpace
     entries: dict[bool, list[list[np.ndarray]]] = {False: [[], [], []], True: [[], [], []]}
     determined = np.zeros(n_unique * n_atoms, dtype=bool)
 
-    def add(column: int, hard: bool, grounding, pair_rows: np.ndarray, where: np.ndarray, pair_space, slot: int) -> None:
+    def add(column: int, hard: bool, grounding, pair_rows: np.ndarray, where: np.ndarray, pair_space,
+            slot: int) -> None:
         observed = truth(grounding, pair_rows, pair_space)
         for index in atom_indices(grounding, pair_space):
             if not slot <= index < slot + n_atoms:

@@ -80,7 +80,8 @@ class _Counts:
 
     def pair(self, link: np.ndarray) -> np.ndarray:
         """[..., C * C] the counts (pairwise row, class before, class after) of frames linked by ``link`` (>= 0)."""
-        return self.n_rows * self.n_classes + np.asarray(link)[..., None] * self.n_classes ** 2 + np.arange(self.n_classes ** 2)
+        return (self.n_rows * self.n_classes + np.asarray(link)[..., None] * self.n_classes ** 2
+                + np.arange(self.n_classes ** 2))
 
 
 def _same_frame_covariance(gamma: np.ndarray, pairs: np.ndarray, counts: _Counts) -> np.ndarray:
@@ -105,6 +106,63 @@ def _same_frame_covariance(gamma: np.ndarray, pairs: np.ndarray, counts: _Counts
     return covariance
 
 
+@dataclass(frozen=True)
+class _Positions:
+    """A chain's frames in B blocks of L, by position in their block (frame b * L + i at [i, b]; padding frames
+    after the end, linked to nothing), and where each position's counts sit in a [B, C, D] state."""
+
+    length: int
+    n_blocks: int
+    after: np.ndarray  # [L, B, C, C]
+    pairs: np.ndarray  # [L, B, C, C]
+    gamma: np.ndarray  # [L, B, C]
+    link: np.ndarray  # [L, B]
+    unary_columns: np.ndarray  # [L, B, C]
+    pair_columns: np.ndarray  # [L, B, C, C]
+    step_at: np.ndarray  # [L, B * C * 2C] flat positions of (b, i, (row, j)) and (b, i, (link, i, j))
+    step_add: np.ndarray  # [L, B * C * 2C] what a step adds there
+    one_link: bool  # every linked frame has the same pair counts: slices, not indices
+    blocks: np.ndarray  # [B, 1]
+    classes: np.ndarray  # [C]
+
+    @classmethod
+    def of(cls, gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, counts: _Counts) -> _Positions:
+        n_frames, n_classes = gamma.shape
+        length = max(1, 4 * math.isqrt(n_frames))
+        n_blocks = -(-n_frames // length)
+        pad = n_blocks * length - n_frames
+
+        def by_position(values: np.ndarray, fill: float = 0) -> np.ndarray:
+            """[T, ...] -> [L, B, ...]."""
+            values = np.concatenate([values, np.full((pad, *values.shape[1:]), fill, dtype=values.dtype)])
+            return np.ascontiguousarray(values.reshape(n_blocks, length, *values.shape[1:]).swapaxes(0, 1))
+
+        after, pairs, gamma = by_position(after), by_position(pairs), by_position(gamma)
+        link = by_position(counts.link, -1)
+        gamma_linked = gamma * (link >= 0)[..., None]
+        unary_columns = counts.unary(by_position(counts.row))
+        pair_columns = counts.pair(np.maximum(link, 0)).reshape(length, n_blocks, n_classes, n_classes)
+        blocks, classes = np.arange(n_blocks)[:, None], np.arange(n_classes)
+        state_rows = ((blocks * n_classes + classes) * counts.size)[None, :, :, None]
+        step_at = np.concatenate([state_rows + unary_columns[:, :, None, :], state_rows + pair_columns],
+                                 axis=3).reshape(length, -1)
+        step_add = np.concatenate([after - gamma_linked[:, :, None, :], after], axis=3).reshape(length, -1)
+        return cls(length, n_blocks, after, pairs, gamma, link, unary_columns, pair_columns, step_at, step_add,
+                   counts.n_pairwise == 1, blocks, classes)
+
+    def step(self, state: np.ndarray, i: int, n_unary: int) -> np.ndarray:
+        """K before the frames at position i from K at them: sum_j after (counts + K) - mean counts."""
+        moved = self.after[i] @ state
+        np.add.at(moved.reshape(-1), self.step_at[i], self.step_add[i])
+        mean = self.pairs[i].reshape(self.n_blocks, 1, -1)
+        if self.one_link:
+            moved[:, :, n_unary:] -= mean
+        else:
+            moved[self.blocks[:, :, None], self.classes[:, None], self.pair_columns[i].reshape(self.n_blocks, 1, -1)] \
+                -= mean
+        return moved
+
+
 def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, counts: _Counts) -> np.ndarray:
     """X = sum over frames s < t of one chain of Cov(counts of s, counts of t) (rows: s's counts), by the backward
     recursion for K_s[k] = E[counts of the frames after s | y_s = k] - their mean:
@@ -114,64 +172,33 @@ def _cross_covariance(gamma: np.ndarray, pairs: np.ndarray, after: np.ndarray, c
     S_s = p(y at the block's end | y_s), the true K_s = K_s(local) + S_s K(block's end), so X adds
     sum_b (sum_{s in b} psi_s^T S_s) K(end of b), and one loop over the blocks finds those K from what each block
     passes on (its K before its first frame, and its S there)."""
-    n_frames, n_classes = gamma.shape
-    size, n_unary = counts.size, counts.n_rows * counts.n_classes
-    length = max(1, 4 * math.isqrt(n_frames))
-    n_blocks = -(-n_frames // length)
-    pad = n_blocks * length - n_frames
-
-    def by_position(values: np.ndarray, fill: float = 0) -> np.ndarray:
-        """[T, ...] -> [L, B, ...]: frame b * L + i at [i, b]; padding frames after the end (nothing, linked to nothing)."""
-        values = np.concatenate([values, np.full((pad, *values.shape[1:]), fill, dtype=values.dtype)])
-        return np.ascontiguousarray(values.reshape(n_blocks, length, *values.shape[1:]).swapaxes(0, 1))
-
-    after, pairs, gamma = by_position(after), by_position(pairs), by_position(gamma)
-    link = by_position(counts.link, -1)
-    gamma_linked = gamma * (link >= 0)[..., None]
-    unary_columns = counts.unary(by_position(counts.row))  # [L, B, C]
-    pair_columns = counts.pair(np.maximum(link, 0)).reshape(length, n_blocks, n_classes, n_classes)
-    one_link = counts.n_pairwise == 1  # then every linked frame has the same pair counts: slices, not indices
-    blocks, classes = np.arange(n_blocks)[:, None], np.arange(n_classes)
-    # flat positions in a [B, C, D] state: (b, i, (row, j)) and (b, i, (link, i, j)), for [L, B, C(i), C(j)]
-    state_rows = ((blocks * n_classes + classes) * size)[None, :, :, None]
-    unary_at = state_rows + unary_columns[:, :, None, :]
-    pair_at = state_rows + pair_columns
-    step_at = np.concatenate([unary_at, pair_at], axis=3).reshape(length, -1)
-    step_add = np.concatenate([after - gamma_linked[:, :, None, :], after], axis=3).reshape(length, -1)
-
-    def step(state: np.ndarray, i: int) -> np.ndarray:
-        """K before the frames at position i from K at them: sum_j after (counts + K) - mean counts."""
-        moved = after[i] @ state
-        np.add.at(moved.reshape(-1), step_at[i], step_add[i])
-        mean = pairs[i].reshape(n_blocks, 1, -1)
-        if one_link:
-            moved[:, :, n_unary:] -= mean
-        else:
-            moved[blocks[:, :, None], classes[:, None], pair_columns[i].reshape(n_blocks, 1, -1)] -= mean
-        return moved
-
     from scipy import sparse  # learning only: recognising a chain needs numpy alone
 
+    at = _Positions.of(gamma, pairs, after, counts)
+    n_classes, size, n_unary = gamma.shape[1], counts.size, counts.n_rows * counts.n_classes
+    length, n_blocks, blocks, classes, one_link = at.length, at.n_blocks, at.blocks, at.classes, at.one_link
     width = n_blocks * n_classes  # frames' unary counts at one position, weighted by gamma: a sparse [n_unary, B * C]
-    gathered = sparse.csc_matrix((gamma.reshape(-1), (unary_columns.reshape(-1), np.arange(length * width))),
+    gathered = sparse.csc_matrix((at.gamma.reshape(-1), (at.unary_columns.reshape(-1), np.arange(length * width))),
                                  shape=(n_unary, length * width))
     local_unary = np.zeros((n_unary, size))
     local_pair = np.zeros((counts.n_pairwise, n_classes, n_classes, size))
     to_end = np.zeros((n_blocks, size, n_classes))  # sum_{s in b} psi_s^T S_s
-    to_end_at = (((blocks * size + unary_columns) * n_classes)[..., None] + classes).reshape(length, -1)  # (b, (row, k), m)
+    # (b, (row, k), m)
+    to_end_at = (((blocks * size + at.unary_columns) * n_classes)[..., None] + classes).reshape(length, -1)
     state = np.zeros((n_blocks, n_classes, size))
     through = np.broadcast_to(np.eye(n_classes), (n_blocks, n_classes, n_classes)).copy()
     for i in reversed(range(length)):
         local_unary += gathered[:, i * width:(i + 1) * width] @ state.reshape(width, size)
-        np.add.at(to_end.reshape(-1), to_end_at[i], (gamma[i][:, :, None] * through).reshape(-1))
-        weighted = pairs[i][:, :, :, None] * through[:, None, :, :]  # [b, i, k, m]
-        for pairwise, members in [(0, slice(None))] if one_link else _kinds_present(link[i]):
-            local_pair[pairwise] += np.matmul(pairs[i][members].transpose(2, 1, 0),
+        np.add.at(to_end.reshape(-1), to_end_at[i], (at.gamma[i][:, :, None] * through).reshape(-1))
+        weighted = at.pairs[i][:, :, :, None] * through[:, None, :, :]  # [b, i, k, m]
+        for pairwise, members in [(0, slice(None))] if one_link else _kinds_present(at.link[i]):
+            local_pair[pairwise] += np.matmul(at.pairs[i][members].transpose(2, 1, 0),
                                               state[members].transpose(1, 0, 2)).transpose(1, 0, 2)
-            rows = slice(n_unary, None) if one_link else pair_columns[i][members].reshape(-1, n_classes ** 2)
-            to_end[blocks[members] if not one_link else slice(None), rows] += weighted[members].reshape(-1, n_classes ** 2, n_classes)
-        state = step(state, i)
-        through = after[i] @ through
+            rows = slice(n_unary, None) if one_link else at.pair_columns[i][members].reshape(-1, n_classes ** 2)
+            to_end[blocks[members] if not one_link else slice(None), rows] += \
+                weighted[members].reshape(-1, n_classes ** 2, n_classes)
+        state = at.step(state, i, n_unary)
+        through = at.after[i] @ through
     at_end = np.zeros((n_blocks, n_classes, size))  # the true K at each block's last frame
     for block in reversed(range(1, n_blocks)):
         at_end[block - 1] = state[block] + through[block] @ at_end[block]

@@ -279,13 +279,15 @@ def _forward_sequential(factors: ChainFactors, vectors: bool) -> _Forward:
     products underflow although every frame stays possible (probabilities below e^-745 that ``Filter`` keeps)."""
     steps = _steps(factors)
     n_frames, n_classes = len(factors.link), factors.n_classes
-    levels = [(steps.matrices(slice(0, 1)), steps.scale[:1])]  # one leaf standing for all steps: passes go frame by frame
+    # one leaf standing for all steps: passes go frame by frame
+    levels = [(steps.matrices(slice(0, 1)), steps.scale[:1])]
     entering, alpha, moved = np.empty((n_frames, n_classes)), np.empty((n_frames, n_classes)), np.empty(n_frames)
     vector = np.eye(n_classes)[:1]
     for frame in range(n_frames):
         entering[frame] = vector[0]
         try:
-            alpha[frame] = vector[0] = _normalised(steps.forward(vector, slice(frame, frame + 1)), moved[frame:frame + 1])[0]
+            alpha[frame] = vector[0] = _normalised(steps.forward(vector, slice(frame, frame + 1)),
+                                                   moved[frame:frame + 1])[0]
         except _Dead:
             raise FloatingPointError(f"the chain's forward pass underflows at frame {frame} even after restarting "
                                      "at its dead ends") from None

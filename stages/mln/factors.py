@@ -17,6 +17,7 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.chain import ChainFactors
+from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.features import PairColumns, frame_counts, pair_counts, read_columns
 from mlnseq.mln.grounding import EVIDENCE, AtomSpace, class_aliases, class_constant, is_temporal, rename_classes
 from mlnseq.mln.syntax import Const, Formula, MLNSyntaxError, atoms, parse_formula
@@ -62,10 +63,11 @@ def frame_space(columns: Sequence[str], n_classes: int) -> AtomSpace:
     return AtomSpace(tuple(columns), tuple(class_constant(k) for k in range(n_classes)))
 
 
-def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...], hard_weight: float | None) -> np.ndarray:
+def _scores(counts, formulas: Sequence[LearnedFormula], shape: tuple[int, ...],
+            hard_weight: float | None) -> np.ndarray:
     weights = np.array([0.0 if f.hard and hard_weight is None else (hard_weight if f.hard else f.weight)
                         for f in formulas])
-    scores = (counts.matrix @ weights if len(formulas) else np.zeros(counts.matrix.shape[0])).reshape(shape)
+    scores = counts.dot(weights).reshape(shape)
     if hard_weight is None:
         scores[counts.forbidden.reshape(shape)] = -np.inf
     return scores
@@ -141,11 +143,10 @@ class MLNFactors:
         if n_frames:
             starts[0] = True
         joined = np.flatnonzero(~starts)
-        distinct, inverse = np.unique(self._pair_columns.keys(evidence[joined - 1], evidence[joined]), axis=0,
-                                      return_inverse=True)
+        distinct, inverse = distinct_rows(self._pair_columns.keys(evidence[joined - 1], evidence[joined]))
         pairwise = self._many(self._pairwise, distinct, self._pair_scores)
         link = np.full(n_frames, -1, dtype=np.int64)
-        link[joined] = inverse.reshape(-1)
+        link[joined] = inverse
         return ChainFactors(unary, pairwise, link)
 
     @staticmethod
@@ -158,11 +159,11 @@ class MLNFactors:
 
     @staticmethod
     def _many(cache: dict[bytes, np.ndarray], keys: np.ndarray, compute) -> np.ndarray:
-        distinct, inverse = np.unique(keys, axis=0, return_inverse=True)
+        distinct, inverse = distinct_rows(keys)
         missing = [i for i, row in enumerate(distinct) if row.tobytes() not in cache]
         if missing:
             for row, values in zip(distinct[missing], compute(distinct[missing])):
                 cache[row.tobytes()] = values
         if not len(distinct):
             return compute(distinct)
-        return np.stack([cache[row.tobytes()] for row in distinct])[inverse.reshape(-1)]
+        return np.stack([cache[row.tobytes()] for row in distinct])[inverse]

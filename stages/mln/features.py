@@ -14,7 +14,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 from mlnseq.mln.grounding import EVIDENCE, AtomSpace, PairSpace, ground, next_atom, space_of, truth
 from mlnseq.mln.syntax import Formula, Var, atoms
@@ -22,10 +21,39 @@ from mlnseq.mln.syntax import Formula, Var, atoms
 
 @dataclass(frozen=True)
 class Counts:
-    """Count differences of each formula on each configuration, and the configurations hard formulas forbid."""
+    """Count differences of each formula on each configuration (the non-zero ones, formula by formula), and the
+    configurations hard formulas forbid. Recognising needs numpy alone; the learners take it as a scipy matrix."""
 
-    matrix: sparse.csr_matrix  # [configurations, formulas] float64
+    rows: np.ndarray  # int64 [entries]: each entry's configuration
+    columns: np.ndarray  # int64 [entries]: its formula, ascending
+    values: np.ndarray  # float64 [entries]
+    shape: tuple[int, int]  # [configurations, formulas]
     forbidden: np.ndarray  # bool [configurations]
+
+    def dot(self, weights: np.ndarray) -> np.ndarray:
+        """[configurations] the counts times ``weights`` [formulas], summed formula by formula in the order of
+        scipy's CSR product (equal to the bit)."""
+        total = np.zeros(self.shape[0])
+        bounds = np.searchsorted(self.columns, np.arange(self.shape[1] + 1))
+        for formula in range(self.shape[1]):
+            part = slice(bounds[formula], bounds[formula + 1])
+            total[self.rows[part]] += self.values[part] * weights[formula]
+        return total
+
+    def sparse(self):  # -> scipy.sparse.csr_matrix [configurations, formulas] float64
+        """The counts as a scipy CSR matrix, for the learners (scipy is imported here)."""
+        from scipy import sparse
+
+        return sparse.csr_matrix((self.values, (self.rows, self.columns)), shape=self.shape)
+
+
+def _stack(parts: Sequence[Counts], n_rows: int) -> Counts:
+    """The formulas of ``parts`` side by side, in order."""
+    offsets = np.cumsum([0, *(part.shape[1] for part in parts)])
+    return Counts(np.concatenate([part.rows for part in parts]).astype(np.int64),
+                  np.concatenate([part.columns + offset for part, offset in zip(parts, offsets)]).astype(np.int64),
+                  np.concatenate([part.values for part in parts]).astype(np.float64), (n_rows, int(offsets[-1])),
+                  np.logical_or.reduce([part.forbidden for part in parts]))
 
 
 def _configurations(evidence: np.ndarray, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
@@ -53,9 +81,8 @@ def _counts(formulas: Sequence[Formula], hard: Sequence[bool], space: AtomSpace 
         columns.append(np.full(len(nonzero), column))
         values.append(difference[nonzero])
     cat = (lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype))
-    matrix = sparse.csr_matrix((cat(values, np.float64), (cat(entries, np.int64), cat(columns, np.int64))),
-                               shape=(len(rows), len(formulas)))
-    return Counts(matrix, forbidden)
+    return Counts(cat(entries, np.int64), cat(columns, np.int64), cat(values, np.float64), (len(rows), len(formulas)),
+                  forbidden)
 
 
 def frame_counts(formulas: Sequence[Formula], hard: Sequence[bool], evidence: np.ndarray, space: AtomSpace) -> Counts:
@@ -73,15 +100,14 @@ def pair_counts(formulas: Sequence[Formula], hard: Sequence[bool], previous: np.
     before, before_none = _configurations(previous.astype(bool), n_classes)
     after, after_none = _configurations(current.astype(bool), n_classes)
     pairs = len(previous)
-    rows = np.concatenate([np.repeat(before, n_classes, axis=0),
-                           np.tile(after.reshape(pairs, n_classes, -1), (1, n_classes, 1)).reshape(pairs * n_classes ** 2, -1)],
-                          axis=1)
+    after_each = np.tile(after.reshape(pairs, n_classes, -1), (1, n_classes, 1)).reshape(pairs * n_classes ** 2, -1)
+    rows = np.concatenate([np.repeat(before, n_classes, axis=0), after_each], axis=1)
     baseline = np.concatenate([before_none, after_none], axis=1)
     if not formulas:
-        return Counts(sparse.csr_matrix((len(rows), 0)), np.zeros(len(rows), dtype=bool))
+        return _counts([], [], space, rows, baseline, n_classes ** 2)
     spaces = [space_of(f, space) for f in formulas]
-    parts = [_counts([f], [h], s, rows, baseline, n_classes ** 2) for f, h, s in zip(formulas, hard, spaces)]
-    return Counts(sparse.hstack([p.matrix for p in parts]).tocsr(), np.logical_or.reduce([p.forbidden for p in parts]))
+    return _stack([_counts([f], [h], s, rows, baseline, n_classes ** 2) for f, h, s in zip(formulas, hard, spaces)],
+                  len(rows))
 
 
 def read_columns(formulas: Sequence[Formula], columns: Sequence[str]) -> list[int]:
@@ -94,7 +120,8 @@ def _read(formula: Formula, columns: Sequence[str], frame: str | None) -> set[in
     """The columns of the formula's Has atoms (on frame variable ``frame`` only, unless None)."""
     read: set[int] = set()
     for atom in atoms(formula):
-        if atom.predicate != EVIDENCE or (frame is not None and atom.args[-1].name != frame):  # type: ignore[union-attr]
+        if atom.predicate != EVIDENCE or (frame is not None
+                                          and atom.args[-1].name != frame):  # type: ignore[union-attr]
             continue
         if isinstance(atom.args[0], Var):
             return set(range(len(columns)))

@@ -17,7 +17,6 @@ so a ground formula is evaluated on all frames or pairs at once.
 
 from __future__ import annotations
 
-import difflib
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -26,7 +25,7 @@ import numpy as np
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.mln.syntax import (
-    MLN, And, Atom, Const, Equiv, Formula, Implies, MLNSyntaxError, Not, Or, Var, WeightedFormula, atoms,
+    MLN, And, Atom, Const, Equiv, Formula, Implies, Not, Or, Var, WeightedFormula, atoms,
     format_formula, map_atoms, substitute,
 )
 
@@ -162,106 +161,6 @@ def shown(formula: Formula, class_names: Sequence[str] | None) -> Formula:
 def show(formula: Formula, class_names: Sequence[str] | None) -> str:
     """``format_formula`` with the frames' class names."""
     return format_formula(shown(formula, class_names))
-
-
-def check_class_names(class_names: Sequence[str], where: str) -> None:
-    """Refuse a class name that a formula cannot write (a quoted constant holds no '"' and no line break)."""
-    for name in class_names:
-        if '"' in name or "\n" in name or not name.strip():
-            raise BadInput(f"{where}: class name {name!r} cannot be written in a formula (it holds a '\"', a line "
-                           "break or nothing); rename the classes with `mlnseq collect --classes`")
-
-
-def duplicates(mln: MLN, where: str, class_names: Sequence[str] | None = None) -> None:
-    """Refuse a formula written twice (the same formula once its classes are resolved), naming both lines."""
-    first: dict[str, int] = {}
-    for item in mln.formulas:
-        text = format_formula(item.formula)
-        if text in first:
-            raise BadInput(f"{where}:{item.line}:{item.column}: {show(item.formula, class_names)} is written twice, "
-                           f"here and on line {first[text]}: remove one (a formula has one weight)")
-        first[text] = item.line
-
-
-def check_mln(mln: MLN, where: str, words: set[str], classes: set[str], class_names: Sequence[str] = ()) -> None:
-    """Refuse what mlnseq's database cannot ground: other predicates, atoms across frames that are not joined
-    by Next, unknown constants. ``classes``: the constants a class may be written as; ``class_names``: the
-    frames' names, in label order, for messages."""
-    for name, domains in mln.predicates.items():
-        if name not in (EVIDENCE, CLASS, NEXT) or len(domains) != 2:
-            raise BadInput(
-                f"{where}: predicate {name}({', '.join(domains)}) is not in mlnseq's database, which holds "
-                f"only {EVIDENCE}(word, page), {CLASS}(class, page) and {NEXT}(page, page)"
-            )
-    if any(any(flags) for flags in mln.mutex.values()):
-        raise BadInput(f"{where}: mutually exclusive arguments ('!') are not supported; declare {CLASS}(class, page)")
-    for item in mln.formulas:
-        check_formula(item, mln, where, words, classes, class_names)
-
-
-def check_formula(item: WeightedFormula, mln: MLN, where: str, words: set[str], classes: set[str],
-                  class_names: Sequence[str] = ()) -> None:
-    def at(atom: Atom | None = None) -> str:
-        return f"{where}:{item.line}:{atom.column if atom is not None and atom.column else item.column}"
-
-    frame_vars, first_domain, joins = set(), {}, []
-    for atom in atoms(item.formula):
-        if atom.predicate not in mln.predicates:
-            declared = ", ".join(mln.predicates) or "none"
-            hint = f"; declare {NEXT}(page, page) to join consecutive frames" if atom.predicate == NEXT else ""
-            raise BadInput(f"{at(atom)}: unknown predicate {atom.predicate} (declared: {declared}){hint}")
-        if atom.predicate == NEXT:
-            names = [t.name for t in atom.args if isinstance(t, Var) and not t.expand]
-            if len(atom.args) != 2 or len(names) != 2 or names[0] == names[1]:
-                raise MLNSyntaxError(
-                    f"{at(atom)}: syntax error: {NEXT} takes two different frame variables, {NEXT}(p, q) for the "
-                    f"frame q right after p; found {format_formula(atom)}")
-            joins.append(atom)
-            frame_vars.update(names)
-            continue
-        if len(atom.args) != 2:
-            raise BadInput(f"{at(atom)}: {atom.predicate} takes 2 arguments, {format_formula(atom)} has {len(atom.args)}")
-        first, frame = atom.args
-        if not isinstance(frame, Var) or frame.expand:
-            raise BadInput(f"{at(atom)}: the last argument of {format_formula(atom)} must be the frame variable (e.g. p)")
-        frame_vars.add(frame.name)
-        known = words if atom.predicate == EVIDENCE else classes
-        if isinstance(first, Const) and first.value not in known:
-            if atom.predicate == EVIDENCE:
-                close = difflib.get_close_matches(first.value, sorted(known), n=3)
-                hint = f"did you mean {', '.join(close)}?" if close else "see the columns of predicates.parquet"
-                raise BadInput(f"{at(atom)}: unknown constant {first.value!r} in {format_formula(atom)}: "
-                               f"no such predicate column; {hint}")
-            names = list(class_names) or sorted(known, key=lambda c: int(c[1:]) if c[1:].isdigit() else -1)
-            close = difflib.get_close_matches(first.value, names, n=3)
-            hint = f"did you mean {', '.join(close)}? " if close else ""
-            paper = f" (or C0 .. C{len(names) - 1} in that order)" if class_names else ""
-            raise BadInput(f"{at(atom)}: unknown class {first.value!r} in {format_formula(atom)}: {hint}the classes "
-                           f"are {', '.join(names)}{paper}")
-        if isinstance(first, Var) and first_domain.setdefault(first.name, atom.predicate) != atom.predicate:
-            raise BadInput(f"{at(atom)}: variable {first.name} ranges over both words and classes")
-    clash = sorted(frame_vars & set(first_domain))
-    if clash:
-        raise BadInput(f"{at()}: variable {clash[0]} is used both as frame and as constant")
-    if not joins:
-        if len(frame_vars) > 1:
-            raise BadInput(f"{at()}: all atoms must share one frame variable, found {', '.join(sorted(frame_vars))}; "
-                           f"to relate consecutive frames, add {NEXT}(p, q) to the body")
-        return
-    if len(joins) > 1:
-        raise BadInput(f"{at(joins[1])}: a formula joins two consecutive frames with one {NEXT} atom, found {len(joins)}")
-    joined = joins[0]
-    previous, current = (t.name for t in joined.args)  # type: ignore[union-attr]
-    for atom in atoms(item.formula):
-        if atom.predicate != NEXT and atom.args[-1].name not in (previous, current):  # type: ignore[union-attr]
-            raise BadInput(f"{at(atom)}: {format_formula(atom)} is on frame {atom.args[-1].name}, but "  # type: ignore[union-attr]
-                           f"{format_formula(joined)} joins only {previous} and {current}")
-    soft_constant = item.weight is not None and holds_without_next(item.formula, at(), value=False)
-    if not (holds_without_next(item.formula, at()) or soft_constant):
-        raise BadInput(
-            f"{at()}: {format_formula(item.formula)} must hold whenever {format_formula(joined)} is false (frames that "
-            f"are not consecutive), else every pair of frames counts: put {format_formula(joined)} in the body, "
-            f"e.g. Topic(c1, {previous}) ^ {format_formula(joined)} => Topic(c2, {current})")
 
 
 @dataclass(frozen=True)

@@ -319,7 +319,14 @@ def format_formula(formula: Formula, parent: int = 0) -> str:
 
 def format_weighted(item: WeightedFormula) -> str:
     text = format_formula(item.formula)
-    return f"{text}." if item.hard else f"{item.weight:<12.6f}{text}"
+    return f"{text}." if item.hard else f"{format_weight(item.weight):<11} {text}"
+
+
+def format_weight(weight: float) -> str:
+    """Six decimals where they give the weight back exactly, else every digit it needs (1e-07 never becomes
+    0.000000, which reads back as "learn me")."""
+    fixed = f"{weight:.6f}"
+    return fixed if float(fixed) == weight else repr(float(weight))
 
 
 def atoms(formula: Formula) -> list[Atom]:

@@ -42,21 +42,34 @@ def save_checkpoint(path: Path, model: SequenceClassifier, config: dict[str, Any
     return path
 
 
-def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | None = None) -> Checkpoint:
-    """Load ``models/<method>.pt``; refuse one made from other inputs, features or classes."""
+def _read(path: Path, method: str) -> dict[str, Any]:
+    """A checkpoint's saved dict (its configuration and state dict), its format checked."""
     import torch
 
-    path = artifacts.checkpoint_path(workdir, method)
     if not path.exists():
         raise BadInput(f"{path} not found: run `mlnseq train --method {method}` first")
     try:
         saved = torch.load(path, map_location="cpu", weights_only=True)
         config = saved["config"]
     except Exception as error:  # torch raises many types for a foreign or truncated file
-        raise BadInput(f"{path} is not an mlnseq checkpoint ({error}); rerun `mlnseq train --method {method}`") from error
+        raise BadInput(f"{path} is not an mlnseq checkpoint ({error}); "
+                       f"rerun `mlnseq train --method {method}`") from error
     if config.get("format") != CHECKPOINT_FORMAT:
         raise BadInput(f"{path} has checkpoint format {config.get('format')}, this mlnseq reads "
                        f"{CHECKPOINT_FORMAT}; rerun `mlnseq train --method {method}`")
+    return saved
+
+
+def checkpoint_config(workdir: Path, method: str) -> dict[str, Any]:
+    """The configuration ``models/<method>.pt`` embeds (not checked against the workdir's inputs)."""
+    return _read(artifacts.checkpoint_path(workdir, method), method)["config"]
+
+
+def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | None = None) -> Checkpoint:
+    """Load ``models/<method>.pt``; refuse one made from other inputs, features or classes."""
+    path = artifacts.checkpoint_path(workdir, method)
+    saved = _read(path, method)
+    config = saved["config"]
     if frames_meta is not None:
         for key in ("features", "classes"):
             if list(config[key]) != list(frames_meta[key]):
@@ -65,5 +78,8 @@ def load_checkpoint(workdir: Path, method: str, frames_meta: dict[str, Any] | No
     for name, digest in config["inputs"].items():
         source = workdir / name
         if source.exists() and artifacts.file_digest(source) != digest:
-            raise StaleArtifact(f"{path} was trained on an older {name}; rerun `mlnseq train --method {method}`")
+            from mlnseq.catalog.rerun import command
+
+            raise StaleArtifact(f"{path} was trained on an older {name}; rerun "
+                                f"`{command('train', config.get('options'))}`")
     return Checkpoint(Network.from_state(config["model"], saved["state_dict"], config["mean"], config["std"]), config)

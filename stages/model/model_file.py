@@ -11,7 +11,7 @@ import math
 import struct
 import zipfile
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,16 +19,15 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
-from mlnseq.catalog.errors import BadInput
 from mlnseq import networks
+from mlnseq.catalog.errors import BadInput
+from mlnseq.model.manifest import AGAIN, MANIFEST, MODEL_FORMAT, NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import Network
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
 
-MODEL_FORMAT = 2  # 2: the manifest declares its members' sizes and digests and the number of formulas
 MODEL_SUFFIX = ".mlnseq"
-MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
 MEMBERS = (MANIFEST, SPEC, WEIGHTS, NETWORK)
 
 KIB, MIB = 1024, 1024 * 1024
@@ -39,19 +38,18 @@ FORMULA_BYTES = 1 * KIB  # one formula's row of weights.parquet (DESK's: 27 byte
 ARRAY_OVERHEAD = 1 * KIB  # one array's npy header and zip entry in network.npz
 ITEM_BYTES = 8  # float64, the widest dtype an array may have
 ARRAY_DTYPES = (np.dtype("<f8"), np.dtype("<f4"))
-NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
 WEIGHT_COLUMNS = {"formula": pl.String, "class": pl.String, "weight": pl.Float64, "hard": pl.Boolean}
 READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError, IndexError,
                NotImplementedError, RuntimeError, struct.error, OverflowError, RecursionError)
 EOCD = struct.Struct("<4s4H2LH")  # the zip's end-of-central-directory record
-AGAIN = "export the model again with `mlnseq export`"
 
 
 def _foreign(where: Any, reason: Any) -> BadInput:
-    return BadInput(f"{where} is not an mlnseq model file (truncated or foreign: {reason}); write one with `mlnseq export`")
+    return BadInput(f"{where} is not an mlnseq model file (truncated or foreign: {reason}); "
+                    "write one with `mlnseq export`")
 
 
-def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.DataFrame | None,
+def model_entries(manifest: Manifest, spec_text: str | None, weights: pl.DataFrame | None,
                   network: Network | None) -> dict[str, bytes]:
     """The files of a model file, by name: the manifest, the predicate spec, the MLN weights, the network's
     arrays (its state dict's names, and its standardisation ``mean`` and ``std``)."""
@@ -66,12 +64,13 @@ def model_entries(manifest: dict[str, Any], spec_text: str | None, weights: pl.D
         buffer = io.BytesIO()
         np.savez(buffer, mean=network.mean, std=network.std, **network.weights)
         members[NETWORK] = buffer.getvalue()
-    return seal({**manifest, "formulas": 0 if weights is None else weights.height}, members)
+    return seal(replace(manifest, formulas=0 if weights is None else weights.height).to_dict(), members)
 
 
 def seal(manifest: dict[str, Any], members: dict[str, bytes]) -> dict[str, bytes]:
     """The manifest (with the format version and each member's size and SHA-256) and the members."""
-    declared = {name: {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()} for name, data in members.items()}
+    declared = {name: {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+                for name, data in members.items()}
     text = json.dumps({"format": MODEL_FORMAT, **manifest, "members": declared}, indent=1, sort_keys=True)
     return {MANIFEST: text.encode(), **members}
 
@@ -85,88 +84,18 @@ def write_model(path: Path, entries: dict[str, bytes]) -> Path:
     return path
 
 
-def parse_manifest(data: bytes, where: Any) -> dict[str, Any]:
-    """The manifest, checked: its format, every field the recogniser reads, and the network's shape."""
+def parse_manifest(data: bytes, where: Any) -> Manifest:
+    """The manifest, checked: its format, then every field (stages/model/manifest.py)."""
     try:
-        manifest = json.loads(data)
+        values = json.loads(data)
     except (ValueError, RecursionError) as error:
         raise _foreign(where, f"{MANIFEST} is not JSON: {error}") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != MODEL_FORMAT:
-        found = manifest.get("format") if isinstance(manifest, dict) else None
-        version = manifest.get("mlnseq_version", "?") if isinstance(manifest, dict) else "?"
+    if not isinstance(values, dict) or values.get("format") != MODEL_FORMAT:
+        found = values.get("format") if isinstance(values, dict) else None
+        version = values.get("mlnseq_version", "?") if isinstance(values, dict) else "?"
         raise BadInput(f"{where} is model-file format {found} from mlnseq {version}; this mlnseq "
                        f"({artifacts.package_version()}) reads format {MODEL_FORMAT}: {AGAIN}")
-    _check_fields(manifest, MANIFEST_FIELDS, where, MANIFEST)
-    network = manifest["network"]
-    if network is not None:
-        _check_fields(network, NETWORK_FIELDS, where, f"{MANIFEST} network")
-        config = network["model"]
-        if config["cell"] not in networks.CELLS:
-            raise BadInput(f"{where}: its network's cell {config['cell']!r} is not one this mlnseq runs "
-                           f"({', '.join(networks.CELLS)}): {AGAIN}")
-        if sorted(config) != sorted(networks.config_fields(config["cell"])):
-            raise BadInput(f"{where}: {MANIFEST} network 'model' is not an object of a {config['cell']}'s keys: {AGAIN}")
-        sizes = {"hidden_size": None, "n_features": len(manifest["features"]), "n_classes": len(manifest["classes"]),
-                 **{key: None for key in ("kernel_size", "levels") if key in config}}
-        for key, expected in sizes.items():
-            if not (_count(config[key]) and 0 < config[key] <= max(NETWORK_SIZE_LIMIT, expected or 0)) \
-                    or (expected is not None and config[key] != expected):
-                raise BadInput(f"{where}: its network's {key} is {config[key]!r}, but the manifest declares "
-                               f"{expected if expected is not None else f'a count up to {NETWORK_SIZE_LIMIT}'}: {AGAIN}")
-        if "levels" in config and (config["kernel_size"] - 1) * 2 ** min(config["levels"], 64) > RECEPTIVE_FIELD_LIMIT:
-            raise BadInput(f"{where}: its network's receptive field is over {RECEPTIVE_FIELD_LIMIT:,} frames: {AGAIN}")
-        if not isinstance(config["prior_layer"], bool) or config["prior_layer"] != (network["prior"] is not None):
-            raise BadInput(f"{where}: its network's prior_layer ({config['prior_layer']!r}) and PriorLayer input "
-                           f"({network['prior']!r}) disagree: {AGAIN}")
-    return manifest
-
-
-def _check_fields(values: dict[str, Any], fields: dict[str, tuple[Any, str]], where: Any, what: str) -> None:
-    for key, (valid, expected) in fields.items():
-        if key not in values:
-            raise BadInput(f"{where}: {what} lacks {key!r}: {AGAIN}")
-        if not valid(values[key]):
-            raise BadInput(f"{where}: {what} {key!r} is not {expected}: {AGAIN}")
-
-
-def _integer(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _count(value: Any) -> bool:
-    return _integer(value) and value >= 0
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _names(empty: bool, unique: bool = True) -> tuple[Any, str]:
-    return (lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v) and bool(empty or v)
-            and (not unique or len(set(v)) == len(v)),
-            f"a list of {'unique ' if unique else ''}strings{'' if empty else ', not empty'}")
-
-
-TEXT = (lambda v: isinstance(v, str), "a string")
-MANIFEST_FIELDS = {
-    **dict.fromkeys(("method", "decode", "mln_mode", "source", "mlnseq_version", "created"), TEXT),
-    "classes": _names(empty=False), "features": _names(empty=False), "predicates": _names(empty=True),
-    "notes": _names(empty=True, unique=False),
-    "inputs": (lambda v: isinstance(v, dict) and all(isinstance(x, str) for x in [*v, *v.values()]),
-               "an object of file name -> digest"),
-    "formulas": (_count, "a count"),
-    "network_weight": (lambda v: v is None or (_number(v) and 0 <= v < math.inf), "null or a number >= 0"),
-    "validation_frame_accuracy": (lambda v: v is None or (_number(v) and 0 <= v <= 1), "null or a fraction"),
-    "members": (lambda v: isinstance(v, dict) and all(
-        name in MEMBERS[1:] and isinstance(d, dict) and set(d) == {"bytes", "sha256"} and _count(d["bytes"])
-        and isinstance(d["sha256"], str) for name, d in v.items()), "an object of member name -> {bytes, sha256}"),
-    "network": (lambda v: v is None or isinstance(v, dict), "null or an object"),
-}
-NETWORK_FIELDS = {
-    "name": TEXT, "mode": TEXT, "prior": (lambda v: v is None or isinstance(v, str), "null or a name"),
-    "seed": (_integer, "an integer"), "kept_epoch": (_integer, "an integer"),
-    "model": (lambda v: isinstance(v, dict) and isinstance(v.get("cell"), str), "an object naming its cell"),
-}
+    return Manifest.read(values, where)
 
 
 def network_shapes(config: dict[str, Any]) -> dict[str, tuple[int, ...]]:
@@ -175,12 +104,15 @@ def network_shapes(config: dict[str, Any]) -> dict[str, tuple[int, ...]]:
     return networks.state_shapes(config) | {"mean": (config["n_features"],), "std": (config["n_features"],)}
 
 
-def member_limits(manifest: dict[str, Any], where: Any) -> dict[str, int]:
+def member_limits(manifest: Manifest | dict[str, Any], where: Any) -> dict[str, int]:
     """The most bytes each member may hold: fixed for the manifest and the spec, derived from the manifest's
-    formulas and network for the others; a manifest declaring more than MEMBER_CEILING is refused."""
-    limits = {MANIFEST: MANIFEST_LIMIT, SPEC: SPEC_LIMIT, WEIGHTS: TABLE_OVERHEAD + FORMULA_BYTES * manifest["formulas"]}
-    if manifest["network"] is not None:
-        shapes = network_shapes(manifest["network"]["model"])
+    formulas and network for the others (``manifest``, or its JSON object: checked first); a manifest declaring
+    more than MEMBER_CEILING is refused."""
+    if isinstance(manifest, dict):
+        manifest = Manifest.read(manifest, where)
+    limits = {MANIFEST: MANIFEST_LIMIT, SPEC: SPEC_LIMIT, WEIGHTS: TABLE_OVERHEAD + FORMULA_BYTES * manifest.formulas}
+    if manifest.network is not None:
+        shapes = network_shapes(manifest.network.model)
         limits[NETWORK] = sum(ARRAY_OVERHEAD + ITEM_BYTES * math.prod(shape) for shape in shapes.values())
     for name, limit in limits.items():
         if limit > MEMBER_CEILING:
@@ -189,16 +121,16 @@ def member_limits(manifest: dict[str, Any], where: Any) -> dict[str, int]:
     return limits
 
 
-def _check_members(names: set[str], manifest: dict[str, Any], where: Any) -> None:
+def _check_members(names: set[str], manifest: Manifest, where: Any) -> None:
     """The file holds exactly the members its manifest declares, and they fit the model it describes."""
-    declared = set(manifest["members"])
+    declared = set(manifest.members)
     for name in sorted(names - {MANIFEST} - declared):
         raise BadInput(f"{where} holds {name}, which its manifest does not declare: {AGAIN}")
     for name in sorted(declared - names):
         raise BadInput(f"{where} lacks {name}, which its manifest declares: {AGAIN}")
-    if (NETWORK in declared) != (manifest["network"] is not None):
+    if (NETWORK in declared) != (manifest.network is not None):
         raise BadInput(f"{where}: its manifest's network and its {NETWORK} member disagree: {AGAIN}")
-    if (SPEC in declared) != (WEIGHTS in declared) or (WEIGHTS not in declared and manifest["formulas"]):
+    if (SPEC in declared) != (WEIGHTS in declared) or (WEIGHTS not in declared and manifest.formulas):
         raise BadInput(f"{where}: an MLN needs both {SPEC} and {WEIGHTS}, and the manifest's formula count: {AGAIN}")
 
 
@@ -218,7 +150,7 @@ def read_model(path: Path) -> dict[str, bytes]:
                 manifest = parse_manifest(entries[MANIFEST], path)
                 _check_members(set(infos), manifest, path)
                 limits = member_limits(manifest, path)
-                for name in manifest["members"]:
+                for name in manifest.members:
                     entries[name] = _read(archive, infos[name], limits[name], path)
     except BadInput:
         raise
@@ -278,7 +210,7 @@ def _read(archive: zipfile.ZipFile, info: zipfile.ZipInfo, limit: int, where: An
 class ModelFile:
     """A model file's members, decoded and checked against its manifest."""
 
-    manifest: dict[str, Any]
+    manifest: Manifest
     spec: PredicateSpec | None
     weights: pl.DataFrame | None
     network: Network | None
@@ -293,7 +225,7 @@ def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
     for name, data in entries.items():
         if len(data) > limits[name]:
             raise BadInput(f"{where}: {name} is {len(data):,} bytes, over its limit of {limits[name]:,} bytes: {AGAIN}")
-        declared = manifest["members"].get(name)
+        declared = manifest.members.get(name)
         if declared and (len(data) != declared["bytes"] or hashlib.sha256(data).hexdigest() != declared["sha256"]):
             raise BadInput(f"{where}: {name} is not the one its manifest declares (its size or SHA-256 differs): "
                            f"the file was altered or assembled from two models; {AGAIN}")
@@ -302,11 +234,11 @@ def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
         spec = read_spec(entries[SPEC], manifest, where)
         weights = read_weights(entries[WEIGHTS], manifest, where)
     if NETWORK in entries:
-        network = read_network(entries[NETWORK], manifest["network"]["model"], where)
+        network = read_network(entries[NETWORK], manifest.network.model, where)
     return ModelFile(manifest, spec, weights, network)
 
 
-def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpec:
+def read_spec(data: bytes, manifest: Manifest, where: str) -> PredicateSpec:
     """The predicate spec, whose columns must be the manifest's predicates."""
     from mlnseq.predicates.spec import parse_spec
 
@@ -319,13 +251,13 @@ def read_spec(data: bytes, manifest: dict[str, Any], where: str) -> PredicateSpe
     except RecursionError:  # tomllib recurses once per nested array or table
         raise BadInput(f"{where}: {SPEC} nests too deeply to be a predicate spec: {AGAIN}") from None
     columns = [c for group in spec.columns().values() for c in group]
-    if sorted(columns) != sorted(manifest["predicates"]):
+    if sorted(columns) != sorted(manifest.predicates):
         raise BadInput(f"{where}: {SPEC} makes predicate columns {columns[:3]}... ({len(columns)}), the manifest "
-                       f"declares {manifest['predicates'][:3]}... ({len(manifest['predicates'])}): {AGAIN}")
+                       f"declares {manifest.predicates[:3]}... ({len(manifest.predicates)}): {AGAIN}")
     return spec
 
 
-def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFrame:
+def read_weights(data: bytes, manifest: Manifest, where: str) -> pl.DataFrame:
     """The MLN's weights: as many formulas as declared, within the bound uncompressed too, classes of the
     model, finite weights."""
     import pyarrow as pa
@@ -333,25 +265,26 @@ def read_weights(data: bytes, manifest: dict[str, Any], where: str) -> pl.DataFr
 
     from mlnseq.mln.grounding import class_constant
 
-    limit = TABLE_OVERHEAD + FORMULA_BYTES * manifest["formulas"]
+    limit = TABLE_OVERHEAD + FORMULA_BYTES * manifest.formulas
     try:
         meta = pq.ParquetFile(io.BytesIO(data)).metadata
         unpacked = sum(meta.row_group(g).column(c).total_uncompressed_size
                        for g in range(meta.num_row_groups) for c in range(meta.num_columns))
-        if meta.num_rows != manifest["formulas"] or unpacked > limit:
-            raise BadInput(f"{where}: {WEIGHTS} holds {meta.num_rows:,} formulas in {unpacked:,} bytes uncompressed; its "
-                           f"manifest declares {manifest['formulas']:,} formulas, at most {limit:,} bytes: {AGAIN}")
+        if meta.num_rows != manifest.formulas or unpacked > limit:
+            raise BadInput(f"{where}: {WEIGHTS} holds {meta.num_rows:,} formulas in {unpacked:,} bytes "
+                           f"uncompressed; its manifest declares {manifest.formulas:,} formulas, at most "
+                           f"{limit:,} bytes: {AGAIN}")
         weights = pl.read_parquet(io.BytesIO(data))
     except (pa.ArrowException, OSError, ValueError, pl.exceptions.PolarsError, pl.exceptions.PanicException) as error:
         raise BadInput(f"{where}: its {WEIGHTS} cannot be read ({error}): {AGAIN}") from None
     wrong = [f"{c} ({weights.schema.get(c)})" for c, kind in WEIGHT_COLUMNS.items() if weights.schema.get(c) != kind]
     if wrong:
         raise BadInput(f"{where}: {WEIGHTS} lacks or mistypes the columns {', '.join(wrong)}: {AGAIN}")
-    classes = {*manifest["classes"], *(class_constant(k) for k in range(len(manifest["classes"])))}
+    classes = {*manifest.classes, *(class_constant(k) for k in range(len(manifest.classes)))}
     foreign = weights.filter(pl.col("class").is_not_null() & ~pl.col("class").is_in(sorted(classes)))
     if foreign.height:
         raise BadInput(f"{where}: {WEIGHTS} has a formula of class {foreign['class'][0]!r}, which is not one of the "
-                       f"manifest's {len(manifest['classes'])} classes: {AGAIN}")
+                       f"manifest's {len(manifest.classes)} classes: {AGAIN}")
     bad = weights.filter(pl.col("formula").is_null() | pl.col("hard").is_null()
                          | (~pl.col("hard") & (pl.col("weight").is_null() | ~pl.col("weight").is_finite())))
     if bad.height:

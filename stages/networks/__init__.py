@@ -83,3 +83,8 @@ def state_shapes(model: dict[str, Any]) -> dict[str, tuple[int, ...]]:
 def config_fields(cell: str) -> tuple[str, ...]:
     """The names of a network type's configuration (the keys its checkpoint and model file hold)."""
     return tuple(f.name for f in fields(module_of(cell).Config))
+
+
+def config_types(cell: str) -> dict[str, str]:
+    """A network type's configuration keys and the type each holds (int, float, bool or str)."""
+    return {f.name: f.type if isinstance(f.type, str) else f.type.__name__ for f in fields(module_of(cell).Config)}

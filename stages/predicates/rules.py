@@ -28,7 +28,8 @@ import numpy as np
 from mlnseq.catalog.errors import BadInput
 from mlnseq.predicates.spec import Bins, Change, Distance, Gripper, Pair, Predicate, PredicateSpec
 
-Test = tuple[bool, bool, float, int]  # (reads the change d rather than x, x or d above the bound (else below), bound, code)
+# (reads the change d rather than x, x or d above the bound (else below), bound, code)
+Test = tuple[bool, bool, float, int]
 
 
 def tests(predicate: Change | Gripper) -> tuple[tuple[Test, ...], int]:

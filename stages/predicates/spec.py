@@ -35,6 +35,7 @@ from mlnseq.catalog.errors import BadInput
 
 NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
+MAX_COLUMNS = 10_000  # predicate columns a spec may make (binarize --max-columns); a pair multiplies two predicates'
 
 
 def default_spec_path(source: str) -> Path:
@@ -214,7 +215,14 @@ def _channel(entry: _Entry, taken: set[str]) -> Distance:
     return Distance(name, entry.strings("from", 3), entry.strings("to", 3), decimals, entry.lines)
 
 
-def _predicate(entry: _Entry, defined: dict[str, Predicate]) -> Predicate:
+def _check_columns(entry: _Entry, key: str, count: int, used: int, limit: int) -> None:
+    """Refuse a predicate whose columns would take the spec past ``limit`` before they are made."""
+    if used + count > limit:
+        raise entry.error(key, f"makes {count:,} columns, which with the {used:,} above it pass --max-columns "
+                               f"{limit:,}: use fewer values, or raise --max-columns")
+
+
+def _predicate(entry: _Entry, defined: dict[str, Predicate], used: int = 0, limit: int = MAX_COLUMNS) -> Predicate:
     name = entry.name(set(defined))
     kind = entry.require("kind")
     if not isinstance(kind, str) or kind not in KIND_KEYS:
@@ -228,6 +236,7 @@ def _predicate(entry: _Entry, defined: dict[str, Predicate]) -> Predicate:
         if any(b <= a for a, b in zip(edges, edges[1:])):
             raise entry.error("edges", f"must be strictly ascending, got {edges}")
         values = entry.strings("values", len(edges) + 1)
+        _check_columns(entry, "values", len(values), used, limit)
         if not all(VALUE.match(v) for v in values) or len(set(values)) != len(values):
             raise entry.error("values", f"must be distinct lowercase names [a-z0-9][a-z0-9_]*, got {list(values)}")
         return Bins(name, entry.text("channel"), tuple(float(e) for e in edges), values, entry.lines)
@@ -247,6 +256,7 @@ def _predicate(entry: _Entry, defined: dict[str, Predicate]) -> Predicate:
             raise entry.error("of", f"{part!r} is not a predicate defined above it")
     if first == second:
         raise entry.error("of", f"names {first!r} twice; a pair joins two different predicates")
+    _check_columns(entry, "of", len(defined[first].values) * len(defined[second].values), used, limit)
     values = tuple(f"{a}_{b}" for a in defined[first].values for b in defined[second].values)
     return Pair(name, first, second, values, entry.lines)
 
@@ -257,7 +267,7 @@ def _top_line(text: str, key: str) -> int:
     return next((n for n, line in enumerate(text.splitlines(), 1) if pattern.match(line)), 1)
 
 
-def parse_spec(text: str, path: Path) -> PredicateSpec:
+def parse_spec(text: str, path: Path, max_columns: int = MAX_COLUMNS) -> PredicateSpec:
     """Parse and check a spec's text; every error names the file, line and key."""
     try:
         document = tomllib.loads(text)
@@ -283,7 +293,7 @@ def parse_spec(text: str, path: Path) -> PredicateSpec:
     defined: dict[str, Predicate] = {}
     for index, table in enumerate(document["predicate"]):
         entry = _Entry(path, text, "predicate", index, table)
-        predicate = _predicate(entry, defined)
+        predicate = _predicate(entry, defined, sum(len(p.values) for p in defined.values()), max_columns)
         defined[predicate.name] = predicate
         if "hint" in table:
             hints[predicate.name] = str(table["hint"])
@@ -301,7 +311,7 @@ def parse_spec(text: str, path: Path) -> PredicateSpec:
     return spec
 
 
-def load_spec(path: Path) -> PredicateSpec:
+def load_spec(path: Path, max_columns: int = MAX_COLUMNS) -> PredicateSpec:
     """Read and parse a spec file."""
     path = Path(path)
     try:
@@ -310,4 +320,7 @@ def load_spec(path: Path) -> PredicateSpec:
         raise BadInput(f"spec {path} not found: pass --spec FILE") from None
     except (OSError, UnicodeDecodeError) as error:
         raise BadInput(f"cannot read spec {path}: {error}") from error
-    return parse_spec(text, path)
+    try:
+        return parse_spec(text, path, max_columns)
+    except RecursionError:  # tomllib recurses once per nested array or table
+        raise BadInput(f"{path}: invalid TOML: its arrays or tables are nested too deep to read") from None

@@ -88,12 +88,13 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         rows, starts = chains(held, data.episodes, folds.fold)
         fold_mln: MLNInputs | None = cv.mln[k] if cv.mln else None
         p_mln = None if fold_mln is None else np.exp(classifier.class_log_probs(fold_mln.scores, mln_mode,
-                                                                                  inputs.source))
+                                                                                  inputs.paper_floor))
         factors = None
         if fold_mln is not None and any(d != "none" for d in decodes):
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
         start = decoders.start_of(data.labels, data.episodes, fit, n_classes)
         truth = data.labels[rows]
+        learned: dict[str, float] = {}  # method -> its network factor's weight on this fold: one for every decoding
         for method in usable:
             network = network_of(method)
             log_p = cv.log_probs.get(network)
@@ -107,8 +108,10 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                     continue
                 weight = 1.0
                 if network is not None:
-                    weight = fixed_weight if fixed_weight is not None else learned_weight(
-                        method, factors, fold_mln.evidence, *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                    if fixed_weight is None and method not in learned:
+                        learned[method] = learned_weight(method, factors, fold_mln.evidence,
+                                                         *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                    weight = fixed_weight if fixed_weight is not None else learned[method]
                     result.fold_weights.setdefault(name, []).append(weight)
                 chained = chain_of(method, factors, fold_mln.evidence[rows], starts,
                                    None if log_p is None else log_p[rows], weight, start)

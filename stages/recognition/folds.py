@@ -14,6 +14,7 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.parts import Part
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
@@ -34,24 +35,47 @@ class Folds:
         spans = [[s.start, s.stop] for s in sequences.runs(self.fold) if self.fold[s.start] >= 0]
         return {"k": self.k, "kind": self.kind, "spans": spans}
 
+    def describe(self) -> str:
+        """What was cut, for summaries: ``4 folds by episode`` or ``5 folds by block``."""
+        return describe(self.record())
+
     def splits(self, k: int) -> np.ndarray:
         """The splits with fold ``k``'s rows marked ``heldout``: what a fold's network and MLN are fitted without."""
-        return np.where(self.fold == k, "heldout", np.where(self.fold >= 0, "train", "test"))
+        return np.where(self.fold == k, Part.HELDOUT, np.where(self.fold >= 0, Part.TRAIN, Part.TEST))
+
+
+def describe(record: dict) -> str:
+    """A recorded assignment (Folds.record) in words: ``4 folds by episode`` or ``5 folds by block``."""
+    return f"{record['k']} folds by {'episode' if record['kind'] == 'episodes' else 'block'}"
 
 
 def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
     """The largest K the training split allows: its episodes, or its blocks of MIN_BLOCK_FRAMES frames."""
-    train = np.asarray(splits) == "train"
+    train = np.asarray(splits) == Part.TRAIN
     return max(len(np.unique(np.asarray(episodes)[train])), int(train.sum()) // MIN_BLOCK_FRAMES)
+
+
+def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5) -> int:
+    """A K for a user's recogniser: whole episodes when the training split has at least 2 (up to ``most`` folds),
+    else blocks (up to ``most``), else 0 (too small for folds)."""
+    train = np.asarray(splits) == "train"
+    n_episodes = len(np.unique(np.asarray(episodes)[train]))
+    if n_episodes >= 2:
+        return min(most, n_episodes)
+    k = min(most, largest(episodes, splits))
+    return k if k >= 2 else 0
 
 
 def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--folds") -> Folds:
     """Cut the training rows into ``k`` folds (deterministic); refuse a K the split cannot make."""
-    episodes, train = np.asarray(episodes), np.asarray(splits) == "train"
+    episodes, train = np.asarray(episodes), np.asarray(splits) == Part.TRAIN
     most = largest(episodes, splits)
     if k < 2 or k > most:
+        good = suggested(episodes, splits)
+        n_episodes = len(np.unique(episodes[train]))
         raise BadInput(f"{option} {k}: cross-validation needs at least 2 folds and this training split allows at "
-                       f"most {most}; use {option} {most}" if most >= 2 else
+                       f"most {most}; use {option} {good} ({good} folds by "
+                       f"{'episode' if n_episodes >= good else 'block'}, as `mlnseq fit` cuts)" if most >= 2 else
                        f"{option} {k}: this training split is too small for 2 folds; use {option} 0")
     rows = np.flatnonzero(train)
     fold = np.full(len(episodes), -1, dtype=np.int64)

@@ -106,45 +106,90 @@ def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: De
     return max(fitting, key=lambda c: c.score), fitting
 
 
-@dataclass(frozen=True)
-class Timing:
-    """A model file's decoding with its lag, latency, the recordings' rate and the chains' start distribution."""
+AUTO = "auto"  # export --method auto: the method, decoder and lag with the best cross-validated figures
+SCORED_ALWAYS = ("none", "filter", "viterbi")  # decoders export runs without asking conflate whether it scored them
 
+
+@dataclass(frozen=True)
+class Picked:
+    """What export writes: the method and its decoding (chosen by cross-validation with --method auto), the lag in
+    seconds, the recordings' rate and the chains' start distribution (log, per class; decoded methods)."""
+
+    method: str
     decoding: Decoding
+    chosen: Any  # model.manifest.Chosen or None
     latency_s: float | None
     rate_hz: float | None
-    start: Any  # np.ndarray [C] of log-probabilities, or None
+    start: list[float] | None
 
 
-def read_timing(manifest: dict[str, Any], where: str, n_classes: int) -> Timing:
-    """The decoding a model file's manifest records; a malformed decoder, lag, latency or start is refused in one
-    line naming the file."""
-    import numpy as np
+def pick(workdir: Any, method: str, decode: str, lag: int | None, latency_s: float | None,
+         frames_meta: dict[str, Any]) -> Picked:
+    """export's method and decoding: ``--method auto`` chooses within the budget (--lag or --latency), else
+    ``--decode`` with ``--lag`` (a lagged decoder conflate must have scored)."""
+    from mlnseq.catalog.methods import decoded_name
 
-    again = "export it again with `mlnseq export`"
-    decode, lag = manifest.get("decode"), manifest.get("lag")
-    try:
-        decoder = Decoder(decode)
-    except ValueError:
-        raise BadInput(f"{where}: its manifest's decoder {decode!r} is not one this mlnseq runs "
-                       f"({', '.join(d.value for d in Decoder)}): {again}") from None
-    if lag is not None and (not isinstance(lag, int) or isinstance(lag, bool)):
-        raise BadInput(f"{where}: its manifest's lag {lag!r} is not a whole number of frames: {again}")
-    try:
+    rate = rate_of(frames_meta)
+    decoder = Decoder(decode)
+    chosen = None
+    if method == AUTO:
+        chosen, method, decoding = _auto(workdir, decoder, budget_frames(lag, latency_s, rate, str(workdir)))
+    else:
+        if latency_s is not None and decoder.lagged:
+            lag = budget_frames(None, latency_s, rate, str(workdir))
+        if decoder.lagged and lag is None:
+            raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES "
+                           "(or --latency SECONDS)")
         decoding = Decoding(decoder, lag)
-    except BadInput as error:
-        raise BadInput(f"{where}: its manifest's {error}: {again}") from None
-    numbers = {k: manifest.get(k) for k in ("latency_s", "rate_hz")}
-    for key, value in numbers.items():
-        if value is not None and (not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0
-                                  or value == math.inf):
-            raise BadInput(f"{where}: its manifest's {key} {value!r} is not null or a number >= 0: {again}")
-    start = manifest.get("start")
-    if start is not None:
-        if not (isinstance(start, list) and len(start) == n_classes
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in start)
-                and all(math.isfinite(v) for v in start)):
-            raise BadInput(f"{where}: its manifest's start is not a list of {n_classes} finite log-probabilities: "
-                           f"{again}")
-        start = np.asarray(start, dtype=np.float64)
-    return Timing(decoding, numbers["latency_s"], numbers["rate_hz"], start)
+        if decoder.value not in SCORED_ALWAYS:
+            name = decoded_name(method, decoding.name)
+            if name not in _scored(workdir, f"--decode {decoding.name}").get("methods", []):
+                raise BadInput(f"--decode {decoding.name}: {workdir} has no {name} predictions; run `mlnseq conflate "
+                               f"--decode {decoder.value}" + (f" --lags {decoding.lag}`" if decoder.lagged else "`")
+                               + " first")
+    offline = decoding.decoder.offline
+    start = None if decoding.decoder is Decoder.NONE else start_distribution(workdir).tolist()
+    return Picked(str(method), decoding, chosen, None if offline else decoding.latency_s(rate), rate, start)
+
+
+def _auto(workdir: Any, decoder: Decoder, budget: int | None) -> tuple[Any, str, Decoding]:
+    """``--method auto``: the candidate with the best criterion within the budget, and its record."""
+    from mlnseq.catalog.methods import Method
+    from mlnseq.model.manifest import Chosen
+
+    meta = _scored(workdir, f"--method {AUTO}")
+    figures = (meta.get("cross_validation") or {}).get("figures") or {}
+    if not figures:
+        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated figures; train its networks with "
+                       f"folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
+                       f"`mlnseq conflate --decode all`")
+    best, fitting = choose(figures, budget, None if decoder is Decoder.NONE else decoder,
+                           bool(meta.get("hard_rules")), str(workdir))
+    chosen = Chosen(Method(best.method), best.name, best.figures, best.score[0],
+                    {c.name: c.figures for c in fitting}, meta["cross_validation"]["folds"]["k"], budget)
+    return chosen, best.method, best.decoding
+
+
+def _scored(workdir: Any, option: str) -> dict[str, Any]:
+    from mlnseq.catalog import artifacts
+
+    path = workdir / artifacts.PREDICTIONS
+    if not path.exists():
+        raise BadInput(f"{option} reads the figures conflate records: {path} not found; run `mlnseq conflate "
+                       "--decode all` first")
+    return artifacts.read_metadata(path, "predictions")
+
+
+def start_distribution(workdir: Any) -> Any:
+    """The chains' start distribution (log [C]) from the training split's episodes, as conflate fits it."""
+    import numpy as np
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.decoding import start_of
+
+    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
+    meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
+    train = frames["split"].to_numpy() != "test"
+    return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,
+                    len(meta["classes"]))

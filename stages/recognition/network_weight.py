@@ -1,20 +1,25 @@
 """The network factor's weight of a decoded method: how much the network's log-probabilities count against
-the MLN's factors in the chain. Chosen on a network's validation part (never on test), else 1."""
+the MLN's factors in the chain. The one place that decides it (:class:`WeightDecision`, for conflate and export):
+given by option; else learned on out-of-fold predictions (networks trained with folds); else chosen on a
+network's validation part (never on test); else 1."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mlnseq.catalog import artifacts
 from mlnseq.mln import chain
+from mlnseq.catalog.methods import Method, WeightSource, network_of
 from mlnseq.catalog.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
+from mlnseq.catalog.parts import Part
 from mlnseq.recognition.recognizer import chain_of, decode_chain
 
 if TYPE_CHECKING:
     from mlnseq.mln.factors import MLNFactors
+    from mlnseq.recognition.workdir_inputs import WorkdirInputs
 
 NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
 
@@ -26,10 +31,10 @@ class WeightChoice:
     weight: float
     accuracy: float | None  # None: not chosen on a validation part
     tried: dict[float, float] = field(default_factory=dict)
-    how: str = "validation"  # validation (grid) | fixed (by option, or nothing to choose on)
+    how: WeightSource = WeightSource.VALIDATION
 
-    def record(self) -> dict:
-        return {"weight": self.weight, "how": self.how, "validation_frame_accuracy": self.accuracy,
+    def record(self) -> dict[str, Any]:
+        return {"weight": self.weight, "how": str(self.how), "validation_frame_accuracy": self.accuracy,
                 "tried": {str(w): a for w, a in self.tried.items()}}
 
 
@@ -38,7 +43,7 @@ def choose_on_validation(method: str, kind: str, mln: MLNFactors, evidence: np.n
     """The weight in NETWORK_WEIGHTS with the best frame accuracy on the ``validation`` rows (ties: the one
     nearest 1); with no validation row the weight is 1. Test rows are never passed here."""
     if not validation.any():
-        return WeightChoice(1.0, None, {}, "fixed")
+        return WeightChoice(1.0, None, {}, WeightSource.FIXED)
     rows = np.flatnonzero(validation)
     starts = starts[rows] | np.r_[True, np.diff(rows) > 1]  # a chain also starts where validation resumes
     tried = {}
@@ -53,9 +58,9 @@ def choose(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, episod
            log_p_network: np.ndarray, labels: np.ndarray, fixed: float | None = None) -> WeightChoice:
     """A decoded network method's weight: ``fixed`` when given, else chosen on the rows ``parts`` marks val."""
     if fixed is not None:
-        return WeightChoice(fixed, None, {}, "fixed")
+        return WeightChoice(fixed, None, {}, WeightSource.FIXED)
     return choose_on_validation(method, kind, mln, evidence, chain.chain_starts(episodes, parts), log_p_network,
-                                labels, parts == "val")
+                                labels, parts == Part.VAL)
 
 
 def decoding_notes(temporal: bool, unvalidated: list[str]) -> list[Note]:
@@ -70,3 +75,41 @@ def decoding_notes(temporal: bool, unvalidated: list[str]) -> list[Note]:
                                              "(`train --select last` or `val_accuracy`): its decoded methods keep the "
                                              "network factor's weight 1"))
     return notes
+
+
+@dataclass
+class WeightDecision:
+    """Decides the network factor's weight of a workdir's decoded network methods, for conflate (every method) and
+    export (one): ``fixed`` when given; else learned by CLL on the out-of-fold predictions of a network trained
+    with folds (once per method: every decoding shares it); else chosen on the network's validation part."""
+
+    inputs: WorkdirInputs
+    mln: MLNFactors
+    fixed: float | None = None
+    learned: dict[Method, float] = field(default_factory=dict)
+
+    def folded(self, network: Method) -> bool:
+        return self.inputs.folds is not None and network in self.inputs.folds.log_probs
+
+    def choice(self, method: Method, kind: str) -> WeightChoice:
+        """The weight of ``method`` (a network method) decoded by ``kind``, and how it was set."""
+        from mlnseq.recognition.cross_validation import test_weight
+
+        network = network_of(method)
+        if self.fixed is not None:
+            return WeightChoice(self.fixed, None, {}, WeightSource.FIXED)
+        if self.folded(network):
+            if method not in self.learned:
+                self.learned[method] = test_weight(method, self.inputs, self.mln)
+            return WeightChoice(self.learned[method], None, {}, WeightSource.LEARNED)
+        trained, data = self.inputs.networks[network], self.inputs.data
+        return choose(method, kind, self.mln, self.inputs.mln.evidence, data.episodes, trained.parts,
+                      trained.log_probs, data.labels)
+
+    def notes(self, networks: list[Method]) -> list[Note]:
+        """What decoding ``networks``' methods says (:func:`decoding_notes`): the networks among them whose weight
+        stays 1 as they have neither out-of-fold predictions nor a validation part."""
+        unvalidated = [] if self.fixed is not None else sorted(
+            n for n in networks
+            if not self.folded(n) and not self.inputs.networks[n].checkpoint.config.get("val_spans"))
+        return decoding_notes(self.mln.temporal, unvalidated)

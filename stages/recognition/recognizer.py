@@ -4,7 +4,8 @@ over the frame chain, and `Recognizer` (a model file: frames in, class probabili
 `conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
 frame at a time) and the Python API all call this module. The networks run in numpy
 (stages/networks/network.py), so a model file is recognised without torch. The method names are in
-stages/catalog/methods.py, the workdir's checkpoints in stages/model/checkpoints.py, the model file in stages/model/model_file.py.
+stages/catalog/methods.py, the workdir's checkpoints in stages/model/checkpoints.py, the model file in
+stages/model/model_file.py and its manifest in stages/model/manifest.py.
 """
 
 from __future__ import annotations
@@ -22,12 +23,12 @@ from mlnseq.model import model_file
 from mlnseq.timeline import sequences
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.decoders import Decoder
-from mlnseq.catalog.methods import FUSED, METHODS, MLN_MODES, NETWORKS, PRIORS, decoded_name, needs_mln, network_of
-from mlnseq.model.model_file import NETWORK, SPEC, WEIGHTS
+from mlnseq.catalog.methods import (FUSED, NETWORKS, Method, MLNMode, PaperFloor, Prior, decoded_name, needs_mln,
+                                    network_of)
+from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
 from mlnseq.mln.lag import Online
-from mlnseq.recognition import latency
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
@@ -39,13 +40,14 @@ EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other 
 # --- the MLN ----------------------------------------------------------------------------------------
 
 
-def prior_input(scores: np.ndarray, kind: str, source: str) -> np.ndarray:
-    """The c2c input of PriorLayer: the MLN class weights as the authors passed them, or log-probs."""
+def prior_input(scores: np.ndarray, kind: Prior, floor: PaperFloor) -> np.ndarray:
+    """The c2c input of PriorLayer: the MLN class weights as the authors passed them (floored by ``floor``), or
+    log-probs."""
     from mlnseq.mln import classifier
 
-    if kind == "paper":
-        return np.asarray(classifier.paper_prior(scores, source), dtype=np.float32)
-    return np.asarray(classifier.class_log_probs(scores, "exact", source), dtype=np.float32)
+    if kind == Prior.PAPER:
+        return np.asarray(classifier.paper_prior(scores, floor), dtype=np.float32)
+    return np.asarray(classifier.class_log_probs(scores, MLNMode.EXACT, floor), dtype=np.float32)
 
 
 # --- fusion -----------------------------------------------------------------------------------------
@@ -63,7 +65,7 @@ def conflation(p_network: np.ndarray, p_mln: np.ndarray) -> np.ndarray:
 
 def fuse(method: str, p_network: np.ndarray | None, p_mln: np.ndarray | None) -> np.ndarray:
     """A method's per-frame class probabilities, undecoded: the network, the MLN, or eq. 16 of the two."""
-    if method == "mln":
+    if method == Method.MLN:
         return p_mln
     if method in NETWORKS:
         return p_network
@@ -138,30 +140,24 @@ class Recognizer:
         from mlnseq.predicates.rules import StreamingBinarizer
         from mlnseq.mln.factors import MLNFactors, parse_weights
 
-        model = model_file.parse_model(entries, where)
-        self.manifest = manifest = model.manifest
-        self.method, self.decode = manifest["method"], manifest["decode"]
-        network = manifest["network"]
-        self.timing = latency.read_timing(manifest, where, len(manifest["classes"]))
-        self.decoding, self.lag, self.start = self.timing.decoding, self.timing.decoding.lag, self.timing.start
-        if (self.method not in METHODS or manifest["mln_mode"] not in MLN_MODES
-                or (network or {}).get("name") != network_of(self.method)
-                or (network or {}).get("prior") not in (None, *PRIORS)):
-            raise BadInput(f"{where}: its manifest's method {self.method!r}, decoding {self.decode!r}, mln-mode "
-                           f"{manifest['mln_mode']!r} or network {(network or {}).get('name')!r} is not one this "
-                           f"mlnseq runs: export it again with `mlnseq export`")
-        needed = [NETWORK] * (network_of(self.method) is not None) + [SPEC, WEIGHTS] * needs_mln(self.method, self.decode)
+        model = model_file.parse_model(entries, where)  # every manifest field checked (model/manifest.py)
+        self.manifest: Manifest = model.manifest
+        self.method, self.decode = self.manifest.method, self.manifest.decode
+        self.decoding, self.lag = self.manifest.decoding, self.manifest.decoding.lag
+        self.start = None if self.manifest.start is None else np.asarray(self.manifest.start, dtype=np.float64)
+        needed = [NETWORK] * (network_of(self.method) is not None) + [SPEC, WEIGHTS] * needs_mln(self.method,
+                                                                                                  self.decode)
         missing = [name for name in needed if name not in entries]
         if missing:
             raise BadInput(f"{where} lacks {', '.join(missing)}, which a {decoded_name(self.method, self.decode)} "
                            "model needs: export it again with `mlnseq export`")
-        self.classes: list[str] = list(manifest["classes"])
-        self.features: list[str] = list(manifest["features"])
-        weight = manifest.get("network_weight")  # a learned weight may be 0: the network adds nothing
+        self.classes: list[str] = list(self.manifest.classes)
+        self.features: list[str] = list(self.manifest.features)
+        weight = self.manifest.network_weight  # learned weights may be 0: the network counts for nothing
         self.network_weight = 1.0 if weight is None else float(weight)
         self._feature_index = {name: i for i, name in enumerate(self.features)}
         self.network = model.network
-        self.prior = (manifest.get("network") or {}).get("prior")  # PriorLayer's MLN input, if it has one
+        self.prior = None if self.manifest.network is None else self.manifest.network.prior  # PriorLayer's input
         self.spec: PredicateSpec | None = None
         self.weights: pl.DataFrame | None = None
         self.mln: MLNFactors | None = None
@@ -283,15 +279,22 @@ class Recognizer:
         """The MLN's class probabilities [n, C] from its class scores, and PriorLayer's input if the network has one."""
         from mlnseq.mln import classifier
 
-        source = self.manifest.get("source", "")
-        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest["mln_mode"], source))
-        return p_mln, None if self.prior is None else prior_input(scores, self.prior, source)
+        floor = self.manifest.paper_floor
+        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest.mln_mode, floor))
+        return p_mln, None if self.prior is None else prior_input(scores, self.prior, floor)
 
     # -- whole recordings --------------------------------------------------------------------------
 
+    def predict_names(self, features: np.ndarray, episodes: np.ndarray | None = None,
+                      decode: str | None = None) -> tuple[np.ndarray, list[str]]:
+        """As :meth:`predict`, with the predicted classes by name: (probabilities [T, C], class names [T])."""
+        probabilities, predicted = self.predict(features, episodes, decode)
+        return probabilities, [self.classes[int(k)] for k in predicted]
+
     def predict(self, features: np.ndarray, episodes: np.ndarray | None = None,
                 decode: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(class probabilities [T, C], predicted classes [T]) of recordings given as raw features [T, F] in the
+        """(class probabilities [T, C], predicted class indices [T] into ``self.classes``: names by
+        :meth:`predict_names`) of recordings given as raw features [T, F] in the
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -13,10 +14,13 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.timeline import sequences
-from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
+from mlnseq.model.checkpoints import Checkpoint, checkpoint_config, load_checkpoint
+from mlnseq.model.log_prob_cache import cached_log_probs
 from mlnseq.catalog.errors import BadInput, StaleArtifact
 from mlnseq.recognition.folds import Folds
+from mlnseq.catalog.methods import NETWORKS, Method, PaperFloor
 from mlnseq.catalog.notes import MISSING_INPUT, Note
+from mlnseq.catalog.parts import Part
 
 
 @dataclass(frozen=True)
@@ -62,9 +66,9 @@ def mln_class_scores(workdir: Path, frames: pl.DataFrame, classes: Sequence[str]
 
 def parts_of(config: dict[str, Any], splits: np.ndarray) -> np.ndarray:
     """Per row: test, val (the checkpoint's validation part, held out of fitting) or train."""
-    parts = np.where(splits == "test", "test", "train").astype(object)
+    parts = np.where(splits == Part.TEST, Part.TEST, Part.TRAIN).astype(object)
     for start, stop in config.get("val_spans", []):
-        parts[start:stop] = "val"
+        parts[start:stop] = Part.VAL
     return parts.astype(str)
 
 
@@ -80,8 +84,9 @@ class MLNInputs:
 
 
 @dataclass(frozen=True)
-class NetworkRun:
-    """A trained network run over every frame (its state reset as in training: per segment or per block)."""
+class TrainedNetwork:
+    """A trained network and its class log-probabilities over every frame (its state reset as in training: per
+    segment or per block)."""
 
     checkpoint: Checkpoint
     parts: np.ndarray  # [n] test | val | train
@@ -104,8 +109,9 @@ class WorkdirInputs:
     data: FrameData
     meta: dict[str, Any]  # frames.parquet's metadata
     mln: MLNInputs | None
-    networks: dict[str, NetworkRun]
+    networks: dict[Method, TrainedNetwork]
     inputs: list[Path]
+    paper_floor: PaperFloor  # how the MLN's class sums are floored (mln-mode paper, PriorLayer's paper input)
     notes: list[Note] = field(default_factory=list)
     folds: FoldInputs | None = None
 
@@ -113,32 +119,32 @@ class WorkdirInputs:
     def classes(self) -> list[str]:
         return list(self.meta["classes"])
 
-    @property
-    def source(self) -> str:
-        return self.meta.get("source", "")
+
+def paper_floor(workdir: Path, frames_meta: dict[str, Any]) -> PaperFloor:
+    """The floor of the MLN's class sums that the workdir's networks were trained with (they must agree), else the
+    dataset's (PaperFloor.for_recordings; also for a checkpoint written before networks recorded it)."""
+    default = PaperFloor.for_recordings(frames_meta.get("source", ""))
+    floors = {PaperFloor(checkpoint_config(workdir, n).get("paper_floor") or default)
+              for n in NETWORKS if artifacts.checkpoint_path(workdir, n).exists()}
+    if len(floors) > 1:
+        raise BadInput(f"the networks in {workdir / 'models'} were trained with different --paper-floor "
+                       f"({', '.join(sorted(floors))}); train them again with the same")
+    return floors.pop() if floors else default
 
 
 def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
     """Frames, the MLN (when weights.parquet exists) and each of ``networks`` that is trained, run over all
     frames; what is absent is left out with a note. PriorLayer needs the MLN for its input."""
-    from mlnseq.mln import classifier
     from mlnseq.recognition.recognizer import prior_input
 
     workdir = Path(workdir)
     frames_path = workdir / artifacts.FRAMES
     frames, meta = artifacts.read_table(frames_path, "frames")
     data = FrameData.from_frames(frames)
-    result = WorkdirInputs(frames.select(artifacts.KEY_COLUMNS), data, meta, None, {}, [frames_path])
-    if (workdir / artifacts.WEIGHTS).exists():
-        predicates, weights, mln_inputs = read_mln(workdir, frames)
-        result.inputs += mln_inputs
-        columns = artifacts.feature_columns(predicates)
-        result.mln = MLNInputs(weights, classifier.class_scores(predicates, weights, result.classes), columns,
-                               predicates.select(columns).to_numpy().astype(bool), predicates)
-    else:
-        result.notes.append(Note(MISSING_INPUT, f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined "
-                                                "left out (run `mlnseq learn-weights`)"))
-    for network in networks:
+    floor = paper_floor(workdir, meta)
+    result = WorkdirInputs(frames.select(artifacts.KEY_COLUMNS), data, meta, None, {}, [frames_path], floor)
+    result.mln = _read_mln(workdir, frames, result)
+    for network in map(Method, networks):
         path = artifacts.checkpoint_path(workdir, network)
         if not path.exists():
             result.notes.append(Note(MISSING_INPUT, f"no {network} model: {network} left out "
@@ -146,14 +152,32 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
             continue
         checkpoint = load_checkpoint(workdir, network, meta)
         result.inputs.append(path)
-        if network == "priorlayer" and result.mln is None:
+        if network == Method.PRIORLAYER and result.mln is None:
             continue
-        prior = None if network == "lstm" else prior_input(result.mln.scores, checkpoint.config["prior"], result.source)
+        prior = None if network == Method.NETWORK else prior_input(result.mln.scores, checkpoint.config["prior"],
+                                                                   floor)
         parts = parts_of(checkpoint.config, data.splits)
         spans = sequences.sequences(checkpoint.mode, data.episodes, parts, data.labels)
-        result.networks[network] = NetworkRun(checkpoint, parts, checkpoint.network.log_probs(spans, data.features, prior))
+        log_probs = cached_log_probs(path, frames_path, prior,
+                                     partial(checkpoint.network.log_probs, spans, data.features, prior))
+        result.networks[network] = TrainedNetwork(checkpoint, parts, log_probs)
     result.folds = read_folds(workdir, result)
     return result
+
+
+def _read_mln(workdir: Path, frames: pl.DataFrame, result: WorkdirInputs) -> MLNInputs | None:
+    """The MLN over the frames when weights.parquet exists (its inputs added to ``result``'s), else a note."""
+    from mlnseq.mln import classifier
+
+    if not (workdir / artifacts.WEIGHTS).exists():
+        result.notes.append(Note(MISSING_INPUT, f"no {artifacts.WEIGHTS}: mln, priorlayer, conflation and combined "
+                                                "left out (run `mlnseq learn-weights`)"))
+        return None
+    predicates, weights, mln_inputs = read_mln(workdir, frames)
+    result.inputs += mln_inputs
+    columns = artifacts.feature_columns(predicates)
+    return MLNInputs(weights, classifier.class_scores(predicates, weights, result.classes), columns,
+                     predicates.select(columns).to_numpy().astype(bool), predicates)
 
 
 def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
@@ -173,7 +197,7 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
     folds = folding.assign(inputs.data.episodes, inputs.data.splits, first["k"])
     log_probs = {}
     train = folds.fold >= 0
-    for network, run_ in folded.items():
+    for network, trained in folded.items():
         folding.same(records[network], folds, str(artifacts.checkpoint_path(workdir, network)),
                      f"`mlnseq train --method {network} --folds {first['k']}`")
         path = artifacts.out_of_fold_path(workdir, network)
@@ -181,9 +205,9 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
         if not path.exists():
             raise BadInput(f"{path} not found, though {network} was trained with folds; {remedy}")
         table, meta = artifacts.read_table(path, "out_of_fold")
-        if meta.get("options") != run_.checkpoint.config["options"] or table.height != int(train.sum()):
+        if meta.get("options") != trained.checkpoint.config["options"] or table.height != int(train.sum()):
             raise StaleArtifact(f"{path} is not the out-of-fold predictions of models/{network}.pt; {remedy}")
-        values = np.zeros_like(run_.log_probs)
+        values = np.zeros_like(trained.log_probs)
         values[train] = table.select(artifacts.log_prob_columns(values.shape[1])).to_numpy()
         log_probs[network] = values
         inputs.inputs.append(path)

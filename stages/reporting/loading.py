@@ -61,70 +61,94 @@ CV_SCHEMA = {"dataset": pl.String, "mode": pl.String, "seed": pl.Int64, "method"
              "value": pl.Float64}
 
 
+@dataclass
+class _Found:
+    """What ``load_run`` gathers, folder by folder, before it becomes a ``Run``."""
+
+    metrics: list[pl.DataFrame] = field(default_factory=list)
+    logs: list[pl.DataFrame] = field(default_factory=list)
+    settings: dict[str, dict[str, set]] = field(default_factory=dict)
+    datasets: dict[str, dict[str, Any]] = field(default_factory=dict)
+    weights: dict[str, pl.DataFrame] = field(default_factory=dict)
+    validation: list[dict[str, Any]] = field(default_factory=list)
+    network_weights: list[dict[str, Any]] = field(default_factory=list)
+    notes: dict[tuple[str, str], list[str]] = field(default_factory=dict)
+    cv: list[dict[str, Any]] = field(default_factory=list)
+
+
 def load_run(runs: Path) -> Run:
     """Read every dataset folder and seed workdir of a run (see the module docstring)."""
-    metrics, logs, settings = [], [], {}
-    datasets, weights = {}, {}
-    validation, network_weights, notes, cv = [], [], {}, []
+    found = _Found()
     for frames_path in sorted(runs.glob(f"*/{artifacts.FRAMES}")):
         folder = frames_path.parent
-        _, meta = artifacts.read_table(frames_path, "frames")
-        frames = pl.read_parquet(frames_path, columns=["split"])
-        predicates = folder / artifacts.PREDICATES
-        predicates_meta = artifacts.read_metadata(predicates) if predicates.exists() else {}
-        datasets[folder.name] = {**meta, "n_frames": frames.height,
-                                 "n_train": int((frames["split"] == "train").sum()),
-                                 "spec": predicates_meta.get("options", {}).get("spec", "–"),
-                                 "formulas": formulas_source(folder / artifacts.FORMULAS)}
-        _note(settings, "binarize", predicates_meta.get("options", {}))
-        if (folder / artifacts.WEIGHTS).exists():
-            weights[folder.name], weights_meta = artifacts.read_table(folder / artifacts.WEIGHTS, "weights")
-            datasets[folder.name]["objective"] = weights_meta.get("objective", "pll")
-            _note(settings, "learn-weights", {"engine": weights_meta.get("engine"),
-                                              "objective": weights_meta.get("objective"), "l2": weights_meta.get("l2")})
+        _read_dataset(folder, found)
         for metrics_path in sorted(folder.glob(f"*/seed-*/{artifacts.METRICS}")):
-            workdir = metrics_path.parent
-            keys = {"dataset": folder.name, "mode": workdir.parent.name,
-                    "seed": int(SEED_DIR.fullmatch(workdir.name).group(1))}
-            table, metrics_meta = artifacts.read_table(metrics_path, "metrics")
-            metrics.append(table.with_columns(**{k: pl.lit(v) for k, v in keys.items()}))
-            _note(settings, "eval", metrics_meta.get("options", {}))
-            predictions_meta = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")
-            _note(settings, "conflate", {"mln_mode": predictions_meta.get("mln_mode"),
-                                         "decode": ",".join(predictions_meta.get("decode", ["none"])),
-                                         "network_weight": predictions_meta.get("network_weight_option") or "auto"})
-            validation += [{**keys, "method": m, "value": v}
-                           for m, v in predictions_meta.get("validation_frame_accuracy", {}).items()]
-            network_weights += [{**keys, "method": m, "value": float(c["weight"])}
-                                for m, c in predictions_meta.get("network_weights", {}).items()]
-            for m, figures in ((predictions_meta.get("cross_validation") or {}).get("figures") or {}).items():
-                cv += [{**keys, "method": m, "metric": k, "value": float(v)} for k, v in figures.items()]
-            for note in predictions_meta.get("notes", []):
-                notes.setdefault((folder.name, keys["mode"]), [])
-                if note not in notes[(folder.name, keys["mode"])]:
-                    notes[(folder.name, keys["mode"])].append(note)
-            for method in NETWORKS:
-                log_path = artifacts.train_log_path(workdir, method)
-                if log_path.exists():
-                    log, log_meta = artifacts.read_table(log_path, "train_log")
-                    logs.append(log.with_columns(method=pl.lit(method), **{k: pl.lit(v) for k, v in keys.items()}))
-                    _note(settings, "train", {**log_meta.get("options", {}), "kept_epoch": log_meta.get("kept_epoch")},
-                          skip=("seed", "method"))
-    if not metrics:
+            _read_seed_workdir(metrics_path.parent, folder.name, found)
+    if not found.metrics:
         raise BadInput(f"no results in {runs}: expected {runs}/DATASET/MODE/seed-N/{artifacts.METRICS}; "
                        "run `make reproduce` first")
     return Run(
-        metrics=pl.concat(metrics, how="diagonal_relaxed"),
-        logs=pl.concat(logs, how="diagonal_relaxed") if logs else pl.DataFrame(
+        metrics=pl.concat(found.metrics, how="diagonal_relaxed"),
+        logs=pl.concat(found.logs, how="diagonal_relaxed") if found.logs else pl.DataFrame(
             schema={"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "loss": pl.Float64,
                     "method": pl.String, "dataset": pl.String, "mode": pl.String, "seed": pl.Int64}),
-        datasets=datasets, weights=weights,
-        settings={stage: {k: sorted(v, key=str) for k, v in options.items()} for stage, options in settings.items()},
+        datasets=found.datasets, weights=found.weights,
+        settings={stage: {k: sorted(v, key=str) for k, v in options.items()}
+                  for stage, options in found.settings.items()},
         timings=read_timings(runs / TIMINGS), machine=machine(),
-        validation=pl.DataFrame(validation, schema=SEED_VALUE_SCHEMA),
-        network_weights=pl.DataFrame(network_weights, schema=SEED_VALUE_SCHEMA), notes=notes, runs=runs,
-        cv=pl.DataFrame(cv, schema=CV_SCHEMA),
+        validation=pl.DataFrame(found.validation, schema=SEED_VALUE_SCHEMA),
+        network_weights=pl.DataFrame(found.network_weights, schema=SEED_VALUE_SCHEMA), notes=found.notes, runs=runs,
+        cv=pl.DataFrame(found.cv, schema=CV_SCHEMA),
     )
+
+
+def _read_dataset(folder: Path, found: _Found) -> None:
+    """A dataset folder's frames, predicates and weights: what they hold and the options that made them."""
+    frames_path = folder / artifacts.FRAMES
+    _, meta = artifacts.read_table(frames_path, "frames")
+    frames = pl.read_parquet(frames_path, columns=["split"])
+    predicates = folder / artifacts.PREDICATES
+    predicates_meta = artifacts.read_metadata(predicates) if predicates.exists() else {}
+    found.datasets[folder.name] = {**meta, "n_frames": frames.height,
+                                   "n_train": int((frames["split"] == "train").sum()),
+                                   "spec": predicates_meta.get("options", {}).get("spec", "–"),
+                                   "formulas": formulas_source(folder / artifacts.FORMULAS)}
+    _note(found.settings, "binarize", predicates_meta.get("options", {}))
+    if (folder / artifacts.WEIGHTS).exists():
+        found.weights[folder.name], weights_meta = artifacts.read_table(folder / artifacts.WEIGHTS, "weights")
+        found.datasets[folder.name]["objective"] = weights_meta.get("objective", "pll")
+        _note(found.settings, "learn-weights", {"engine": weights_meta.get("engine"),
+                                                "objective": weights_meta.get("objective"),
+                                                "l2": weights_meta.get("l2")})
+
+
+def _read_seed_workdir(workdir: Path, dataset: str, found: _Found) -> None:
+    """One seed workdir's metrics, what its predictions' metadata says, and its networks' training logs."""
+    keys = {"dataset": dataset, "mode": workdir.parent.name, "seed": int(SEED_DIR.fullmatch(workdir.name).group(1))}
+    table, metrics_meta = artifacts.read_table(workdir / artifacts.METRICS, "metrics")
+    found.metrics.append(table.with_columns(**{k: pl.lit(v) for k, v in keys.items()}))
+    _note(found.settings, "eval", metrics_meta.get("options", {}))
+    predictions_meta = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")
+    _note(found.settings, "conflate", {"mln_mode": predictions_meta.get("mln_mode"),
+                                       "decode": ",".join(predictions_meta.get("decode", ["none"])),
+                                       "network_weight": predictions_meta.get("network_weight_option") or "auto"})
+    found.validation += [{**keys, "method": m, "value": v}
+                         for m, v in predictions_meta.get("validation_frame_accuracy", {}).items()]
+    found.network_weights += [{**keys, "method": m, "value": float(c["weight"])}
+                              for m, c in predictions_meta.get("network_weights", {}).items()]
+    for m, figures in ((predictions_meta.get("cross_validation") or {}).get("figures") or {}).items():
+        found.cv += [{**keys, "method": m, "metric": k, "value": float(v)} for k, v in figures.items()]
+    notes = found.notes.setdefault((dataset, keys["mode"]), []) if predictions_meta.get("notes") else []
+    for note in predictions_meta.get("notes", []):
+        if note not in notes:
+            notes.append(note)
+    for method in NETWORKS:
+        log_path = artifacts.train_log_path(workdir, method)
+        if log_path.exists():
+            log, log_meta = artifacts.read_table(log_path, "train_log")
+            found.logs.append(log.with_columns(method=pl.lit(method), **{k: pl.lit(v) for k, v in keys.items()}))
+            _note(found.settings, "train", {**log_meta.get("options", {}), "kept_epoch": log_meta.get("kept_epoch")},
+                  skip=("seed", "method"))
 
 
 def formulas_source(path: Path) -> str:

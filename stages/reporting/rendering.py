@@ -25,23 +25,39 @@ def markdown_table(header: list[str], rows: list[list[str]]) -> str:
 def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None = None) -> str:
     """REPORT.md: every section, its numbers from ``run``; ``figures`` maps a figure key to its file name and
     ``timelines`` a dataset to what its timeline figure shows."""
-    points = efficiency_points(run)
     datasets = present(run, PAPER_DATASETS)
-    missing = [d for d in PAPER_DATASETS if d not in datasets]
-    wall = wall_seconds(run.timings)
+    out = _title(run, [d for d in PAPER_DATASETS if d not in datasets])
+    out += _paper_tables(run, datasets)
+    out += _paper_figures(figures, datasets)
+    out += _data_efficiency(run, figures)
+    out += _weights_and_specs(run, datasets)
+    out += _stream_mode(run)
+    out += sequential_logic(run, figures, timelines or {})
+    out += _timings(run)
+    out += _hyper_parameters(run)
+    out.append("## Differences from the paper\n")
+    out.append("\n".join(f"- {line}" for line in differences(run)) + "\n")
+    return "\n".join(out)
+
+
+def _title(run: Run, missing: list[str]) -> list[str]:
     out = ["# mlnseq: reproduction of Rahman et al., RO-MAN 2021\n",
            "Every number below is read from the artifacts of this run "
            f"({', '.join(sorted(run.datasets))}); nothing is copied from the paper except its own columns.\n"]
     if missing:
         out.append(f"**Not run:** {', '.join(missing)} (its data was not found when `make reproduce` ran).\n")
+    return out
 
-    out.append("## Table III: segment accuracy, paper vs mlnseq\n")
-    out.append("Segment recognised at half of its frames (the paper's metric), `segment` mode, **last epoch, "
-               "mean ± std over seeds** (%). The last column is the best test epoch's frame accuracy per seed, "
-               "**optimistic**: it selects on the test split, as the published numbers do.\n")
-    out.append(markdown_table(["dataset", "method", "paper", "mlnseq (last epoch)", "seeds",
-                               "frame accuracy (last epoch)", "best test epoch, as in the paper (optimistic)"],
-                              table_iii(run)))
+
+def _paper_tables(run: Run, datasets: list[str]) -> list[str]:
+    """Table III (segment accuracy beside the paper's), the claims checked on it, and Table IV (per class)."""
+    out = ["## Table III: segment accuracy, paper vs mlnseq\n",
+           "Segment recognised at half of its frames (the paper's metric), `segment` mode, **last epoch, "
+           "mean ± std over seeds** (%). The last column is the best test epoch's frame accuracy per seed, "
+           "**optimistic**: it selects on the test split, as the published numbers do.\n",
+           markdown_table(["dataset", "method", "paper", "mlnseq (last epoch)", "seeds",
+                           "frame accuracy (last epoch)", "best test epoch, as in the paper (optimistic)"],
+                          table_iii(run))]
     out.append("### Do the paper's claims hold here?\n")
     out.append("\n".join(f"- {line}" for line in claims(run)) + "\n")
 
@@ -49,13 +65,16 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
     for dataset in datasets:
         out.append(f"**{dataset}** (%, mean ± std over seeds)\n")
         out.append(markdown_table(["class", "LSTM", "MLN", "combined"], per_class_table(run, dataset)))
+    return out
 
-    out.append("## Fig. 7: test accuracy per epoch\n")
-    out.append(f"![Fig. 7]({figures['fig7']})\n")
-    out.append("Drawn: the LSTM's and PriorLayer's test **frame** accuracy after every epoch (mean, band ± std over "
-               "seeds), from the training logs. The MLN has no epochs (flat line). Conflation and the combined "
-               "model are computed from the final networks only, so they appear as one point at the last epoch; "
-               "their per-epoch curves would need every epoch's network, which is not kept.\n")
+
+def _paper_figures(figures: dict[str, str], datasets: list[str]) -> list[str]:
+    """Fig. 7 and 8 (accuracy per epoch) and the confusion matrices."""
+    out = ["## Fig. 7: test accuracy per epoch\n", f"![Fig. 7]({figures['fig7']})\n",
+           "Drawn: the LSTM's and PriorLayer's test **frame** accuracy after every epoch (mean, band ± std over "
+           "seeds), from the training logs. The MLN has no epochs (flat line). Conflation and the combined "
+           "model are computed from the final networks only, so they appear as one point at the last epoch; "
+           "their per-epoch curves would need every epoch's network, which is not kept.\n"]
     out.append("## Fig. 8: train vs test accuracy per epoch\n")
     out.append(f"![Fig. 8]({figures['fig8']})\n")
     out.append("PriorLayer's regularisation claim, checked on these curves, is listed under Table III.\n")
@@ -64,9 +83,13 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
     for dataset in datasets:
         out.append(f"![confusion {dataset}]({figures['confusion'].format(dataset=dataset)})\n")
     out.append("Segments of the test split, counts summed over seeds, each row normalised to its true class.\n")
+    return out
 
-    out.append("## Data efficiency: where do the logic constraints stop helping?\n")
-    out.append(f"![data efficiency]({figures['efficiency']})\n")
+
+def _data_efficiency(run: Run, figures: dict[str, str]) -> list[str]:
+    points = efficiency_points(run)
+    out = ["## Data efficiency: where do the logic constraints stop helping?\n",
+           f"![data efficiency]({figures['efficiency']})\n"]
     out.append("The same Fetch episodes (collection seed fixed); the first share of them trains, the MLN learns its "
                "weights on that part only, the rest is the test split"
                + (f"; the smallest point is the paper's split ({run.datasets['fetch']['n_train']:,} frames, "
@@ -75,8 +98,12 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
     out.append(markdown_table(["training share", "training frames", "LSTM", "MLN", "combined", "combined − LSTM"],
                               efficiency_table(points)))
     out.append(efficiency_claim(points) + "\n")
+    return out
 
-    out.append("## Learned weights: strongest formulas per class (Table II style)\n")
+
+def _weights_and_specs(run: Run, datasets: list[str]) -> list[str]:
+    """The strongest learned formulas per class, and Fetch's richer predicate spec against the paper's."""
+    out = ["## Learned weights: strongest formulas per class (Table II style)\n"]
     for dataset in datasets:
         out.append(f"**{dataset}** ({run.datasets[dataset]['spec']})\n")
         out.append(markdown_table(["class", "weight", "formula"], weights_table(run, dataset)))
@@ -91,36 +118,38 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
     verdict = rich_spec_claim(run)
     if verdict:
         out.append(f"Rich minus paper spec: {verdict}.\n")
+    return out
 
-    out.append("## Stream mode: no segment boundaries at test\n")
-    out.append("Networks trained on fixed windows and run over whole episodes (`--mode stream`); segment "
-               "accuracy (%), frame accuracy (%), segmental edit score and F1@{10,25,50} (Lea et al.), mean ± std. "
-               "`D-tcn`: the same with a causal TCN in place of the LSTM (`train --cell tcn`).\n")
-    out.append(markdown_table(["dataset", "method", "segment acc.", "frame acc.", "edit", "F1@10", "F1@25", "F1@50"],
-                              stream_table(run)))
 
-    out += sequential_logic(run, figures, timelines or {})
+def _stream_mode(run: Run) -> list[str]:
+    return ["## Stream mode: no segment boundaries at test\n",
+            "Networks trained on fixed windows and run over whole episodes (`--mode stream`); segment "
+            "accuracy (%), frame accuracy (%), segmental edit score and F1@{10,25,50} (Lea et al.), mean ± std. "
+            "`D-tcn`: the same with a causal TCN in place of the LSTM (`train --cell tcn`).\n",
+            markdown_table(["dataset", "method", "segment acc.", "frame acc.", "edit", "F1@10", "F1@25", "F1@50"],
+                           stream_table(run))]
 
-    out.append("## Timings and machine\n")
+
+def _timings(run: Run) -> list[str]:
+    wall = wall_seconds(run.timings)
     total = f"{wall:.0f} s from the first stage's start to the last stage's end" if wall is not None else "not recorded"
-    out.append(f"Stage time (seconds, the latest run of each command; two jobs at a time): {total}.\n")
-    out.append(markdown_table(["stage", "runs", "total s", "mean s", "longest s"], timings_table(run.timings)))
-    out.append(markdown_table(["", ""], [[k, v] for k, v in run.machine.items()]))
+    return ["## Timings and machine\n",
+            f"Stage time (seconds, the latest run of each command; two jobs at a time): {total}.\n",
+            markdown_table(["stage", "runs", "total s", "mean s", "longest s"], timings_table(run.timings)),
+            markdown_table(["", ""], [[k, v] for k, v in run.machine.items()])]
 
-    out.append("## Hyper-parameters used\n")
-    out.append("Read from the artifacts' metadata: each dataset folder, then every stage's options (several values "
-               "where runs differ).\n")
-    out.append(markdown_table(["dataset folder", "source", "frames", "training frames", "features", "predicate spec",
-                               "formulas", "epochs"],
-                              datasets_table(run)))
-    out.append(markdown_table(["stage", "option", "values"],
-                              [[stage, name, ", ".join(map(str, values))]
-                               for stage, options in run.settings.items() for name, values in options.items()]
-                              + [["train", "seeds", ", ".join(map(str, sorted(run.metrics["seed"].unique())))]]))
 
-    out.append("## Differences from the paper\n")
-    out.append("\n".join(f"- {line}" for line in differences(run)) + "\n")
-    return "\n".join(out)
+def _hyper_parameters(run: Run) -> list[str]:
+    return ["## Hyper-parameters used\n",
+            "Read from the artifacts' metadata: each dataset folder, then every stage's options (several values "
+            "where runs differ).\n",
+            markdown_table(["dataset folder", "source", "frames", "training frames", "features", "predicate spec",
+                            "formulas", "epochs"],
+                           datasets_table(run)),
+            markdown_table(["stage", "option", "values"],
+                           [[stage, name, ", ".join(map(str, values))]
+                            for stage, options in run.settings.items() for name, values in options.items()]
+                           + [["train", "seeds", ", ".join(map(str, sorted(run.metrics["seed"].unique())))]])]
 
 
 def differences(run: Run) -> list[str]:
@@ -150,6 +179,10 @@ def differences(run: Run) -> list[str]:
 
 def sequential_logic(run: Run, figures: dict[str, str], timelines: dict[str, str]) -> list[str]:
     """Issue 12's sections: the decoded rows, the ablation, the timelines, the method to deploy and the targets."""
+    return [*_decoded(run), *_ablation(run), *_timelines(figures, timelines), *_deploy(run), *_targets(run)]
+
+
+def _decoded(run: Run) -> list[str]:
     out = ["## Sequential logic: decoded methods\n",
            f"Folders `DATASET{TEMPORAL}`: the paper dataset's frames and predicates with `examples/temporal.mln` (the "
            "paper's template plus a learned weight per pair of consecutive classes, `Topic(+c1, p) ^ Next(p, q) => "
@@ -171,52 +204,65 @@ def sequential_logic(run: Run, figures: dict[str, str], timelines: dict[str, str
              for note in lines if any(folder == d + s for d in PAPER_DATASETS for s in VARIANTS)]
     if notes:
         out.append("Notes from `conflate`:\n\n" + "\n".join(f"- {n}" for n in notes) + "\n")
+    return out
 
-    out.append("## Ablation: transitions, hard order, conjunctive transitions, network factor weight\n")
-    out.append("Stream mode, the methods that need no retraining, each decoded; the same networks in every row of a "
-               "method. Variants: **no transitions** — the paper dataset's own folder (`paper.mln`, pll weights), "
-               "decoded with uniform transitions (each frame's argmax of its factor); **learned transitions** — "
-               f"`DATASET{TEMPORAL}`; **plus hard order** — `DATASET-order`, `examples/DATASET.order.mln`: "
-               "temporal.mln plus the order of the task as hard rules (Fetch: reach, grasp, transport, place, a "
-               "phase may be skipped but never revisited; DESK: S1 → … → S7 → S1), which forbid every other "
-               "transition; **conjunctive transitions** — `DATASET-conjunctive`, `examples/conjunctive.mln`: the "
-               "transition template written as `0.0 Topic(+c1, p) ^ Next(p, q) ^ Topic(+c2, q)` (the same chains; "
-               "the L2 prior pulls the two forms toward different weights); **network factor weight fixed at 1** — "
-               "`DATASET-fixed-weight`, the learned-transitions workdirs decoded with `--network-weight 1`: the "
-               "network weight learned (the learned-transitions rows) against fixed at 1.\n")
+
+def _ablation(run: Run) -> list[str]:
+    out = ["## Ablation: transitions, hard order, conjunctive transitions, network factor weight\n",
+           "Stream mode, the methods that need no retraining, each decoded; the same networks in every row of a "
+           "method. Variants: **no transitions** — the paper dataset's own folder (`paper.mln`, pll weights), "
+           "decoded with uniform transitions (each frame's argmax of its factor); **learned transitions** — "
+           f"`DATASET{TEMPORAL}`; **plus hard order** — `DATASET-order`, `examples/DATASET.order.mln`: "
+           "temporal.mln plus the order of the task as hard rules (Fetch: reach, grasp, transport, place, a "
+           "phase may be skipped but never revisited; DESK: S1 → … → S7 → S1), which forbid every other "
+           "transition; **conjunctive transitions** — `DATASET-conjunctive`, `examples/conjunctive.mln`: the "
+           "transition template written as `0.0 Topic(+c1, p) ^ Next(p, q) ^ Topic(+c2, q)` (the same chains; "
+           "the L2 prior pulls the two forms toward different weights); **network factor weight fixed at 1** — "
+           "`DATASET-fixed-weight`, the learned-transitions workdirs decoded with `--network-weight 1`: the "
+           "network weight learned (the learned-transitions rows) against fixed at 1.\n"]
     for dataset in present(run, PAPER_DATASETS):
         out.append(f"**{dataset}**\n")
         out.append(markdown_table(["method", "variant", *SEQUENCE_HEADER], ablation_table(run, dataset)))
+    return out
 
-    out.append("## Timeline of one test episode\n")
+
+def _timelines(figures: dict[str, str], timelines: dict[str, str]) -> list[str]:
+    out = ["## Timeline of one test episode\n"]
     for dataset, what in timelines.items():
         out.append(f"![timeline {dataset}]({figures['timeline'].format(dataset=dataset)})\n")
         out.append(f"{dataset}: {what}. Rows: the true labels, the LSTM, and the online and offline methods chosen "
                    "by cross-validation (next section).\n")
     if not timelines:
         out.append("_nothing to show: this run has no decoded stream-mode results._\n")
+    return out
 
-    out.append("## Which decoded method to deploy\n")
-    out.append("Stream mode (no segment boundaries at test, as a deployed recogniser sees frames). Candidates: every "
-               "decoded method of the no-transitions, learned-transitions, hard-order and conjunctive-transitions "
-               "folders. Each is cross-validated on the training split: every fold is predicted by the fold "
-               "networks, the fold's MLN weights and a network factor weight learned without it. The online (+ "
-               "filter) choice has the best mean cross-validated segment accuracy over seeds, the offline (+ Viterbi) "
-               "one the best mean of cross-validated segment accuracy and edit; the test figures (mean ± std) are "
-               "shown beside, never used. Ties go to the first in the order no transitions, learned transitions, "
-               "hard order, conjunctive, then LSTM, MLN, PriorLayer, Conflation, combined.\n")
-    out.append(markdown_table(["dataset", "use", "method", "variant (folder)", "CV segment acc.", "CV frame acc.",
-                               "CV edit", "CV F1@50", "test segment acc.", "test frame acc.", "test edit",
-                               "test F1@50"], deploy_table(run)))
+
+def _deploy(run: Run) -> list[str]:
+    out = ["## Which decoded method to deploy\n",
+           "Stream mode (no segment boundaries at test, as a deployed recogniser sees frames). Candidates: every "
+           "decoded method of the no-transitions, learned-transitions, hard-order and conjunctive-transitions "
+           "folders. Each is cross-validated on the training split: every fold is predicted by the fold "
+           "networks, the fold's MLN weights and a network factor weight learned without it. The online (+ "
+           "filter) choice has the best mean cross-validated segment accuracy over seeds, the offline (+ Viterbi) "
+           "one the best mean of cross-validated segment accuracy and edit; the test figures (mean ± std) are "
+           "shown beside, never used. Ties go to the first in the order no transitions, learned transitions, "
+           "hard order, conjunctive, then LSTM, MLN, PriorLayer, Conflation, combined.\n",
+           markdown_table(["dataset", "use", "method", "variant (folder)", "CV segment acc.", "CV frame acc.",
+                           "CV edit", "CV F1@50", "test segment acc.", "test frame acc.", "test edit",
+                           "test F1@50"], deploy_table(run))]
     out += live_section(run)
     sentences = [line for line in (deploy_sentence(run, d) for d in PAPER_DATASETS) if line]
     if sentences:
         out.append("\n".join(f"- {line}" for line in sentences) + "\n")
-    out.append("### Targets (stream mode, test split, every choice by cross-validation on the training split)\n")
-    out.append("DESK: the online choice segment accuracy ≥ 74 %, frame accuracy ≥ 64 %; the offline choice edit ≥ 90 "
-               "with segment accuracy ≥ 70 %; the stream LSTM segment accuracy ≥ 65 %. Fetch: the online choice "
-               "segment accuracy ≥ 85 %, frame accuracy ≥ 70 %; the offline choice edit ≥ 90. The best on test is "
-               "shown beside, marked optimistic.\n")
+    return out
+
+
+def _targets(run: Run) -> list[str]:
+    out = ["### Targets (stream mode, test split, every choice by cross-validation on the training split)\n",
+           "DESK: the online choice segment accuracy ≥ 74 %, frame accuracy ≥ 64 %; the offline choice edit ≥ 90 "
+           "with segment accuracy ≥ 70 %; the stream LSTM segment accuracy ≥ 65 %. Fetch: the online choice "
+           "segment accuracy ≥ 85 %, frame accuracy ≥ 70 %; the offline choice edit ≥ 90. The best on test is "
+           "shown beside, marked optimistic.\n"]
     checks = target_checks(run)
     out.append("\n".join(f"- {line}" for line in checks) + "\n" if checks
                else "_nothing to check: this run has no decoded stream-mode results._\n")

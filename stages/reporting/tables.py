@@ -16,8 +16,21 @@ PAPER_TABLE_III = {
     "fetch": {"lstm": 71, "mln": 50, "priorlayer": 83, "conflation": 77, "combined": 84},
     "desk": {"lstm": 68, "mln": 49, "priorlayer": 71, "conflation": 69, "combined": 72},
 }
-METHOD_NAMES = {"lstm": "LSTM", "mln": "MLN", "priorlayer": "LSTM + PriorLayer",
-                "conflation": "LSTM + Conflation", "combined": "PriorLayer + Conflation (combined)"}
+
+
+def method_names(network: str = "LSTM") -> dict[str, str]:
+    """Each method's name in the report, its network named ``network`` (the paper's: LSTM)."""
+    return {"lstm": network, "mln": "MLN", "priorlayer": f"{network} + PriorLayer",
+            "conflation": f"{network} + Conflation", "combined": "PriorLayer + Conflation (combined)"}
+
+
+METHOD_NAMES = method_names()  # the paper's networks: LSTMs
+
+
+def network_label(folder: str) -> str:
+    """The network type of a dataset folder's methods: TCN in a D-tcn folder (`train --cell tcn`), else LSTM."""
+    return "TCN" if folder.endswith(TCN) else "LSTM"
+
 DECODE_NAMES = {"none": "", "filter": " + filter (online)", "viterbi": " + Viterbi (offline)"}
 SEQUENCE_METRICS = ("segment_accuracy", "frame_accuracy", "edit", "f1@50")
 ABLATION_METHODS = ("lstm", "mln", "conflation")  # no retraining: every variant has them
@@ -114,10 +127,10 @@ def confusion_matrix(run: Run, dataset: str, method: str) -> np.ndarray:
     return matrix
 
 
-def method_name(name: str) -> str:
-    """'LSTM + Conflation + Viterbi (offline)' for 'conflation+viterbi'."""
+def method_name(name: str, folder: str = "") -> str:
+    """'LSTM + Conflation + Viterbi (offline)' for 'conflation+viterbi' (TCN for a D-tcn ``folder``'s)."""
     method, _, decode = name.partition("+")
-    return METHOD_NAMES[method] + DECODE_NAMES[decode or "none"]
+    return method_names(network_label(folder))[method] + DECODE_NAMES[decode or "none"]
 
 
 def sequence_stats(run: Run, mode: str = "stream") -> dict[str, pl.DataFrame]:
@@ -164,7 +177,7 @@ def decoded_table(run: Run) -> list[list[str]]:
                     name = decoded_name(method, decode)
                     if lookup(stats["segment_accuracy"], dataset=folder, method=name)[0] is None:
                         continue
-                    rows.append([dataset, mode, method_name(name),
+                    rows.append([dataset, mode, method_name(name, folder),
                                  *decoded_cells(run, stats, cv, folder, mode, name)])
     return rows
 
@@ -182,7 +195,7 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
                     continue
                 if method == "mln" and suffix == "-fixed-weight":
                     continue  # the MLN alone has no network factor
-                rows.append([method_name(name), variant,
+                rows.append([method_name(name, folder), variant,
                              *decoded_cells(run, stats, cv, folder, "stream", name)])
     return rows
 
@@ -239,7 +252,7 @@ def deploy_table(run: Run) -> list[list[str]]:
                     continue
                 chosen = decode in choices and c["folder"] == choices[decode]["folder"] \
                     and c["method"] == choices[decode]["method"]
-                rows.append([dataset, kind, ("**chosen** " if chosen else "") + method_name(c["method"]),
+                rows.append([dataset, kind, ("**chosen** " if chosen else "") + method_name(c["method"], c["folder"]),
                              f"{c['variant']} (`{c['folder']}`)",
                              *(fmt(*c["cv"][m]) for m in SEQUENCE_METRICS), *(fmt(*c[m]) for m in SEQUENCE_METRICS)])
     return rows
@@ -269,7 +282,8 @@ def stream_table(run: Run) -> list[list[str]]:
     """Stream mode (no segment boundaries at test): segment accuracy, edit and F1@k, mean ± std."""
     columns = ("segment_accuracy", "frame_accuracy", "edit", "f1@10", "f1@25", "f1@50")
     stats = {c: method_stats(run, c, mode="stream") for c in columns}
-    return [[dataset, METHOD_NAMES[method], *(fmt(*lookup(stats[c], dataset=dataset, method=method)) for c in columns)]
+    return [[dataset, method_name(method, dataset),
+             *(fmt(*lookup(stats[c], dataset=dataset, method=method)) for c in columns)]
             for dataset in present(run, (*PAPER_DATASETS, *(d + TCN for d in PAPER_DATASETS))) for method in METHODS
             if lookup(stats["segment_accuracy"], dataset=dataset, method=method)[0] is not None]
 

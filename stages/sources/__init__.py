@@ -15,6 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from mlnseq.catalog import errors
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 
@@ -85,7 +86,9 @@ class SourceOptions:
 
 
 def missing_extra(module: str, error: ImportError) -> BadInput:
-    return BadInput(f"reading this format needs {module}, which is not installed: pip install 'mlnseq[{EXTRA}]'")
+    """The one-line refusal for a format's library ``module`` that could not be imported (``error``)."""
+    return errors.missing_extra(error) or BadInput(
+        f"reading this format needs {module}, which is not installed: pip install 'mlnseq[{EXTRA}]'")
 
 
 def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,

@@ -35,6 +35,42 @@ def _datasets(group, prefix: str = "") -> list[str]:
     return found
 
 
+def _datasets_of(requested: list[str], present: list[str]) -> tuple[list[str], list[str] | None]:
+    """The datasets to read for ``requested`` names, each a dataset or one element ``PATH/K`` of a vector
+    dataset as collect names it (as a model remembers it); and the feature names to keep (None: all)."""
+    if all(name in present for name in requested):
+        return requested, None
+    chosen = []
+    for name in requested:
+        parent, _, index = name.rpartition("/")
+        chosen.append(parent if name not in present and index.isdigit() and parent in present else name)
+    return list(dict.fromkeys(chosen)), list(requested)
+
+
+def _kept(flat: dict[str, np.ndarray], wanted: list[str] | None, where: str) -> dict[str, np.ndarray]:
+    """The features asked for by name (None: all), in the order asked."""
+    absent = [name for name in wanted or () if name not in flat]
+    if absent:
+        raise BadInput(f"{where}: no feature {absent[0]!r}; the demo gives {', '.join(flat)}")
+    return flat if wanted is None else {name: flat[name] for name in wanted}
+
+
+def _labels(group, name: str, where: str, length: int) -> pl.Series:
+    """A demo's label dataset: one UTF-8 text or number per frame."""
+    raw = np.asarray(group[name])
+    if raw.ndim != 1 or len(raw) != length:
+        raise BadInput(f"{where}/{name}: {raw.shape[0] if raw.ndim else 0} labels of shape {raw.shape} for {length} "
+                       "frames; give one label a frame")
+    values = raw.tolist()
+    for k, value in enumerate(values):
+        if isinstance(value, bytes):
+            try:
+                values[k] = value.decode()
+            except UnicodeDecodeError:
+                raise BadInput(f"{where}/{name} frame {k}: label {value[:40]!r} is not UTF-8 text") from None
+    return pl.Series("label", values)
+
+
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     try:
         import h5py
@@ -58,33 +94,37 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         for demo in demos:
             group = handle["data"][demo]
             where = f"{source}:/data/{demo}"
+            if not isinstance(group, h5py.Group):
+                raise BadInput(f"{where} is a dataset, not a demo group (robomimic layout: data/demo_N/obs, actions)")
             present = _datasets(group)
             if chosen is None:
                 chosen = [p for p in present if p.startswith("obs/") and group[p].dtype.kind in "biuf"
-                          and group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
+                          and 1 <= group[p].ndim <= 2] + (["actions"] if "actions" in present else [])
                 if not chosen:
-                    raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are {', '.join(present)}")
-            missing = [p for p in chosen if p not in present]
+                    raise BadInput(f"{where}: no numeric obs/ dataset or actions; its datasets are "
+                                   f"{', '.join(present)}")
+            datasets, wanted = _datasets_of(chosen, present)
+            missing = [p for p in datasets if p not in present]
             if missing:
                 raise BadInput(f"{where}: no dataset {missing[0]!r}; the demo's datasets are {', '.join(present)}")
             flat: dict[str, np.ndarray] = {}
             length = None
-            for path in chosen:
+            for path in datasets:
                 values = np.asarray(group[path])
-                if values.ndim > 2 or values.dtype.kind not in "biuf":
+                if not 1 <= values.ndim <= 2 or values.dtype.kind not in "biuf":
                     raise BadInput(f"{where}/{path}: {values.dtype} of shape {values.shape} is not one value or "
                                    "one vector a frame")
                 if length is not None and len(values) != length:
-                    raise BadInput(f"{where}/{path}: {len(values)} frames, where {chosen[0]} has {length}")
+                    raise BadInput(f"{where}/{path}: {len(values)} frames, where {datasets[0]} has {length}")
                 length = len(values)
                 if values.ndim == 1:
                     flat[path] = values
                 else:
                     flat.update({f"{path}/{k}": values[:, k] for k in range(values.shape[1])})
+            flat = _kept(flat, wanted, where)
             labels = None
             if label is not Labels.NONE and columns.label in present:
-                raw = np.asarray(group[columns.label])
-                labels = pl.Series("label", [v.decode() if isinstance(v, bytes) else v for v in raw.tolist()])
+                labels = _labels(group, columns.label, where, length)
             recordings.append(Recording(
                 path=source, features=check_features(pl.DataFrame(flat), Path(where), "{file} frame {row}"),
                 episode=pl.Series([demo] * length), time=pl.int_range(length, eager=True), label=labels,

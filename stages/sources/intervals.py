@@ -42,7 +42,8 @@ def read(path: Path) -> dict[str, list[Interval]]:
         raise BadInput(f"--labels {path} not found")
     try:
         separator = "\t" if path.suffix.lower() == ".tsv" or "\t" in path.open(encoding="utf-8").readline() else ","
-        table = pl.read_csv(path, separator=separator, infer_schema_length=10_000)
+        table = pl.read_csv(path, separator=separator, infer_schema_length=10_000,
+                            schema_overrides={"episode": pl.String})  # ids as written: 001 is not 1
     except Exception as error:  # polars raises many types for unreadable files
         raise BadInput(f"{path}: cannot read it as intervals ({str(error).strip().splitlines()[0][:120]})") from error
     missing = [c for c in COLUMNS if c not in table.columns]
@@ -111,12 +112,12 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
         labels = np.full(len(episodes), unlabelled, dtype=object)
         for episode in dict.fromkeys(episodes.tolist()):
             rows = np.flatnonzero(episodes == episode)
-            found = intervals.get(episode)
+            found = intervals.get(episode, intervals.get(_as_written(episode, intervals, recording.episode)))
             if found is None:
                 known = ", ".join(list(intervals)[:5])
                 raise BadInput(f"{recording.path}: episode {episode!r} has no interval in --labels "
                                f"(its episodes: {known}{', ...' if len(intervals) > 5 else ''})")
-            seen.add(episode)
+            seen.add(episode if episode in intervals else _as_written(episode, intervals, recording.episode))
             key = np.arange(len(rows), dtype=np.float64) if unit == "frames" else recording.time.to_numpy()[rows]
             _label_episode(key, found, unit, rows, labels, keep, f"{recording.path} episode {episode!r}")
         if unlabelled is not None:
@@ -136,6 +137,14 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
     if unused:
         raise BadInput(f"{intervals[unused[0]][0].where}: episode {unused[0]!r} is in no recording")
     return labelled
+
+
+def _as_written(episode: str, intervals: dict[str, list[Interval]], ids: pl.Series) -> str | None:
+    """An episode id a table column holds as a number (1) matches ``001`` in --labels, if only one id does."""
+    if not ids.dtype.is_integer():
+        return None
+    same = [key for key in intervals if key.strip().lstrip("+-").isdigit() and int(key) == int(episode)]
+    return same[0] if len(same) == 1 else None
 
 
 def _label_episode(key: np.ndarray, found: list[Interval], unit: str, rows: np.ndarray, labels: np.ndarray,

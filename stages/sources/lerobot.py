@@ -32,11 +32,21 @@ def info_of(source: Path) -> dict[str, Any]:
         info = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BadInput(f"{path}: cannot read it as JSON ({error})") from error
+    except RecursionError:
+        raise BadInput(f"{path}: cannot read it as JSON (nested too deep)") from None
+    if not isinstance(info, dict):
+        raise BadInput(f"{path}: expected a JSON object (LeRobot's meta/info.json)")
     version = str(info.get("codebase_version"))
     if version not in VERSIONS:
         raise BadInput(f"{path}: codebase_version {version!r} is not supported; mlnseq reads {', '.join(VERSIONS)}")
     if not isinstance(info.get("features"), dict):
         raise BadInput(f"{path}: no 'features' table")
+    for name, spec in info["features"].items():
+        shape = (spec.get("shape") or [1]) if isinstance(spec, dict) else None
+        if not isinstance(spec, dict) or not isinstance(shape, list) or not all(
+                isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape):
+            raise BadInput(f"{path}: feature {name!r} is {json.dumps(spec)[:80]}; a feature is an object with "
+                           "a 'dtype' and a 'shape' of whole numbers")
     return info
 
 
@@ -54,6 +64,26 @@ def element_names(column: str, spec: dict[str, Any]) -> list[str]:
     return [column] if size == 1 else [f"{column}/{k}" for k in range(size)]
 
 
+def requested_features(requested: tuple[str, ...], features: dict[str, Any],
+                       source: Path) -> tuple[list[str], list[str]]:
+    """The info.json features to read for ``requested`` names, each a feature or one element of a vector
+    feature as collect names it (``observation.state/panda_joint1``, as a model remembers it); and the
+    element names to keep, in order."""
+    owner = {element: name for name, spec in features.items() if isinstance(spec, dict)
+             for element in element_names(name, spec)}
+    chosen, wanted = [], []
+    for name in requested:
+        if name in features:
+            chosen.append(name)
+            wanted += element_names(name, features[name])
+        elif name in owner:
+            chosen.append(owner[name])
+            wanted.append(name)
+        else:
+            raise BadInput(f"{source}/meta/info.json: no feature {name!r}; its features are {', '.join(features)}")
+    return list(dict.fromkeys(chosen)), wanted
+
+
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
     source = Path(source)
     info = info_of(source)
@@ -61,11 +91,9 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
     chosen = [name for name, spec in features.items()
               if name not in KEYS and name != columns.label and spec.get("dtype") in NUMERIC]
     skipped = [name for name, spec in features.items() if spec.get("dtype") in ("image", "video")]
+    wanted = None  # the features to keep, by the names collect gives (one per element of a vector feature)
     if columns.features:
-        missing = [n for n in columns.features if n not in features]
-        if missing:
-            raise BadInput(f"{source}/meta/info.json: no feature {missing[0]!r}; its features are {', '.join(features)}")
-        chosen = list(columns.features)
+        chosen, wanted = requested_features(columns.features, features, source)
     if not chosen:
         raise BadInput(f"{source}/meta/info.json: no numeric feature ({', '.join(features)})")
     pattern = "episode_*.parquet" if info["codebase_version"].startswith("v2") else "file-*.parquet"
@@ -81,6 +109,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         missing = [n for n in ("episode_index", "frame_index", *chosen) if n not in table.columns]
         if missing:
             raise BadInput(f"{path}: no column {missing[0]!r}; columns are {', '.join(table.columns)}")
+        table = table.sort("episode_index", "frame_index", maintain_order=True)  # rows in any order: as documented
         flat = {}
         for name in chosen:
             names = element_names(name, features[name])
@@ -99,7 +128,10 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
                     flat[feature] = elements.get(k)
             else:
                 flat[names[0]] = column
-        time = table["timestamp"] if "timestamp" in table.columns else table["frame_index"] / float(info.get("fps") or 1)
+        if wanted is not None:
+            flat = {name: flat[name] for name in wanted}
+        time = (table["timestamp"] if "timestamp" in table.columns
+                else table["frame_index"] / float(info.get("fps") or 1))
         labelled = label is not Labels.NONE and columns.label in table.columns
         recordings.append(Recording(
             path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),

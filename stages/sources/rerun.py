@@ -22,9 +22,9 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
 
         raise missing_extra("rerun-sdk", error) from error
     ids = np.asarray([str(e) for e in episodes], dtype=object)
-    with artifacts.atomic_path(Path(path)) as tmp:
+    with artifacts.atomic_path(Path(path)) as tmp, open(tmp, "wb") as handle:
         recording = rr.RecordingStream("mlnseq")
-        recording.save(tmp)
+        stream = recording.binary_stream()  # written here, so that a full disk is an OSError, not a Rust log line
         for episode in dict.fromkeys(ids.tolist()):
             rows = np.flatnonzero(ids == episode)
             index = [rr.TimeColumn("time", duration=times[rows]),
@@ -42,5 +42,7 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
                 recording.send_columns(f"{base}/{entity}", indexes=index,
                                        columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
         recording.flush()
+        handle.write(stream.read() or b"")  # at once: reading it in parts breaks the file's checksums (rerun 0.41)
         recording.disconnect()
+        handle.write(stream.read() or b"")
     return Path(path)

@@ -22,11 +22,11 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.table import check_features
+from mlnseq.sources.joint_states import JOINT_STATE, JointMismatch, JointState, NewJoints, joint_columns
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 BAG_SUFFIXES = (".bag", ".mcap")
 STRING = "std_msgs/msg/String"
-JOINT_STATE = "sensor_msgs/msg/JointState"
 RATE_PROBE = 200  # messages of the first topic whose median period gives the default rate
 CHUNK = 8192  # frames per buffer block
 
@@ -58,19 +58,25 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
     typestore = get_typestore(Stores.ROS2_HUMBLE)  # for bags that carry no message definitions
     recordings: list[Recording] = []
     topics, rate = tuple(options.topics), options.rate
+    joints = None  # each JointState topic's columns: the first bag's hold for the others, as its topics and rate do
     for path in bag_paths(Path(source)):
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
                 label_topic = options.label_topic if label is not Labels.NONE else None
                 if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
-                recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled)
+                try:
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled, joints)
+                except NewJoints:  # a second publisher's joints after the clock started: again, knowing them all
+                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled,
+                                         joint_columns(reader, path))
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
             text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
+        joints = recording.resolved["joints"]
         if columns.features:
             missing = [n for n in columns.features if n not in recording.features.columns]
             if missing:
@@ -82,8 +88,24 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
 
 
 def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
-             unlabelled: str | None = None) -> Recording:
+             unlabelled: str | None = None, joints: dict[str, list[tuple[str, str]]] | None = None) -> Recording:
     """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
+    listed = _check_topics(reader, path, topics, label_topic)
+    candidates = list(topics) or sorted(t for t, info in reader.topics.items() if info.msgcount and t != label_topic)
+    if rate is None:
+        rate = _rate_of(reader, path, candidates[0])
+    wanted = set(candidates) | ({label_topic} if label_topic else set())
+    clock = _Clock(reader, path, candidates, 1e9 / rate, label_topic, named=bool(topics))
+    clock.joint_states = {c.topic: JointState(c.topic, (joints or {}).get(c.topic, []))
+                          for c in reader.connections if c.topic in wanted and c.msgtype == JOINT_STATE}
+    for connection, timestamp, raw in reader.messages(connections=[c for c in reader.connections if c.topic in wanted]):
+        clock.message(connection, timestamp, raw)
+    clock.finish(listed)
+    return _recording(clock, path, rate, label_topic, unlabelled)
+
+
+def _check_topics(reader, path: Path, topics: tuple[str, ...], label_topic: str | None) -> str:
+    """Refuse an empty bag and a named topic it lacks or that sent nothing; the bag's topics, listed."""
     available = reader.topics
     if reader.message_count == 0:
         raise BadInput(f"{path}: the bag holds no message")
@@ -95,86 +117,121 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
             raise BadInput(f"{path}: topic {topic!r} has no message")
     if label_topic and available[label_topic].msgtype != STRING:
         raise BadInput(f"{path}: --label-topic {label_topic} is {available[label_topic].msgtype}, not {STRING}")
-    named = bool(topics)
-    candidates = list(topics) or sorted(t for t, info in available.items() if info.msgcount and t != label_topic)
-    if rate is None:
-        rate = _rate_of(reader, path, candidates[0])
-    period = 1e9 / rate
-    wanted = set(candidates) | ({label_topic} if label_topic else set())
-    connections = [c for c in reader.connections if c.topic in wanted]
+    return listed
 
-    extractors: dict[str, Callable[[Any], np.ndarray]] = {}
-    names: dict[str, list[str]] = {}
-    current: dict[str, np.ndarray] = {}
-    last_time: dict[str, int] = {}
-    skipped: list[str] = []
-    start = reader.start_time
-    row: np.ndarray | None = None
-    offsets: dict[str, tuple[int, int]] = {}
-    frames: _Blocks | None = None
-    label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label): ticks' times and labels follow
-    tick = 0
-    clock0 = None
 
-    for connection, timestamp, raw in reader.messages(connections=connections):
+class _Clock:
+    """The topics put on one clock, message by message: once every topic has sent a message, each tick holds
+    each topic's last values at or before it (causal); the label topic's messages mark the ticks they label."""
+
+    def __init__(self, reader, path: Path, candidates: list[str], period: float, label_topic: str | None,
+                 named: bool):
+        self.reader, self.path, self.period, self.label_topic = reader, path, period, label_topic
+        self.candidates = candidates  # the topics read; an unnamed topic without a numeric field is skipped
+        self.named = named  # topics named by the user: one without a numeric field is an error
+        self.start = reader.start_time
+        self.extractors: dict[str, Callable[[Any], np.ndarray]] = {}
+        self.names: dict[str, list[str]] = {}
+        self.current: dict[str, np.ndarray] = {}  # each topic's values until the first tick
+        self.last_time: dict[str, int] = {}
+        self.skipped: list[str] = []
+        self.row: np.ndarray | None = None  # the values every tick from the first on holds, topic after topic
+        self.offsets: dict[str, tuple[int, int]] = {}
+        self.frames: _Blocks | None = None
+        self.label_changes: list[tuple[int, str | None]] = [(0, None)]  # (first tick, label)
+        self.tick = 0
+        self.clock0: int | None = None
+        self.joint_states: dict[str, JointState] = {}  # JointState topics, read by joint name
+
+    def message(self, connection, timestamp: int, raw: bytes) -> None:
         topic = connection.topic
-        previous = last_time.get(topic)
+        self._ticks_before(topic, timestamp)
+        message = self.reader.deserialize(raw, connection.msgtype)
+        if topic == self.label_topic:
+            self.label_changes.append((self.tick, message.data))
+            return
+        if topic in self.skipped:
+            return
+        if topic not in self.extractors:
+            self._discover(topic, connection.msgtype, message)
+        if topic in self.extractors:
+            values = self._values(topic, message, timestamp)
+            if self.row is not None:
+                a, b = self.offsets[topic]
+                self.row[a:b] = values
+                return
+            self.current[topic] = values
+            if not getattr(self.extractors[topic], "complete", True):  # a JointState topic: once every joint has one
+                del self.current[topic]
+        if self.row is None and self.candidates and all(t in self.current for t in self.candidates):
+            self._first_tick(timestamp)
+
+    def _ticks_before(self, topic: str, timestamp: int) -> None:
+        """Refuse a topic going back in time; the ticks before this message hold the values so far."""
+        previous = self.last_time.get(topic)
         if previous is not None and timestamp < previous:
-            raise BadInput(f"{path}: topic {topic!r} goes back in time at {(timestamp - start) / 1e9:.6f} s "
-                           f"(after {(previous - start) / 1e9:.6f} s)")
-        last_time[topic] = timestamp
-        if row is not None:
-            while clock0 + round(tick * period) < timestamp:  # ticks before this message hold the values so far
-                frames.append(row)
-                tick += 1
-        message = reader.deserialize(raw, connection.msgtype)
-        if topic == label_topic:
-            label_changes.append((tick, message.data))
-            continue
-        if topic not in extractors:
-            if topic in skipped:
-                continue
-            fields = _leaves(message, topic, connection.msgtype)
-            if not fields:
-                if named:
-                    raise BadInput(f"{path}: topic {topic!r} ({connection.msgtype}) has no numeric field")
-                skipped.append(topic)
-                candidates.remove(topic)
-            else:
-                names[topic] = [name for group, _, _ in fields for name in group]
-                extractors[topic] = _extractor(fields)
-        if topic in extractors:
-            try:
-                values = extractors[topic](message)
-            except ValueError:
-                raise BadInput(f"{path}: topic {topic!r} changes its number of values at "
-                               f"{(timestamp - start) / 1e9:.6f} s; a topic's fields must keep their length") from None
-            if row is not None:
-                a, b = offsets[topic]
-                row[a:b] = values
-                continue
-            current[topic] = values
-        if row is None and candidates and all(t in current for t in candidates):
-            position = 0
-            for t in candidates:
-                offsets[t] = (position, position + len(current[t]))
-                position += len(current[t])
-            row = np.concatenate([current[t] for t in candidates])
-            frames, clock0 = _Blocks(len(row)), timestamp
-    if row is None:
-        if not candidates:
-            raise BadInput(f"{path}: no topic has a numeric field ({listed})")
-        waiting = [t for t in candidates if t not in current]
-        raise BadInput(f"{path}: topic {waiting[0]!r} sent no message, so no frame has every topic's value")
-    end = max(last_time.values())
-    while clock0 + round(tick * period) <= end:
-        frames.append(row)
-        tick += 1
-    feature_names = [name for t in candidates for name in names[t]]
-    n = tick
-    times = clock0 + np.round(np.arange(n) * period).astype(np.int64)
+            raise BadInput(f"{self.path}: topic {topic!r} goes back in time at {(timestamp - self.start) / 1e9:.6f} s "
+                           f"(after {(previous - self.start) / 1e9:.6f} s)")
+        self.last_time[topic] = timestamp
+        if self.row is not None:
+            while self.clock0 + round(self.tick * self.period) < timestamp:
+                self.frames.append(self.row)
+                self.tick += 1
+
+    def _discover(self, topic: str, msgtype: str, message: Any) -> None:
+        """A topic's first message: its numeric fields and their feature names, or the topic skipped."""
+        if topic in self.joint_states:  # by joint name, not by position
+            self.names[topic], self.extractors[topic] = self.joint_states[topic].names, self.joint_states[topic]
+            return
+        fields = _leaves(message, topic, msgtype)
+        if fields:
+            self.names[topic] = [name for group, _, _ in fields for name in group]
+            self.extractors[topic] = _extractor(fields)
+        elif self.named:
+            raise BadInput(f"{self.path}: topic {topic!r} ({msgtype}) has no numeric field")
+        else:
+            self.skipped.append(topic)
+            self.candidates.remove(topic)
+
+    def _values(self, topic: str, message: Any, timestamp: int) -> np.ndarray:
+        try:
+            return self.extractors[topic](message)
+        except JointMismatch as error:
+            raise BadInput(f"{self.path}: topic {topic!r} at {(timestamp - self.start) / 1e9:.6f} s: {error}") from None
+        except ValueError:
+            raise BadInput(f"{self.path}: topic {topic!r} changes its number of values at "
+                           f"{(timestamp - self.start) / 1e9:.6f} s; a topic's fields must keep their length") from None
+
+    def _first_tick(self, timestamp: int) -> None:
+        """Every topic has sent a message: the clock starts now, with their values side by side."""
+        self.current.update({t: state.freeze() for t, state in self.joint_states.items() if t in self.current})
+        position = 0
+        for t in self.candidates:
+            self.offsets[t] = (position, position + len(self.current[t]))
+            position += len(self.current[t])
+        self.row = np.concatenate([self.current[t] for t in self.candidates])
+        self.frames, self.clock0 = _Blocks(len(self.row)), timestamp
+
+    def finish(self, listed: str) -> None:
+        """After the last message: the ticks up to it, or an error if no tick has every topic's value."""
+        if self.row is None:
+            if not self.candidates:
+                raise BadInput(f"{self.path}: no topic has a numeric field ({listed})")
+            waiting = [t for t in self.candidates if t not in self.current]
+            raise BadInput(f"{self.path}: topic {waiting[0]!r} sent no message, so no frame has every topic's value")
+        end = max(self.last_time.values())
+        while self.clock0 + round(self.tick * self.period) <= end:
+            self.frames.append(self.row)
+            self.tick += 1
+
+
+def _recording(clock: _Clock, path: Path, rate: float, label_topic: str | None,
+               unlabelled: str | None) -> Recording:
+    """The ticks as a recording: times, labels, and the features column by column."""
+    n = clock.tick
+    times = clock.clock0 + np.round(np.arange(n) * clock.period).astype(np.int64)
     labels = np.full(n, None, dtype=object)
-    for (first, name), (after, _) in zip(label_changes, [*label_changes[1:], (n, None)]):
+    for (first, name), (after, _) in zip(clock.label_changes, [*clock.label_changes[1:], (n, None)]):
         labels[first:after] = name
     rows = np.arange(n)
     if label_topic:
@@ -184,18 +241,20 @@ def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, la
         times, labels, rows = times[keep], labels[keep], rows[keep]
         if not len(rows):
             raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
+    feature_names = [name for t in clock.candidates for name in clock.names[t]]
     columns = {}
     for i, name in enumerate(feature_names):  # one column at a time: the blocks and the frames, never a third copy
-        column = frames.column(i)
+        column = clock.frames.column(i)
         columns[name] = column[keep] if label_topic else column
-    del frames
+    clock.frames = None
     features = check_features(pl.DataFrame(columns), path, "{file} frame {row}", pl.Series(rows))
     return Recording(
         path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
-        time=pl.Series((times - start) / 1e9),
+        time=pl.Series((times - clock.start) / 1e9),
         label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
         row=pl.Series(rows), where="{file} frame {row}",
-        resolved={"topics": list(candidates), "rate": rate, "skipped_topics": skipped},
+        resolved={"topics": list(clock.candidates), "rate": rate, "skipped_topics": clock.skipped,
+                  "joints": {topic: state.columns for topic, state in clock.joint_states.items()}},
     )
 
 
@@ -241,7 +300,8 @@ def _leaves(message: Any, prefix: str, msgtype: str) -> list[tuple[list[str], Ca
             found.append(([name], _getter(path), False))
         elif isinstance(value, np.ndarray):
             if value.dtype.kind in "biuf" and value.dtype.itemsize > 1 and value.size:  # not bytes: images, blobs
-                labels = joints if joints is not None and len(joints) == value.size and len(path) == 1 else range(value.size)
+                by_joint = joints is not None and len(joints) == value.size and len(path) == 1
+                labels = joints if by_joint else range(value.size)
                 found.append(([f"{name}/{label}" for label in labels], _getter(path), True))
         elif isinstance(value, list):
             for k, item in enumerate(value):

@@ -26,6 +26,7 @@ from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 TABLE_SUFFIXES = (".csv", ".parquet")
 DEFAULT_TRAIN_SHARE = 0.7
+MAX_CLASSES = int(np.iinfo(np.int16).max) + 1  # frames.parquet keeps a label as Int16: 0 .. 32,767
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # features are stored as float32: a larger value would be inf
 
 
@@ -54,7 +55,28 @@ def column_names(path: Path) -> list[str]:
         return []  # unreadable: read_one names the problem
 
 
+def _check_utf8(path: Path) -> None:
+    """polars replaces bytes that are not UTF-8 without a word (a Latin-1 header becomes mojibake): refuse them."""
+    import codecs
+
+    decoder, line, chunk = codecs.getincrementaldecoder("utf-8")(), 1, b""
+    try:
+        with open(path, "rb") as handle:
+            while chunk := handle.read(1 << 20):
+                decoder.decode(chunk)
+                line += chunk.count(b"\n")
+            decoder.decode(b"", final=True)
+    except UnicodeDecodeError as error:
+        line += error.object[:error.start].count(b"\n")
+        raise BadInput(f"{path}:{line}: not UTF-8 text (byte {error.object[error.start]:#x}); save the file as "
+                       "UTF-8, e.g. iconv -f latin1 -t utf-8") from None
+    except OSError:
+        return  # unreadable: read_one names the problem
+
+
 def read_one(path: Path) -> pl.DataFrame:
+    if path.suffix.lower() == ".csv":
+        _check_utf8(path)
     names = column_names(path)
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -141,7 +163,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
         if missing:
-            raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}")
+            raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}"
+                           + _without_hint(missing, episode_col, time_col))
         keys = {columns.label, episode_col, time_col, "split"} - {None}  # never a feature, even when absent
         names = list(columns.features) or [
             c for c in table.columns if c not in keys and table[c].dtype.is_numeric()
@@ -169,8 +192,16 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
             label=table[label_col] if label_col else None,
             split=table["split"].cast(pl.String) if "split" in table.columns else None,
             row=rows, where=where,
+            resolved={"empty_columns": [c for c in table.columns if c not in keys and c not in names
+                                        and table[c].null_count() == table.height]},
         ))
     return recordings
+
+
+def _without_hint(missing: list[str], episode: str | None, time: str | None) -> str:
+    """How to read a table without the episode or time column a model remembers (or an option named)."""
+    flags = [flag for flag, name in (("--episode-column", episode), ("--time-column", time)) if name in missing]
+    return f"; to read it without, pass {' '.join(f'{flag} ' + repr('') for flag in flags)}" if flags else ""
 
 
 # ---- the one assembly --------------------------------------------------------------------------------------
@@ -203,7 +234,9 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...],
         if (recording.label is not None) != labelled:
             raise BadInput(f"{recording.path}: {'has no' if labelled else 'has'} labels, unlike {recordings[0].path}")
     if not labelled and not for_prediction:
-        raise BadInput(f"{recordings[0].path}: no labels; give a label column, or label intervals with --labels")
+        how = ("name a std_msgs/String topic of phase names with --label-topic" if "rate" in recordings[0].resolved
+               else "give a label column")  # a bag's reader resolves its clock
+        raise BadInput(f"{recordings[0].path}: no labels; {how}, or label intervals with --labels")
     episode_ids = _common_dtype([r.episode for r in recordings])
     labels = _common_dtype([r.label for r in recordings]) if labelled else None
     where = {str(r.path): r.where for r in recordings}
@@ -280,7 +313,8 @@ def _split(frames: pl.DataFrame, episode_index: np.ndarray, at) -> np.ndarray:
 def _check_time(frames: pl.DataFrame, at) -> None:
     """Time must rise strictly within each episode, in file order."""
     if frames["time"].is_null().any() or not frames["time"].is_finite().all():
-        first = frames.filter(frames["time"].is_null() | ~frames["time"].is_finite().fill_null(False)).row(0, named=True)
+        bad = frames["time"].is_null() | ~frames["time"].is_finite().fill_null(False)
+        first = frames.filter(bad).row(0, named=True)
         raise BadInput(f"{at(first)}: time is empty, NaN or infinite")
     step = frames.select(pl.col("time").diff().over("episode").alias("step"), "file", "row")
     bad = step.filter(pl.col("step").is_not_null() & (pl.col("step") <= 0))
@@ -290,7 +324,17 @@ def _check_time(frames: pl.DataFrame, at) -> None:
         raise BadInput(f"{at(first)}: time {what}; each episode's frames must rise strictly")
 
 
-def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
+def _check_class_count(frames: pl.DataFrame, values: np.ndarray, at) -> None:
+    """A numeric label is a class index: refuse one past the classes mlnseq stores before naming them all."""
+    bad = np.flatnonzero(values >= MAX_CLASSES)
+    if bad.size:
+        row = frames.row(int(bad[0]), named=True)
+        raise BadInput(f"{at(row)}: label {row['label']} is not a class index below {MAX_CLASSES:,}, the most "
+                       "classes mlnseq stores (labels are 16-bit); give the classes as text, or renumber them")
+
+
+def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at,
+                   min_classes: int = 2) -> tuple[np.ndarray, list[str]]:
     labels = frames["label"]
     if labels.is_null().any():
         first = frames.filter(labels.is_null()).row(0, named=True)
@@ -300,6 +344,7 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_class
         if not np.all(values == np.round(values)) or values.min() < 0:
             bad = frames.row(int(np.flatnonzero((values != np.round(values)) | (values < 0))[0]), named=True)
             raise BadInput(f"{at(bad)}: label {bad['label']:g} is not a class index 0, 1, ...")
+        _check_class_count(frames, values, at)
         indices = values.astype(np.int64)
         names = list(classes) or [str(k) for k in range(int(indices.max()) + 1)]
         if indices.max() >= len(names):
@@ -308,6 +353,9 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at, min_class
     else:
         text = labels.cast(pl.String).to_list()
         names = list(classes) or sorted(set(text))
+        if len(names) > MAX_CLASSES:
+            raise BadInput(f"{at(frames.row(0, named=True))}: the labels hold {len(names):,} classes; mlnseq stores "
+                           f"at most {MAX_CLASSES:,} (labels are 16-bit class indices)")
         lookup = {name: i for i, name in enumerate(names)}
         unknown = [i for i, t in enumerate(text) if t not in lookup]
         if unknown:

@@ -36,45 +36,113 @@ def label_runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(labels[s.start]), s.start, s.stop) for s in sequences.runs(np.asarray(labels))]
 
 
+def levenshtein(a: np.ndarray, b: np.ndarray) -> int:
+    """Levenshtein distance of two integer sequences, bit-parallel (Myers 1999, Hyyrö's global form): a column of
+    the distance table is a bit vector over ``a`` as one Python integer, so a step of ``b`` is a dozen word-wide
+    operations over len(a) / 64 words instead of len(a) cells. Exact; still len(a) x len(b) / 64 work."""
+    m = len(a)
+    if not m or not len(b):
+        return max(m, len(b))
+    positions: dict[int, int] = {}  # per symbol, the bits of the rows of a that hold it
+    for i, symbol in enumerate(a.tolist()):
+        positions[symbol] = positions.get(symbol, 0) | (1 << i)
+    mask, top = (1 << m) - 1, 1 << (m - 1)
+    plus, minus, distance = mask, 0, m  # vertical deltas +1 / -1 of the current column; D[m][j]
+    for symbol in b.tolist():
+        equal = positions.get(symbol, 0)
+        x_vertical = equal | minus
+        x_horizontal = ((((equal & plus) + plus) & mask) ^ plus) | equal
+        h_plus = minus | (mask & ~(x_horizontal | plus))
+        h_minus = plus & x_horizontal
+        distance += 1 if h_plus & top else -1 if h_minus & top else 0
+        h_plus = ((h_plus << 1) | 1) & mask  # row 0 of the table is 0, 1, 2, ...: a +1 enters at the top
+        h_minus = (h_minus << 1) & mask
+        plus = h_minus | (mask & ~(x_vertical | h_plus))
+        minus = h_plus & x_vertical
+    return distance
+
+
 def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
     """100·(1 − Levenshtein distance of the segment label sequences / the longer one's length)."""
-    p = np.array([r[0] for r in label_runs(predicted)], dtype=np.int64)
-    t = np.array([r[0] for r in label_runs(truth)], dtype=np.int64)
+    p, t = _runs_array(predicted)[:, 0], _runs_array(truth)[:, 0]
     if not len(p) and not len(t):
         return 100.0
-    columns = np.arange(len(t) + 1)
-    row = columns.copy()  # distances from the empty prefix of p
-    for i in range(1, len(p) + 1):
-        # deletion or substitution from the previous row, then insertions along this row: d[j] = min over k <= j
-        # of (best[k] + j - k), a running minimum
-        best = np.empty_like(row)
-        best[0] = i
-        best[1:] = np.minimum(row[1:] + 1, row[:-1] + (t != p[i - 1]))
-        row = np.minimum.accumulate(best - columns) + columns
-    return float(100 * (1 - row[-1] / max(len(p), len(t))))
+    return float(100 * (1 - levenshtein(p, t) / max(len(p), len(t))))
+
+
+def _runs_array(labels: np.ndarray, episodes: np.ndarray | None = None) -> np.ndarray:
+    """[label, start, stop] int64 rows of the maximal runs of one label (label_runs as an array), also cut where
+    ``episodes`` changes."""
+    labels = np.asarray(labels)
+    if not len(labels):
+        return np.zeros((0, 3), dtype=np.int64)
+    change = labels[1:] != labels[:-1]
+    if episodes is not None:
+        change |= np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]
+    starts = np.flatnonzero(np.r_[True, change])
+    stops = np.r_[starts[1:], len(labels)]
+    return np.stack([labels[starts].astype(np.int64), starts, stops], axis=1).astype(np.int64)
+
+
+def best_matches(p: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per predicted segment (rows [label, start, stop] of ``p``), the true segment of ``t`` (sorted in time, not
+    overlapping) with the highest IoU, -1 where the classes differ, and that IoU; the first maximum, as argmax over
+    every true segment takes it. Only the true segments a predicted one overlaps can have a positive IoU, and those
+    are a contiguous range found by binary search: O((P + T) log T) and the overlapping pairs, P + T at most when
+    both cover the same frames."""
+    n_p = len(p)
+    lo = np.searchsorted(t[:, 2], p[:, 1], side="right")  # the first true segment ending after p starts
+    hi = np.searchsorted(t[:, 1], p[:, 2], side="left")  # the first true segment starting at or after p's end
+    count = np.maximum(hi - lo, 0)
+    owner = np.repeat(np.arange(n_p), count)
+    first = np.cumsum(count) - count
+    pair_t = lo[owner] + np.arange(len(owner)) - first[owner]
+    ps, ts = p[owner], t[pair_t]
+    intersection = np.minimum(ps[:, 2], ts[:, 2]) - np.maximum(ps[:, 1], ts[:, 1])
+    union = np.maximum(ps[:, 2], ts[:, 2]) - np.minimum(ps[:, 1], ts[:, 1])
+    iou = np.where(ps[:, 0] == ts[:, 0], np.maximum(intersection, 0) / union, -1.0)
+    # without an overlapping true segment of its class: 0 at the first true segment of its class, else -1 at 0
+    classes, first_of_class = np.unique(t[:, 0], return_index=True)
+    place = np.minimum(np.searchsorted(classes, p[:, 0]), len(classes) - 1)
+    same = classes[place] == p[:, 0]
+    best = np.where(same, first_of_class[place], 0)
+    best_iou = np.where(same, 0.0, -1.0)
+    positive = iou > 0
+    if positive.any():
+        owners, pairs = owner[positive], np.flatnonzero(positive)
+        top = np.full(n_p, -np.inf)
+        np.maximum.at(top, owners, iou[positive])
+        at_top = iou[pairs] == top[owners]
+        chosen = np.full(n_p, len(owner))
+        np.minimum.at(chosen, owners[at_top], pairs[at_top])  # the first pair (in time) at the maximum
+        has = chosen < len(owner)
+        best[has], best_iou[has] = pair_t[chosen[has]], iou[chosen[has]]
+    return best, best_iou
+
+
+def overlap_counts_all(predicted: np.ndarray, truth: np.ndarray, overlaps: tuple[float, ...] = OVERLAPS,
+                       episodes: np.ndarray | None = None) -> dict[float, tuple[int, int, int]]:
+    """tp, fp, fn of segmental F1 at each of ``overlaps``: a predicted segment is a hit when its IoU with a not yet
+    matched true segment of the same class reaches the overlap (MS-TCN's f_score). Each predicted segment's best true
+    segment is found once for every overlap (:func:`best_matches`). With ``episodes``, the sums over its blocks
+    (segments cut where it changes) in one pass: a hit needs a positive IoU, so only overlaps above 0."""
+    if episodes is not None and min(overlaps) <= 0:
+        raise ValueError(f"overlaps over several episodes must be positive, got {min(overlaps)}")
+    p, t = _runs_array(predicted, episodes), _runs_array(truth, episodes)
+    if not len(t):
+        return {o: (0, len(p), 0) for o in overlaps}
+    best, best_iou = best_matches(p, t)
+    counts = {}
+    for o in overlaps:
+        # in time order a hit on an unmatched true segment counts, later hits on it are false positives
+        tp = len(np.unique(best[best_iou >= o]))
+        counts[o] = (tp, len(p) - tp, len(t) - tp)
+    return counts
 
 
 def overlap_counts(predicted: np.ndarray, truth: np.ndarray, overlap: float) -> tuple[int, int, int]:
-    """tp, fp, fn of segmental F1@overlap: a predicted segment is a hit when its IoU with a not yet
-    matched true segment of the same class reaches ``overlap`` (MS-TCN's f_score)."""
-    p, t = np.array(label_runs(predicted), dtype=np.int64).reshape(-1, 3), np.array(label_runs(truth), dtype=np.int64).reshape(-1, 3)
-    matched = np.zeros(len(t), dtype=bool)
-    if not len(t):
-        return 0, len(p), 0
-    # every predicted segment against every true one: IoU, -1 where the classes differ; the best is the first maximum
-    intersection = np.minimum(p[:, None, 2], t[None, :, 2]) - np.maximum(p[:, None, 1], t[None, :, 1])
-    union = np.maximum(p[:, None, 2], t[None, :, 2]) - np.minimum(p[:, None, 1], t[None, :, 1])
-    iou = np.where(p[:, None, 0] == t[None, :, 0], np.maximum(intersection, 0) / union, -1.0)
-    best = iou.argmax(axis=1)
-    best_iou = iou[np.arange(len(p)), best]
-    tp = fp = 0
-    for j, hit in zip(best.tolist(), (best_iou >= overlap).tolist()):
-        if hit and not matched[j]:
-            tp += 1
-            matched[j] = True
-        else:
-            fp += 1
-    return tp, fp, int((~matched).sum())
+    """tp, fp, fn of segmental F1@overlap (:func:`overlap_counts_all` at one overlap)."""
+    return overlap_counts_all(predicted, truth, (overlap,))[overlap]
 
 
 def f1(tp: int, fp: int, fn: int) -> float:
@@ -110,12 +178,8 @@ def score_method(
         "n_segments": len(spans),
     }
     if segmental:
-        edits, counts = [], {o: np.zeros(3, dtype=np.int64) for o in OVERLAPS}
-        for block in sequences.runs(episodes):
-            edits.append(edit_score(predictions[block], labels[block]))
-            for o in OVERLAPS:
-                counts[o] += overlap_counts(predictions[block], labels[block], o)
-        result["edit"] = float(np.mean(edits))
+        result["edit"] = float(np.mean([edit_score(predictions[b], labels[b]) for b in sequences.runs(episodes)]))
+        counts = overlap_counts_all(predictions, labels, OVERLAPS, episodes)  # tp, fp, fn summed over episodes
         for o in OVERLAPS:
-            result[f"f1@{int(o * 100)}"] = f1(*map(int, counts[o]))
+            result[f"f1@{int(o * 100)}"] = f1(*counts[o])
     return result

@@ -98,7 +98,7 @@ def test_temporal_bad_inputs_are_one_line_and_write_nothing(tmp_path: Path, shar
     spec.write_text('Topic("S1", p) ^ Next(p, q) => Topic("S1", q).\n')  # S1 -> S2 happens in training
     assert runner.invoke(app, ["formulas", "--spec", str(spec), "-w", str(tmp_path)]).exit_code == 0
     one_line_refusal(runner.invoke(app, ["learn-weights", "-w", str(tmp_path)]),
-                     "formulas.mln:", "hard formula", "training frame(s): episode 0 frame")
+                     f"{spec}:1: hard formula", "training frame(s): episode 0 frame")  # the user's file and line
     assert not (tmp_path / "weights.parquet").exists() and not (tmp_path / "learned.mln").exists()
     one_line_refusal(runner.invoke(app, ["learn-weights", "--objective", "ml", "-w", str(tmp_path)]), "--objective 'ml'")
     one_line_refusal(runner.invoke(app, ["learn-weights", "--engine", "pracmln", "-w", str(tmp_path)]),

@@ -59,7 +59,7 @@ def test_a_tcn_model_file_recognises_the_test_recording_as_conflate_did(tcn_work
     frames = pl.read_parquet(tcn_workdir / artifacts.FRAMES).filter(pl.col("split") == "test")
     expected = pl.read_parquet(tcn_workdir / artifacts.PREDICTIONS).filter(pl.col("split") == "test")
     model = Recognizer.load(model_path)
-    assert model.manifest["network"]["model"]["cell"] == "tcn"
+    assert model.manifest.network.model["cell"] == "tcn"
     probabilities, predicted = model.predict(frames.select(model.features).to_numpy())
     np.testing.assert_allclose(probabilities, expected.select(artifacts.prob_columns(name, 7)), atol=1e-5)
     assert (predicted == expected[artifacts.pred_column(name)].to_numpy()).all()

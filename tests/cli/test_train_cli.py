@@ -104,7 +104,9 @@ def test_training_progress_in_a_log_is_a_line_per_tenth_of_the_epochs(workdir):
     out = train_output(workdir, 20, terminal=False)
     lines = [line for line in out.splitlines() if line.startswith("training lstm")]
     assert [line.split(": epoch ")[1].split(",")[0] for line in lines] == [f"{e}/20" for e in range(2, 21, 2)]
-    assert all("loss " in line and "train " in line and "val –" in line and " s left" in line for line in lines)
+    # measured after the last epoch only (train's default --measure last-epoch): the line says so until then
+    assert all("not measured" in line and " s left" in line for line in lines[:-1])
+    assert all(part in lines[-1] for part in ("loss ", "train ", "val –", " s left"))
     assert "\r" not in out and "\x1b" not in out
 
 
@@ -115,3 +117,20 @@ def test_training_progress_on_a_terminal_is_a_bar(workdir):
     for epoch in (1, 2, 3):
         assert f"training lstm (segment mode): epoch {epoch}/3" in plain
     assert "loss " in plain and "train: wrote" in plain
+
+
+def test_method_network_is_the_network_alone_stored_as_lstm(workdir, tmp_path):
+    """--method network trains, scores and exports what --method lstm does (the name artifacts keep)."""
+    trained = invoke("train", "--method", "network", "--epochs", 1, "--mode", "stream", "-w", workdir)
+    assert trained.exit_code == 0, trained.output
+    assert artifacts.checkpoint_path(workdir, "lstm").exists() and not (workdir / "models" / "network.pt").exists()
+    assert invoke("conflate", "-w", workdir).exit_code == 0
+    by_alias, by_name = (invoke("eval", "--method", name, "--json", "-w", workdir) for name in ("network", "lstm"))
+    assert by_alias.exit_code == 0, by_alias.output
+    assert list(json.loads(by_alias.output)) == ["lstm"] and json.loads(by_alias.output) == json.loads(by_name.output)
+    exported = invoke("export", "--method", "network", "-o", tmp_path / "n.mlnseq", "-w", workdir)
+    assert exported.exit_code == 0, exported.output
+    shown = invoke("info", "--json", tmp_path / "n.mlnseq")
+    assert json.loads(shown.output)["method"] == "lstm" and json.loads(shown.output)["paper_floor"] == "clamp"
+    refused = invoke("train", "--method", "transformer", "-w", workdir)
+    assert refused.exit_code == 2 and "choose one of network, lstm, priorlayer" in refused.stderr

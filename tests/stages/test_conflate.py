@@ -108,7 +108,7 @@ def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tm
     table = pl.read_parquet(result.path)
     frames, meta = artifacts.read_table(tmp_path / artifacts.FRAMES, "frames")
     scores = workdir_inputs.mln_class_scores(tmp_path, frames, meta["classes"])[0]  # weights name the classes so
-    expected = np.exp(classifier.class_log_probs(scores, "exact", "desk"))
+    expected = np.exp(classifier.class_log_probs(scores, "exact", "clamp"))
     # each chain's first frame also weighs the start distribution fitted on the training split's episodes
     starts = chain.chain_starts(frames["episode"].to_numpy(), frames["split"].to_numpy() == "test")
     primed = expected[starts] * np.exp(artifacts.read_metadata(result.path, "predictions")["start"])

@@ -1,6 +1,7 @@
 """The layout's rules, read from the source: the files directly under stages/ are the stages, one per
 command, and its folders the libraries they share; no library imports a stage, the folders' imports run one
-way (no circle between folders, none between modules), and no module is over 400 lines."""
+way (no circle between folders, none between modules), no module is over 400 lines, no function over 60 and no
+line over 120 characters."""
 
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ from mlnseq_cli.main import COMMANDS
 REPO = Path(__file__).resolve().parents[2]
 STAGES = REPO / "stages"  # installed as the package `mlnseq`
 MAX_LINES = 400
+MAX_FUNCTION_LINES = 60  # from its def (or first decorator) to its last line
+MAX_LINE_CHARACTERS = 120
 
 
 def imported_modules(tree: ast.AST, package: str = "mlnseq") -> set[str]:
@@ -131,6 +134,43 @@ def test_no_module_under_stages_is_over_400_lines():
     long = {str(path.relative_to(REPO)): n for path in modules().values()
             if (n := len(path.read_text().splitlines())) > MAX_LINES}
     assert long == {}
+
+
+def long_functions(source: str) -> dict[str, int]:
+    """Each function (method, nested function) of ``source`` over MAX_FUNCTION_LINES lines, by its dotted name."""
+    found = {}
+
+    def visit(node: ast.AST, prefix: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            name = f"{prefix}{getattr(child, 'name', '')}"
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                first = min([child.lineno, *(d.lineno for d in child.decorator_list)])
+                if (length := child.end_lineno - first + 1) > MAX_FUNCTION_LINES:
+                    found[name] = length
+            visit(child, f"{name}." if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
+                  else prefix)
+
+    visit(ast.parse(source), "")
+    return found
+
+
+def test_no_function_under_stages_is_over_60_lines():
+    long = {f"{path.relative_to(REPO)}:{name}": n for path in modules().values()
+            for name, n in long_functions(path.read_text()).items()}
+    assert long == {}
+
+
+def test_no_line_under_stages_is_over_120_characters():
+    long = [f"{path.relative_to(REPO)}:{number} ({len(line)})" for path in modules().values()
+            for number, line in enumerate(path.read_text().splitlines(), start=1) if len(line) > MAX_LINE_CHARACTERS]
+    assert long == []
+
+
+def test_the_length_rules_measure_functions_whole():
+    body = "\n".join(f"    x = {i}" for i in range(59))
+    assert long_functions(f"def short():\n{body}\n") == {}  # 60 lines with its def
+    method = "\n".join(f"        x = {i}" for i in range(59))
+    assert long_functions(f"class A:\n    @staticmethod\n    def long():\n{method}\n        y = 1\n") == {"A.long": 62}
 
 
 def test_the_import_rule_sees_each_form_of_import():

@@ -310,5 +310,5 @@ def test_fold_weights_are_learned_without_their_fold(tmp_path: Path, shared_data
                                                                frames["split"].to_numpy())))
     expected = stage.learn(held_out, 7, parse_mln(TEMPORAL)).weights
     np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy())
-    with pytest.raises(BadInput, match="--folds 1: .* at most 70; use --folds 70"):
+    with pytest.raises(BadInput, match="--folds 1: .* at most 70; use --folds 5 \\(5 folds by block"):
         stage.run(tmp_path, stage.LearnWeightsOptions(folds=1))

@@ -26,7 +26,7 @@ def test_a_labelled_recording_is_recognised_and_scored_as_eval_scores_it(combine
                                                 output=tmp_path / "out.parquet"))
     table, meta = artifacts.read_table(result.path, "predicted")
     classes = meta["classes"]
-    assert table.columns == ["episode", "frame", "label", "class", *(artifacts.class_probability_column(name) for name in classes)]
+    assert table.columns == ["episode", "frame", "time", "label", "class", *(artifacts.class_probability_column(name) for name in classes)]
     assert table.height == 20_924 and set(table["class"]) <= set(classes)
     conflated = pl.read_parquet(desk_stream_workdir / artifacts.PREDICTIONS).filter(pl.col("split") == "test")
     expected = conflated[artifacts.pred_column("combined")].to_numpy()

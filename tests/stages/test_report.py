@@ -199,3 +199,19 @@ def test_a_folder_without_results_is_bad_input(tmp_path):
         report.run(report.ReportOptions(runs=tmp_path, out=tmp_path / "out"))
     with pytest.raises(BadInput, match="is not a folder"):
         report.run(report.ReportOptions(runs=tmp_path / "absent", out=tmp_path / "out"))
+
+
+def test_a_tcn_folder_s_rows_name_its_network_tcn():
+    """The stream table's D-tcn rows (networks trained with --cell tcn) say TCN, the paper folders' LSTM."""
+    names = [(d, m) for d in ("desk", "desk-tcn") for m in methods.METHODS]
+    metrics = pl.DataFrame({
+        "dataset": [d for d, _ in names], "mode": ["stream"] * len(names), "seed": [0] * len(names),
+        "method": [m for _, m in names], "metric": ["segment_accuracy"] * len(names), "item": ["0.5"] * len(names),
+        "value": [0.5] * len(names),
+    })
+    run = loading.Run(metrics, pl.DataFrame(), {}, {}, {}, loading.read_timings(Path("absent.tsv")))
+    rows = {(r[0], r[1]) for r in tables.stream_table(run)}
+    assert {name for folder, name in rows if folder == "desk-tcn"} == {
+        "TCN", "MLN", "TCN + PriorLayer", "TCN + Conflation", "PriorLayer + Conflation (combined)"}
+    assert {name for folder, name in rows if folder == "desk"} == set(tables.METHOD_NAMES.values())
+    assert tables.method_name("conflation+viterbi", "fetch-tcn") == "TCN + Conflation + Viterbi (offline)"

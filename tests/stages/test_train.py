@@ -95,7 +95,7 @@ def test_priorlayer_trains_on_the_learned_mln_weights(tmp_path, desk_mln_workdir
     checkpoint = checkpoints.load_checkpoint(tmp_path, "priorlayer")
     assert checkpoint.config["prior"] == "paper" and "prior.weight" in checkpoint.network.weights
     assert set(checkpoint.config["inputs"]) == {artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS}
-    assert result.trained.log.height == 4  # 2 epochs x (train, test)
+    assert result.trained.log.height == 2  # the last epoch (measure's default) x (train, test)
 
 
 def test_priorlayer_before_learn_weights_names_the_stage(desk_workdir):
@@ -133,9 +133,62 @@ def test_interrupted_save_keeps_the_previous_checkpoint(desk_workdir, monkeypatc
 
 
 def test_select_last_holds_out_a_validation_part_and_keeps_the_last_epoch(desk_workdir):
-    result = train.run(desk_workdir, train.TrainOptions(epochs=3, select="last", mode="stream"))
+    result = train.run(desk_workdir, train.TrainOptions(epochs=3, select="last", mode="stream",
+                                                            measure="every-epoch"))
     trained = result.trained
     assert trained.kept_epoch == 3 and trained.n_val_units > 0
     assert trained.log.filter(pl.col("split") == "val").height == 3
     spans = checkpoints.load_checkpoint(desk_workdir, "lstm").config["val_spans"]
     assert [tuple(s) for s in spans] == trained.val_spans and spans
+
+
+def test_the_paper_floor_is_chosen_at_train_time_and_conflate_floors_the_mln_with_it(tmp_path, desk_mln_workdir):
+    """--paper-floor is recorded in the checkpoint (default: the dataset's, clamp for DESK, shift for the Fetch
+    simulation); conflate floors the MLN's sums as the networks were trained, and refuses networks that disagree."""
+    from mlnseq import conflate
+    from mlnseq.catalog.methods import PaperFloor
+    from mlnseq.mln import classifier
+
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    assert PaperFloor.for_recordings("fetch") == "shift" and PaperFloor.for_recordings("desk") == "clamp"
+    train.run(tmp_path, train.TrainOptions(method="priorlayer", mode="stream", epochs=1, folds=0, paper_floor="shift"))
+    config = checkpoints.load_checkpoint(tmp_path, "priorlayer").config
+    assert config["paper_floor"] == config["options"]["paper_floor"] == "shift"
+    conflate.run(tmp_path, conflate.ConflateOptions())
+    predictions, meta = artifacts.read_table(tmp_path / artifacts.PREDICTIONS, "predictions")
+    scores = classifier.class_scores(pl.read_parquet(tmp_path / artifacts.PREDICATES),
+                                     pl.read_parquet(tmp_path / artifacts.WEIGHTS), meta["classes"])
+    mln = predictions.select(artifacts.prob_columns("mln", 7)).to_numpy()
+    assert meta["paper_floor"] == "shift"
+    assert np.allclose(mln, np.exp(classifier.class_log_probs(scores, "paper", "shift")), atol=1e-6)
+    assert not np.allclose(mln, np.exp(classifier.class_log_probs(scores, "paper", "clamp")), atol=1e-3)
+    train.run(tmp_path, train.TrainOptions(method="network", mode="stream", epochs=1, folds=0))
+    assert checkpoints.load_checkpoint(tmp_path, "lstm").config["paper_floor"] == "clamp"  # DESK's
+    with pytest.raises(BadInput, match="trained with different --paper-floor"):
+        conflate.run(tmp_path, conflate.ConflateOptions())
+
+
+def test_measuring_every_epoch_or_the_last_trains_the_same_network(desk_workdir):
+    """--measure changes what the log holds, never the network: the same weights, and the last-epoch log is the
+    every-epoch log's last epoch; progress reports scores only after the epochs measured."""
+    done = []
+    every = train.run(desk_workdir, train.TrainOptions(epochs=3, mode="stream", measure="every-epoch"))
+    weights = checkpoints.load_checkpoint(desk_workdir, "lstm").network.weights
+    last = train.run(desk_workdir, train.TrainOptions(epochs=3, mode="stream"), progress=done.append)
+    for name, value in checkpoints.load_checkpoint(desk_workdir, "lstm").network.weights.items():
+        np.testing.assert_array_equal(value, weights[name], err_msg=name)
+    assert every.trained.log.height == 6 and set(every.trained.log["epoch"]) == {1, 2, 3}
+    assert last.trained.log.equals(every.trained.log.filter(pl.col("epoch") == 3))
+    assert [d.loss is None for d in done] == [True, True, False]
+    _, meta = artifacts.read_table(last.log, "train_log")
+    assert meta["measured"] == "last-epoch" and "measure" not in meta["options"]
+
+
+def test_select_val_accuracy_measures_every_epoch_and_refuses_measuring_the_last_only():
+    assert train.TrainOptions(select="val_accuracy").measured == "every-epoch"
+    assert train.TrainOptions(select="last").measured == "last-epoch"
+    with pytest.raises(BadInput, match="--measure every-epoch"):
+        train.TrainOptions(select="val_accuracy", measure="last-epoch").validate()
+    with pytest.raises(BadInput):
+        train.TrainOptions(measure="sometimes").validate()

@@ -93,3 +93,86 @@ def test_edit_score_and_f1_counts_equal_the_cell_by_cell_definitions(desk_full_w
         for overlap in stage.OVERLAPS:
             assert stage.overlap_counts(predicted, truth, overlap) == reference_overlap_counts(predicted, truth, overlap)
     assert stage.overlap_counts(np.array([], dtype=np.int64), np.array([1, 1]), 0.5) == (0, 0, 1)
+
+
+def quadratic_overlap_counts(predicted: np.ndarray, truth: np.ndarray, overlap: float) -> tuple[int, int, int]:
+    """overlap_counts as it was before the matching became n log n: every predicted segment against every true one
+    (IoU, -1 where the classes differ), the first maximum."""
+    p = np.array(stage.label_runs(predicted), dtype=np.int64).reshape(-1, 3)
+    t = np.array(stage.label_runs(truth), dtype=np.int64).reshape(-1, 3)
+    matched = np.zeros(len(t), dtype=bool)
+    if not len(t):
+        return 0, len(p), 0
+    intersection = np.minimum(p[:, None, 2], t[None, :, 2]) - np.maximum(p[:, None, 1], t[None, :, 1])
+    union = np.maximum(p[:, None, 2], t[None, :, 2]) - np.minimum(p[:, None, 1], t[None, :, 1])
+    iou = np.where(p[:, None, 0] == t[None, :, 0], np.maximum(intersection, 0) / union, -1.0)
+    best = iou.argmax(axis=1)
+    best_iou = iou[np.arange(len(p)), best]
+    tp = fp = 0
+    for j, hit in zip(best.tolist(), (best_iou >= overlap).tolist()):
+        if hit and not matched[j]:
+            tp += 1
+            matched[j] = True
+        else:
+            fp += 1
+    return tp, fp, int((~matched).sum())
+
+
+def _label_sequences():
+    from hypothesis import strategies as st
+
+    def runs(draw_classes: int):
+        # runs of random lengths: short flickers and long segments, as predictions and labels have
+        return st.lists(st.tuples(st.integers(0, draw_classes - 1), st.integers(1, 12)), max_size=40).map(
+            lambda pairs: np.repeat(np.array([c for c, _ in pairs], dtype=np.int64),
+                                    [n for _, n in pairs]) if pairs else np.zeros(0, dtype=np.int64))
+
+    return st.integers(1, 5).flatmap(lambda k: st.tuples(runs(k), runs(k)))
+
+
+def test_overlap_counts_equal_the_quadratic_matching_on_random_label_sequences():
+    """The n log n matching gives the quadratic version's tp, fp, fn (ties: the first maximum) on random sequences of
+    equal length (a recording), of unequal length and empty, at the reported overlaps and at 0, 1/3 and 1; the
+    bit-parallel edit score the cell-by-cell table's."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    overlaps = (*stage.OVERLAPS, 0.0, 1 / 3, 1.0)
+
+    @settings(max_examples=400, deadline=None, derandomize=True, database=None)
+    @given(_label_sequences(), st.booleans())
+    def check(pair, same_length):
+        predicted, truth = pair
+        if same_length:
+            n = min(len(predicted), len(truth))
+            predicted, truth = predicted[:n], truth[:n]
+        counts = stage.overlap_counts_all(predicted, truth, overlaps)
+        for overlap in overlaps:
+            assert counts[overlap] == quadratic_overlap_counts(predicted, truth, overlap)
+        assert stage.edit_score(predicted, truth) == reference_edit_score(predicted, truth)  # bit-parallel = table
+
+    check()
+
+
+def test_overlap_counts_over_episodes_in_one_pass_are_the_sums_over_each_episode():
+    """score_method's F1@k: one pass over every episode gives the per-episode counts' sums (random episodes)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=200, deadline=None, derandomize=True, database=None)
+    @given(_label_sequences(), st.lists(st.integers(1, 15), min_size=1, max_size=8))
+    def check(pair, lengths):
+        predicted, truth = pair
+        n = min(len(predicted), len(truth))
+        predicted, truth = predicted[:n], truth[:n]
+        episodes = np.resize(np.repeat(np.arange(len(lengths)) % 3, lengths), n)  # an id may come back later
+        together = stage.overlap_counts_all(predicted, truth, stage.OVERLAPS, episodes)
+        for overlap in stage.OVERLAPS:
+            summed = np.zeros(3, dtype=np.int64)
+            for block in stage.sequences.runs(episodes):
+                summed += quadratic_overlap_counts(predicted[block], truth[block], overlap)
+            assert together[overlap] == tuple(summed.tolist())
+
+    check()
+    with pytest.raises(ValueError):
+        stage.overlap_counts_all(np.zeros(3, int), np.zeros(3, int), (0.0,), np.zeros(3, int))

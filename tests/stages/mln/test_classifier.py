@@ -29,9 +29,9 @@ def test_paper_mode_lands_near_the_papers_mln_accuracy(shared_data: Path) -> Non
     labels = test["label"].to_numpy()
     frames = segment_frames(labels)
     assert len(frames) == 725
-    accuracy = (class_log_probs(scores, "paper", "desk").argmax(axis=1)[frames] == labels[frames]).mean()
+    accuracy = (class_log_probs(scores, "paper", "clamp").argmax(axis=1)[frames] == labels[frames]).mean()
     assert 0.40 <= accuracy <= 0.58  # measured 0.491; the paper reports 49 %
-    log_probs = class_log_probs(scores, "exact", "desk")
+    log_probs = class_log_probs(scores, "exact", "clamp")
     assert np.allclose(np.exp(log_probs).sum(axis=1), 1.0)
 
 
@@ -48,8 +48,8 @@ def test_scores_follow_the_formula_bodies() -> None:
 
 def test_paper_prior_per_dataset() -> None:
     scores = np.array([[-1.0, 2.0, 0.5]])
-    assert paper_prior(scores, "desk").tolist() == [[0.0, 2.0, 0.5]]
-    assert paper_prior(scores, "fetch").tolist() == [[0.0, 3.0, 1.5]]
-    assert paper_prior(scores, "desk").dtype == np.float32
+    assert paper_prior(scores, "clamp").tolist() == [[0.0, 2.0, 0.5]]
+    assert paper_prior(scores, "shift").tolist() == [[0.0, 3.0, 1.5]]
+    assert paper_prior(scores, "clamp").dtype == np.float32
     expected = np.log(np.array([1.0, 3.0, 1.5]) / 5.5)
-    assert class_log_probs(scores, "paper", "desk")[0] == pytest.approx(expected)
+    assert class_log_probs(scores, "paper", "clamp")[0] == pytest.approx(expected)

@@ -14,7 +14,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.mln import chain, lag
 from mlnseq.mln.chain import ChainFactors
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
 def chain_of_workdir(workdir) -> tuple[ChainFactors, np.ndarray, np.ndarray]:

@@ -65,12 +65,12 @@ def test_conflate_scores_every_decoder_at_every_lag_with_forbidden_transitions(l
 
 def test_auto_chooses_within_the_budget_and_refuses_what_cannot_fit(live_workdir, tmp_path):
     auto = export.run(live_workdir, export.ExportOptions(method="auto", lag=3, output=tmp_path / "auto.mlnseq"))
-    chosen = auto.manifest["chosen_by_cross_validation"]
-    assert chosen["budget_frames"] == 3 and auto.manifest["lag"] <= 3
-    assert all("viterbi" not in name and "posterior" not in name for name in chosen["candidates"])
-    best = max(chosen["candidates"].values(), key=lambda f: (f["segment_accuracy"] + f["frame_accuracy"] + f["edit"]))
-    assert chosen["figures"] == best
-    assert auto.manifest["latency_s"] is None or auto.manifest["lag"] == 0  # DESK's frame rate is unknown
+    chosen = auto.manifest.chosen_by_cross_validation
+    assert chosen.budget_frames == 3 and auto.manifest.lag <= 3
+    assert all("viterbi" not in name and "posterior" not in name for name in chosen.candidates)
+    best = max(chosen.candidates.values(), key=lambda f: (f["segment_accuracy"] + f["frame_accuracy"] + f["edit"]))
+    assert chosen.figures == best
+    assert auto.manifest.latency_s is None or auto.manifest.lag == 0  # DESK's frame rate is unknown
     for options, needle in (
         (export.ExportOptions(method="auto", latency=1.0), "frame rate .* not known; give the budget as --lag"),
         (export.ExportOptions(method="auto", decode="smooth", lag=2), r"no cross-validated smooth candidate .* 2 fr"),
@@ -87,7 +87,7 @@ def test_auto_chooses_within_the_budget_and_refuses_what_cannot_fit(live_workdir
 
 def test_stream_answers_frame_t_once_t_plus_lag_arrived_as_predict_and_conflate(lagged_model, recording, live_workdir):
     path, frames = recording
-    assert lagged_model.manifest["lag"] == 3 and lagged_model.manifest["decode"] == "smooth-legal"
+    assert lagged_model.manifest.lag == 3 and lagged_model.manifest.decode == "smooth-legal"
     lines: list[str] = []
     text = "frame,time,arm_distance,left_gripper,right_gripper\n" + "".join(
         f"{row['frame']},{0.5 * i},{row['arm_distance']},{row['left_gripper']},{row['right_gripper']}\n"
@@ -101,7 +101,7 @@ def test_stream_answers_frame_t_once_t_plus_lag_arrived_as_predict_and_conflate(
                                                    output=path.parent / "p.parquet", force=True))
     assert [a["class"] for a in answers] == predicted.table["class"].to_list()
     stored = pl.read_parquet(live_workdir / "predictions.parquet").filter(pl.col("split") == "test").head(FRAMES)
-    classes = np.array(lagged_model.manifest["classes"])[stored["conflation+smooth-legal@3_pred"].to_numpy()]
+    classes = np.array(lagged_model.manifest.classes)[stored["conflation+smooth-legal@3_pred"].to_numpy()]
     # conflate decoded the whole test recording: its last 3 frames here saw later frames
     assert (classes[:-3] == np.array(predicted.table["class"].to_list())[:-3]).all()
 

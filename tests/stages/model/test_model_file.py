@@ -327,3 +327,63 @@ def test_classes_and_weights_that_disagree_are_refused(exported, tmp_path):
     refused(write(tmp_path / "predicates.mlnseq", resealed(exported["mln"], manifest)), "binarize.toml makes predicate columns")
     manifest = manifest_of(exported["mln"]) | {"classes": ["a", "a", "b", "c", "d", "e", "f"]}
     refused(write(tmp_path / "twice.mlnseq", resealed(exported["mln"], manifest)), "'classes' is not a list of unique strings")
+
+
+TCN_MODEL = {"n_features": 3, "n_classes": 7, "hidden_size": 32, "cell": "tcn", "prior_layer": True,
+             "kernel_size": 3, "levels": 5, "smoothing": 0.15}
+
+
+@pytest.mark.parametrize(("change", "needle"), [
+    ({"chosen_by_cross_validation": "yes"}, "manifest.json chosen_by_cross_validation is not an object"),
+    ({"chosen_by_cross_validation": {"method": "combined"}}, "chosen_by_cross_validation lacks 'name'"),
+    ({"network_weight_how": "guessed"}, "network_weight_how 'guessed' is not one this mlnseq runs"),
+    ({"network_weight": -1}, "'network_weight' is not null or a finite number from 0"),
+    ({"network_weight": "1"}, "'network_weight' is not null or a finite number from 0"),
+    ({"paper_floor": "zero"}, "paper_floor 'zero' is not one this mlnseq runs (clamp, shift)"),
+    ({"mln_mode": "fast"}, "mln_mode 'fast' is not one this mlnseq runs"),
+    ({"decode": "blur"}, "decoder 'blur' is not one this mlnseq runs"),
+    ({"decode": "smooth", "lag": None}, "lag must be a whole number of frames"),
+    ({"lag": 1.5}, "lag 1.5 is not a whole number of frames"),
+    ({"rate_hz": "fast"}, "rate_hz 'fast' is not null or a number >= 0"),
+    ({"reading": {"env": {"deep": 1}}}, "'reading' is not an object of option -> value"),
+    ({"reading": "table"}, "'reading' is not an object of option -> value"),
+    ({"source": 3}, "'source' is not a string"),
+    ({"validation_frame_accuracy": 1.5}, "'validation_frame_accuracy' is not null or a finite number from 0 to 1"),
+    ({"created": None}, "'created' is not a string"),
+    ({"extra": "x"}, "holds 'extra', which is not a field of a format 3 manifest"),
+    ({"network": {"mode": "sometimes"}}, "network mode 'sometimes' is not one this mlnseq runs"),
+    ({"network": {"kept_epoch": "last"}}, "network 'kept_epoch' is not a count"),
+    ({"network": {"seed": 1.5}}, "network 'seed' is not an integer"),
+    ({"network": {"prior": "vibes"}}, "network prior 'vibes' is not one this mlnseq runs"),
+    ({"network": {"model": TCN_MODEL | {"smoothing": "lots"}}}, "its network's smoothing is 'lots', not a number >= 0"),
+    ({"network": {"model": TCN_MODEL | {"smoothing": -1.0}}}, "its network's smoothing is -1.0, not a number >= 0"),
+    ({"network": {"model": TCN_MODEL | {"levels": 2.5}}}, "its network's levels is 2.5, not an integer"),
+    ({"network": {"model": TCN_MODEL | {"prior_layer": 1}}}, "its network's prior_layer is 1, not true or false"),
+])
+def test_every_manifest_field_is_checked(exported, tmp_path, change, needle):
+    manifest = manifest_of(exported["combined"])
+    for key, value in change.items():
+        manifest[key] = manifest[key] | value if key == "network" else value
+    refused(write(tmp_path / "field.mlnseq", resealed(exported["combined"], manifest)), needle)
+
+
+@pytest.mark.parametrize("key", ["paper_floor", "network_weight_how", "chosen_by_cross_validation", "reading"])
+def test_a_manifest_lacking_a_field_is_refused(exported, tmp_path, key):
+    manifest = {k: v for k, v in manifest_of(exported["combined"]).items() if k != key}
+    refused(write(tmp_path / "lacks.mlnseq", resealed(exported["combined"], manifest)), f"manifest.json lacks {key!r}")
+
+
+def test_a_format_2_model_file_is_refused_with_its_remedy(exported, tmp_path):
+    entries = members(exported["lstm"])
+    old = json.loads(entries[MANIFEST]) | {"format": 2}
+    refused(write(tmp_path / "old.mlnseq", entries | {MANIFEST: json.dumps(old).encode()}),
+            "is model-file format 2 from mlnseq")
+
+
+def test_a_learned_network_weight_of_0_is_kept(exported, tmp_path):
+    """CLL may learn the weight 0 (the network counts for nothing in the chain): the file loads and decodes with 0."""
+    manifest = manifest_of(exported["combined"]) | {"network_weight": 0.0, "network_weight_how": "learned"}
+    model = Recognizer(resealed(exported["combined"], manifest), "zero")
+    assert model.network_weight == 0.0 and model.manifest.network_weight_how == "learned"
+    shown = runner.invoke(app, ["info", str(write(tmp_path / "zero.mlnseq", resealed(exported["combined"], manifest)))])
+    assert shown.exit_code == 0 and "0 (learned on out-of-fold predictions)" in shown.stdout

@@ -130,8 +130,8 @@ def test_broken_and_foreign_model_files_are_refused_in_one_line(models, tmp_path
 
 def test_a_segment_mode_network_is_exported_with_a_note(desk_full_workdir, tmp_path):
     exported = export.run(desk_full_workdir, export.ExportOptions(method="lstm", output=tmp_path / "m.mlnseq"))
-    assert any("segment mode" in note for note in exported.manifest["notes"])
-    assert exported.manifest["network"]["mode"] == "segment"
+    assert any("segment mode" in note for note in exported.manifest.notes)
+    assert exported.manifest.network.mode == "segment"
 
 
 def test_decoding_refuses_an_unknown_kind(desk_stream_workdir):

@@ -18,7 +18,7 @@ from mlnseq.mln.grounding import AtomSpace, class_constant, expand_templates
 from mlnseq.mln.published_codes import desk_predicates
 from mlnseq.mln.syntax import parse_mln
 
-TEMPORAL = Path(__file__).resolve().parents[2] / "examples" / "temporal.mln"
+TEMPORAL = Path(__file__).resolve().parents[3] / "examples" / "temporal.mln"
 
 MIXED = """Has(word, page)
 Topic(class, page)

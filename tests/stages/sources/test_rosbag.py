@@ -211,7 +211,7 @@ def test_a_missing_reader_library_is_one_line_naming_the_extra(bags, tmp_path):
               f"sys.argv = ['mlnseq', 'collect', '--env', 'rosbag', '--source', {str(bags['bare'])!r}, '-w', {str(tmp_path)!r}]\n"
               "main()\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          cwd=Path(__file__).resolve().parents[2])
+                          cwd=Path(__file__).resolve().parents[3])
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip() == ("error: reading this format needs rosbags, which is not installed: "
                                    "pip install 'mlnseq[recordings]'")

@@ -1,0 +1,188 @@
+"""Live on ROS: 10 minutes of a 100 Hz /joint_states feed (60,000 messages) through the ROS node's core, and
+the same feed as `rostopic echo -p` rows through `mlnseq stream`, as fast as they go.
+
+The model: an lstm (stream mode, 40 epochs) trained on a ROS 1 bag of DESK's arm as /joint_states at 100 Hz
+(tests/ros_episode.py, as the ROS tests' model). Side by side in this run:
+
+- node core: each message serialized as ROS 1 sends it, then per message what `mlnseq ros` does on receipt
+  (deserialize into sensor_msgs/JointState with rospy's generated class, `MessageFeed.receive`: features by
+  joint name, the model's clock, the recogniser); messages per second, the real-time factor (600 s of feed
+  / wall time, target > 1), p50 and p99 per message, and resident memory after 10^4 messages and at the end
+  (flat: target growth < 10 MB). Needs rospy's message classes (`make setup` links Debian's ROS 1);
+  without them the rows below say so;
+- stream: `mlnseq stream` fed the 60,000 rows through a pipe; rows per second after start-up;
+- real master (where ROS 1 is installed): `rosmaster`, `mlnseq ros` and tests/ros_driver.py publishing 20 s of
+  /joint_states at 100 Hz (2,000 messages) and recording /mlnseq/activity/frame: frames answered, and how many
+  had arrived when the publisher exited 0.5 s after its last message (all of them when the node keeps up).
+
+The machine's load average is printed first: these machines are shared, and a preempted process shows in p99.
+
+``BENCH_QUICK=1`` feeds 6,000 messages (1 minute) instead.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))  # the ROS tests' episode writer: one definition of the messages
+SHARED = REPO.parent / "shared" / "data"
+MESSAGES = 6_000 if os.environ.get("BENCH_QUICK") else 60_000
+TARGET_RT, TARGET_GROWTH_MB = 1.0, 10.0
+
+
+def build_model(folder: Path):
+    import ros_episode
+    from mlnseq import collect, export, train
+    from mlnseq.sources import SourceOptions
+
+    rows = ros_episode.desk_rows(SHARED)
+    bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
+    workdir = folder / "work"
+    collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
+        topics=("/joint_states",), label_topic="/phase")))
+    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
+    return export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path, rows
+
+
+def resident_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def node_core(model_path: Path, rows: np.ndarray) -> None:
+    import ros_episode
+    from mlnseq.recognition.live import MessageFeed
+    from mlnseq.recognition.recognizer import Recognizer
+
+    try:
+        import rospy
+        from sensor_msgs.msg import JointState
+    except ImportError as error:
+        print(f"node core: skipped, rospy's message classes are not importable ({error})")
+        return
+    feed = MessageFeed(Recognizer.load(model_path), print, time.monotonic)
+    wire = []
+    for k in range(MESSAGES):  # the live rows, replayed: 100 Hz stamps throughout
+        t = ros_episode.START + k * ros_episode.STEP
+        message = JointState(name=ros_episode.JOINTS, position=rows[k % len(rows), :7].tolist())
+        message.header.stamp = rospy.Time(t // 10**9, t % 10**9)
+        buffer = io.BytesIO()
+        message.serialize(buffer)
+        wire.append(buffer.getvalue())
+    costs = np.empty(len(wire))  # held from the start: the benchmark's own list would grow the memory it measures
+    frames, memory, checkpoint = 0, float("nan"), min(10_000, len(wire) // 6)
+    started = time.perf_counter()
+    for k, data in enumerate(wire):
+        begin = time.perf_counter()
+        frames += len(feed.receive("/joint_states", JointState().deserialize(data), 0))
+        costs[k] = time.perf_counter() - begin
+        if k + 1 == checkpoint:
+            memory = resident_mb()
+    wall = time.perf_counter() - started
+    frames += len(feed.finish())
+    growth = resident_mb() - memory
+    feed_s = MESSAGES * ros_episode.STEP / 1e9
+    p50, p99 = 1e3 * np.percentile(costs, [50, 99])
+    print(f"node core: {MESSAGES:,} messages ({feed_s:,.0f} s of a 100 Hz feed) -> {frames:,} frames in {wall:.2f} s: "
+          f"{MESSAGES / wall:,.0f} messages/s, {feed_s / wall:,.0f}x real time (target > {TARGET_RT:g}x)")
+    print(f"node core: per message p50 {p50:.3f} ms, p99 {p99:.3f} ms (a 100 Hz feed leaves 10 ms)")
+    print(f"node core: resident memory {memory:.1f} MB after {checkpoint:,} messages, {growth:+.1f} MB by the end "
+          f"(target < {TARGET_GROWTH_MB:g} MB)")
+
+
+def stream_pipe(model_path: Path, rows: np.ndarray, folder: Path) -> None:
+    import ros_episode
+
+    lines = ros_episode.echo_csv(np.concatenate([rows] * (MESSAGES // len(rows) + 1))[:MESSAGES])
+    feed = folder / "echo.csv"
+    feed.write_text("\n".join(lines) + "\n")
+    mlnseq = str(Path(sys.executable).parent / "mlnseq")
+    begin = time.perf_counter()
+    subprocess.run([mlnseq, "stream", str(model_path)], input=(lines[0] + "\n").encode(), capture_output=True,
+                   check=True)
+    startup = time.perf_counter() - begin
+    begin = time.perf_counter()
+    with open(feed, "rb") as source:
+        done = subprocess.run([mlnseq, "stream", str(model_path)], stdin=source, capture_output=True, check=True)
+    wall = time.perf_counter() - begin
+    answered = done.stdout.count(b"\n")
+    print(f"stream: `rostopic echo -p` rows -> {answered:,} frames in {wall:.2f} s ({startup:.2f} s start-up): "
+          f"{MESSAGES / max(wall - startup, 1e-9):,.0f} rows/s after start-up")
+
+
+def real_master(model_path: Path, rows: np.ndarray, folder: Path) -> None:
+    import shutil
+    import signal
+    import socket
+
+    import ros_episode
+
+    if shutil.which("rosmaster") is None:
+        print("real master: skipped, rosmaster is not installed (`make setup` as root on Debian installs it)")
+        return
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1",
+           "ROS_HOME": str(folder / "ros"), "PYTHONUNBUFFERED": "1",
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO / "tests"), os.environ.get("PYTHONPATH")]))}
+    count = 2_000
+    np.save(folder / "rows.npy", np.concatenate([rows] * (count // len(rows) + 1))[:count])
+    record, started = folder / "node.jsonl", []
+    driver = [sys.executable, str(REPO / "tests" / "ros_driver.py")]
+
+    def start(args, **kwargs):
+        started.append(subprocess.Popen(args, env=env, start_new_session=True, stderr=subprocess.DEVNULL, **kwargs))
+        return started[-1]
+
+    try:
+        start(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL)
+        time.sleep(1.5)
+        start([str(Path(sys.executable).parent / "mlnseq"), "ros", str(model_path)])
+        recorder = start([*driver, "record", "/mlnseq/activity/frame", str(record)], stdout=subprocess.PIPE, text=True)
+        if recorder.stdout.readline().strip() != "ready":
+            print("real master: the recorder found no node")
+            return
+        publisher = start([*driver, "publish", str(folder / "rows.npy"), "1"], stdout=subprocess.DEVNULL)
+        publisher.wait(120)
+        at_exit = len(record.read_text().splitlines())  # the driver exits 0.5 s after its last message
+        deadline = time.monotonic() + 30
+        while len(record.read_text().splitlines()) < count - 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        answered = len(record.read_text().splitlines())
+    finally:
+        for process in reversed(started):
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+    print(f"real master: {count:,} messages at 100 Hz ({count * ros_episode.STEP / 1e9:.0f} s) -> {answered:,} frames "
+          f"answered (the last tick waits for a later message), {at_exit:,} of them already when the publisher exited "
+          "0.5 s after its last message")
+
+
+def main() -> None:
+    print(f"load average: {' '.join(Path('/proc/loadavg').read_text().split()[:3])} on {os.cpu_count()} cores")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        model, rows = build_model(folder)
+        import ros_episode
+
+        live = rows[ros_episode.TRAIN_FRAMES:]
+        node_core(model, live)
+        stream_pipe(model, live, folder)
+        real_master(model, live, folder)
+
+
+if __name__ == "__main__":
+    main()

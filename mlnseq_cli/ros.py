@@ -1,0 +1,28 @@
+"""`mlnseq ros`: a ROS 1 node recognising the model's topics live."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from mlnseq_cli.console import counted, reported_errors
+from mlnseq import ros as stage
+
+
+def ros(
+    model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`, trained on ROS bags.", dir_okay=False)],
+    topic: Annotated[str, typer.Option(help="Where the activity goes (std_msgs/String, the class name); TOPIC/frame gets the frame as JSON (time, class, probabilities).")] = stage.ACTIVITY_TOPIC,
+    name: Annotated[str, typer.Option(help="The node's name.")] = "mlnseq",
+) -> None:
+    """Subscribe to the topics MODEL was trained on (it remembers them, and their rate), recognise every tick of its clock as predict and stream do, and publish the class name on --topic and the frame as JSON ({"episode", "frame", "time", "class", "probabilities"}, as stream writes it) on TOPIC/frame. Needs rospy (ROS 1) and a running master (ROS_MASTER_URI). A message the model cannot use is one line on stderr and the node goes on; SIGINT or SIGTERM stops it."""
+    options = stage.RosOptions(model=model, activity_topic=topic, node_name=name)
+
+    def warn(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    with reported_errors():
+        summary = stage.run(options, warn)
+    warn(f"ros: stopped after {counted(summary.frames, 'frame')} ({counted(summary.errors, 'bad message')})")

@@ -1,0 +1,59 @@
+"""`mlnseq sweep`: a grid of stage options times seeds, run as a Snakemake workflow, locally or on SLURM."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from mlnseq_cli.console import console, reported_errors
+from mlnseq import conflate, export, train
+from mlnseq import sweep as stage
+from mlnseq.catalog.errors import BadInput
+
+# The stages whose options a grid sets (the command line wires them: the sweep stage imports no other stage).
+STAGES = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
+
+
+def sweep(
+    sweep_file: Annotated[Path, typer.Argument(help="The sweep file (TOML): [sweep] workdir and seeds, [grid] option = [values].", dir_okay=False)],
+    cores: Annotated[Optional[int], typer.Option(help="Locally: cores to use \\[default: all]. With --executor slurm: jobs at once \\[default: the profile's].", show_default=False)] = None,
+    executor: Annotated[str, typer.Option(help="local (this machine) or slurm (one cluster job per rule, needs --profile).")] = stage.Executor.LOCAL.value,
+    profile: Annotated[Optional[Path], typer.Option(help="A Snakemake profile folder (config.yaml): the cluster's partition, resources per rule, status command.", file_okay=False)] = None,
+    out: Annotated[Optional[Path], typer.Option(help="Where the workflow, the runs and results.parquet go \\[default: sweep/ beside the sweep file].", file_okay=False)] = None,
+    yes: Annotated[bool, typer.Option("--yes", help="Run a grid of more than 1,000 configs.")] = False,
+) -> None:
+    """Read SWEEP_FILE and its dataset workdir (frames, predicates, weights and fold weights); write OUT/Snakefile, OUT/sweep.json, per config and seed OUT/runs/CONFIG/seed-N (train, conflate --decode all, eval, the inputs linked), with a grid key formulas OUT/formulas/STEM (formulas, learn-weights --folds K) and OUT/results.parquet: per config its cross-validated segment and frame accuracy and edit (means over seeds, with spreads), the test figures for display only, and the `mlnseq export` command that deploys it. A rerun does only what is missing or stale. The last line names the best config by cross-validation."""
+    with reported_errors():
+        try:
+            chosen = stage.Executor(executor)
+        except ValueError:
+            raise BadInput(f"unknown --executor {executor!r}: choose one of "
+                           f"{', '.join(e.value for e in stage.Executor)}") from None
+        options = stage.SweepOptions(cores=cores, executor=chosen, profile=profile, out=out,
+                                     limit=None if yes else stage.grid.MAX_CONFIGS)
+        swept = stage.run(sweep_file, options, STAGES)
+    console.print("cross-validated on the training split (mean ± spread over seeds); test only for display:",
+                  highlight=False)
+    for line in summary_lines(swept):
+        console.print(line, highlight=False, markup=False)
+    console.print(f"[green]sweep[/]: wrote {swept.path} ({swept.table.height} configs)")
+    best = swept.best
+    console.print(f"best by cross-validation: {best['config']} ({best['method']}): segment accuracy "
+                  f"{best['cv_segment_accuracy']:.1f} ± {best['cv_segment_accuracy_std']:.1f} %, frame accuracy "
+                  f"{best['cv_frame_accuracy']:.1f} ± {best['cv_frame_accuracy_std']:.1f} %, edit "
+                  f"{best['cv_edit']:.1f} ± {best['cv_edit_std']:.1f}; deploy it: {best['deploy']}",
+                  highlight=False, markup=False)
+
+
+def summary_lines(swept: stage.Swept) -> list[str]:
+    """The configs as aligned plain lines, best cross-validated score first; test figures are shown, never ranked on."""
+    header = ("config", "method", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %", "test edit")
+    rows = [header]
+    for row in swept.table.sort("cv_score", descending=True, maintain_order=True).iter_rows(named=True):
+        rows.append((row["config"], row["method"],
+                     *(f"{row[f'cv_{f}']:.1f} ± {row[f'cv_{f}_std']:.1f}" for f in stage.results.FIGURES),
+                     *(f"{row[f'test_{f}']:.1f}" for f in stage.results.FIGURES)))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    return ["  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]

@@ -1,0 +1,128 @@
+"""Fitting a network with torch: plain SGD over padded sequences, and its per-epoch evaluation. The train stage
+decides which rows fit and which are scored (stages/train.py); recognition runs a trained network in numpy
+(stages/networks/network.py)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from mlnseq import networks
+from mlnseq.timeline import sequences
+
+if TYPE_CHECKING:  # torch loads only when a network is built or run
+    import torch
+
+    from mlnseq.networks.classifier import SequenceClassifier
+
+
+def resolve_device(name: str) -> torch.device:
+    import torch
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def set_threads() -> None:
+    """Small recurrent nets run fastest on one thread (measured: 8x faster than two on this 2-core CPU)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def predict_log_probs(
+    model: SequenceClassifier, spans: list[slice], features: np.ndarray, prior: np.ndarray | None,
+    device: torch.device,
+) -> np.ndarray:
+    """Class log-probabilities of every row covered by ``spans`` (each span a fresh sequence): the per-epoch
+    evaluation of training."""
+    import torch
+
+    model.eval()
+    out = np.zeros((len(features), model.config.n_classes), dtype=np.float32)
+    ordered = sorted(spans, key=lambda s: s.stop - s.start)  # similar lengths share a batch
+    for i in range(0, len(ordered), networks.INFERENCE_BATCH):
+        batch = ordered[i : i + networks.INFERENCE_BATCH]
+        x = torch.from_numpy(sequences.pad(batch, features)).to(device)
+        p = None if prior is None else torch.from_numpy(sequences.pad(batch, prior)).to(device)
+        with torch.inference_mode():
+            log_probs = model(x, p)[0].cpu().numpy()
+        for j, span in enumerate(batch):
+            out[span] = log_probs[j, : span.stop - span.start]
+    return out
+
+
+def accuracy_and_loss(log_probs: np.ndarray, labels: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
+    """Frame accuracy and mean NLL of ``rows``."""
+    if not rows.any():
+        return float("nan"), float("nan")
+    lp = log_probs[rows]
+    y = labels[rows]
+    return float((lp.argmax(1) == y).mean()), float(-lp[np.arange(len(y)), y].mean())
+
+
+def sgd_step(parameters: list[torch.Tensor], learning_rate: float) -> None:
+    """Plain SGD, the update torch.optim.SGD makes without momentum (whose first use imports torch._dynamo,
+    a second or two of every training run's start-up)."""
+    import torch
+
+    with torch.no_grad():
+        for parameter in parameters:
+            parameter.add_(parameter.grad, alpha=-learning_rate)
+
+
+@dataclass
+class Fitting:
+    """A network being fitted: the model, its fit units padded into tensors (features, prior, labels padded with
+    -100, lengths) and the generator of the batch order."""
+
+    model: SequenceClassifier
+    tensors: tuple[Any, Any, Any, Any]
+    rng: np.random.Generator
+    device: torch.device
+
+    @classmethod
+    def start(cls, config: Any, features: np.ndarray, prior: np.ndarray | None, labels: np.ndarray,
+              fit_units: list[slice], seed: int, device: torch.device) -> Fitting:
+        """A new network of ``config`` (its initial weights from ``seed``) over the rows of ``fit_units``."""
+        import torch
+
+        from mlnseq.networks.classifier import SequenceClassifier
+
+        torch.manual_seed(seed)
+        model = SequenceClassifier(config).to(device)
+        tensors = (torch.from_numpy(sequences.pad(fit_units, features)).to(device),
+                   None if prior is None else torch.from_numpy(sequences.pad(fit_units, prior)).to(device),
+                   torch.from_numpy(sequences.pad(fit_units, labels, fill=-100)).to(device),
+                   torch.as_tensor(sequences.lengths(fit_units), device=device))
+        return cls(model, tensors, np.random.default_rng(seed), device)
+
+    def epoch(self, batch_size: int, learning_rate: float) -> None:
+        """One pass of SGD over the fit units in a random order, ``batch_size`` units a step."""
+        import torch
+
+        x_all, p_all, y_all, n_all = self.tensors
+        n_classes = self.model.config.n_classes
+        parameters = list(self.model.parameters())
+        self.model.train()
+        order = self.rng.permutation(len(n_all))
+        for start in range(0, len(order), batch_size):
+            index = torch.as_tensor(order[start : start + batch_size], device=self.device)
+            longest = int(n_all[index].max())
+            y = y_all[index, :longest]
+            log_probs = self.model(x_all[index, :longest], None if p_all is None else p_all[index, :longest])[0]
+            frame_loss = torch.nn.functional.nll_loss(
+                log_probs.reshape(-1, n_classes), y.reshape(-1), reduction="none", ignore_index=-100
+            ).view(y.shape)
+            # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
+            loss = (frame_loss.sum(1) / n_all[index]).mean()
+            extra = self.model.auxiliary_loss(log_probs, y != -100)
+            if extra is not None:
+                loss = loss + extra
+            for parameter in parameters:
+                parameter.grad = None
+            loss.backward()
+            sgd_step(parameters, learning_rate)

@@ -1,0 +1,103 @@
+"""A user's folder of ROS 2 bags made from the real DESK Taurus kinematics: one bag per trial (a trial starts
+where the surgeme returns to S1), /joint_states of both arms (x, y, z, three angles, gripper opening, as
+`left_x` ... `right_gripper`) at 50 Hz and a /phase std_msgs/String topic of the surgeme's name. Written with
+rosbags' own writer, as tests/stages/sources/test_rosbag.py does.
+
+Run as a script to write them: ``python tests/desk_bags.py FOLDER`` (the first 6 trials into FOLDER, the
+7th and the partial 8th into FOLDER-heldout).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+STEP, START = 20_000_000, 1_700_000_000 * 10**9  # 50 Hz
+JOINTS = [f"{arm}_{name}" for arm in ("left", "right") for name in ("x", "y", "z", "roll", "pitch", "yaw", "gripper")]
+
+# The paper's DESK predicates written by hand for these bags (stages/specs/desk.binarize.toml's rules on the raw
+# channels: gripper opening in percent, the arms' distance from their positions).
+HAND_SPEC = """[[channel]]
+name = "arm_distance"
+kind = "distance"
+from = ["/joint_states/position/left_x", "/joint_states/position/left_y", "/joint_states/position/left_z"]
+to = ["/joint_states/position/right_x", "/joint_states/position/right_y", "/joint_states/position/right_z"]
+
+[[predicate]]
+name = "arm_distance"
+kind = "change"
+channel = "arm_distance"
+threshold = 0.001
+
+[[predicate]]
+name = "left_gripper"
+kind = "gripper"
+channel = "/joint_states/position/left_gripper"
+open_above = 90.0
+closed_below = 35.0
+threshold = 5.0
+
+[[predicate]]
+name = "right_gripper"
+kind = "gripper"
+channel = "/joint_states/position/right_gripper"
+open_above = 90.0
+closed_below = 35.0
+threshold = 5.0
+
+[[predicate]]
+name = "grippers"
+kind = "pair"
+of = ["left_gripper", "right_gripper"]
+"""
+
+
+def trials(desk: np.ndarray) -> list[np.ndarray]:
+    """The DESK training file cut where the surgeme returns to S1 (label 0) from another."""
+    labels = desk[:, -1].astype(int)
+    starts = [0] + [i for i in range(1, len(labels)) if labels[i] == 0 and labels[i - 1] != 0]
+    return [desk[a:b] for a, b in zip(starts, starts[1:] + [len(desk)])]
+
+
+def write_bag(path: Path, trial: np.ndarray, every: int = 1) -> Path:
+    """One ROS 2 bag (MCAP storage) of a trial's frames (each ``every``-th), with its /phase."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from mlnseq.sources.desk import CLASSES
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Header, Time, String = (store.types[n] for n in (
+        "sensor_msgs/msg/JointState", "std_msgs/msg/Header", "builtin_interfaces/msg/Time", "std_msgs/msg/String"))
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        phase = writer.add_connection("/phase", String.__msgtype__, typestore=store)
+        previous = None
+        for k, row in enumerate(trial[::every]):
+            t = START + k * STEP
+            if row[-1] != previous:
+                previous = row[-1]
+                writer.write(phase, t, store.serialize_cdr(String(data=CLASSES[int(previous)]), String.__msgtype__))
+            message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="base"),
+                                 name=JOINTS, position=row[:14].copy(), velocity=np.zeros(0), effort=np.zeros(0))
+            writer.write(joints, t, store.serialize_cdr(message, JointState.__msgtype__))
+    return path
+
+
+def write_folders(desk: np.ndarray, folder: Path, heldout: Path, every: int = 1) -> tuple[Path, Path]:
+    """The first 6 trials as bags in ``folder``, the rest as one bag in ``heldout`` (a folder of one bag)."""
+    cut = trials(desk)
+    folder.mkdir(parents=True)
+    heldout.mkdir(parents=True)
+    for k, trial in enumerate(cut[:6], start=1):
+        write_bag(folder / f"trial_{k}", trial, every)
+    write_bag(heldout / "trial_7", np.concatenate(cut[6:]), every)
+    return folder, heldout
+
+
+if __name__ == "__main__":
+    out = Path(sys.argv[1])
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "desk-taurus" / "taurus_kinematics_train.txt"
+    write_folders(np.loadtxt(data), out, out.with_name(out.name + "-heldout"))

@@ -1,0 +1,170 @@
+"""`rostopic echo -p /joint_states` into stream (no ROS needed): the rows are put on the model's clock as collect
+put the training bag on it, so a 1 kHz feed and a 100 Hz feed both give predict's frames on a bag of the same
+messages; each answer carries its frame's time; bad rows are one line each and the stream goes on."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import io
+import json
+
+import numpy as np
+import polars as pl
+import pytest
+
+pytest.importorskip("rosbags", reason="the [recordings] extra is not installed")
+
+import ros_episode  # noqa: E402
+from mlnseq import predict, stream  # noqa: E402
+from mlnseq.catalog import artifacts  # noqa: E402
+from mlnseq.catalog.errors import BadInput  # noqa: E402
+from mlnseq.recognition import live  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def expected(joint_state_model, tmp_path_factory) -> pl.DataFrame:
+    """predict on a ROS 1 bag of the live rows at 100 Hz."""
+    folder = tmp_path_factory.mktemp("live-bag")
+    bag = ros_episode.write_bag(folder / "live.bag", joint_state_model["live"])
+    options = predict.PredictOptions(model=joint_state_model["model"], source=bag, output=folder / "p.parquet")
+    return predict.run(options).table
+
+
+def run_stream(model, lines: list[str], **options) -> tuple[list[dict], list[str]]:
+    out, err = [], []
+    source = io.BytesIO(("\n".join(lines) + "\n").encode())
+    stream.run(stream.StreamOptions(model=model, **options), source, out.append, err.append)
+    return [json.loads(line) for line in out], err
+
+
+@pytest.mark.parametrize("repeat", [1, 10])
+def test_a_100_hz_and_a_1_khz_feed_give_predicts_frames_on_the_bag(joint_state_model, expected, repeat):
+    rows = joint_state_model["live"]
+    answers, notes = run_stream(joint_state_model["model"], ros_episode.echo_csv(rows, repeat))
+    assert len(answers) == expected.height == len(rows)
+    assert [a["class"] for a in answers] == expected["class"].to_list()
+    classes = list(answers[0]["probabilities"])
+    got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
+    want = expected.select(artifacts.class_probability_column(c) for c in classes).to_numpy()
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    warned = [n for n in notes if n.startswith("warning:")]
+    assert warned == ([] if repeat == 1 else
+                      ["warning: /joint_states arrives at 1000 Hz, the model's clock is 100 Hz (more than 2x apart): "
+                       "each frame holds the last message at its tick, as collect read the bags"])
+
+
+def test_bad_rows_are_one_line_each_and_the_stream_goes_on(joint_state_model, expected):
+    lines = ros_episode.echo_csv(joint_state_model["live"][:6])
+    header, good = lines[0], lines[1:]
+    no_time = good[1].split(",")
+    no_time[0] = no_time[2] = "0"
+    other_joint = good[2].replace("panda_joint3", "elbow")
+    back = good[0]  # the first message again, after the fourth: back in time
+    text = good[3].split(",")
+    text[-1] = "nan?"
+    feed = [header, good[0], ",".join(no_time), good[1], other_joint, good[2], good[3], back, ",".join(text),
+            "1,2", good[4], good[5]]
+    answers, notes = run_stream(joint_state_model["model"], feed)
+    assert [a["class"] for a in answers] == expected["class"].to_list()[:6]
+    errors = [n for n in notes if n.startswith("error:")]
+    assert [e.split(":")[1].strip() for e in errors] == ["line 3", "line 5", "line 8", "line 9", "line 10"]
+    assert "no time" in errors[0] and "no position of joint 'panda_joint3'" in errors[1]
+    assert "goes back in time" in errors[2] and "'nan?', not a number" in errors[3] and "2 fields" in errors[4]
+    with pytest.raises(stream.InputLine, match="line 3: no time"):
+        run_stream(joint_state_model["model"], feed, strict=True)
+
+
+def test_a_feed_of_another_type_or_a_model_of_two_topics_is_refused_at_the_start(joint_state_model):
+    from mlnseq.recognition.recognizer import Recognizer
+
+    model = joint_state_model["model"]
+    with pytest.raises(BadInput, match=r"the feed has no joint names \(field.name0 ...\) for the model.s feature "
+                       r"./joint_states/position/panda_joint1.: is it `rostopic echo -p /joint_states`"):
+        run_stream(model, ["%time,field.data", "1700000000000000000,1.5"])
+    two = Recognizer.load(model)
+    two.manifest = dataclasses.replace(two.manifest, reading={**two.manifest.reading,
+                                                               "topics": ["/joint_states", "/gripper"]})
+    with pytest.raises(BadInput, match=r"reads 2 topics \(/joint_states, /gripper\) and `rostopic echo -p` shows one: "
+                       r"run the node `mlnseq ros MODEL`"):
+        live.echo_topic(live.LiveRecognizer(two, print))
+
+
+def test_a_model_not_read_from_bags_knows_no_topics(joint_state_model):
+    from mlnseq.recognition.recognizer import Recognizer
+
+    model = Recognizer.load(joint_state_model["model"])
+    model.manifest = dataclasses.replace(model.manifest, reading={"env": "table"})
+    with pytest.raises(BadInput, match="read with --env table, not from ROS bags"):
+        live.LiveRecognizer(model, print)
+
+
+def test_ctrl_c_answers_the_ticks_up_to_the_last_row_read(joint_state_model):
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    lines = ros_episode.echo_csv(joint_state_model["live"][:5])
+    process = subprocess.Popen([str(Path(sys.executable).parent / "mlnseq"), "stream", str(joint_state_model["model"])],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        process.stdin.write("\n".join(lines) + "\n")
+        process.stdin.flush()
+        answers = [json.loads(process.stdout.readline()) for _ in range(4)]  # a tick waits for a later message
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    answers += [json.loads(line) for line in out.splitlines()]
+    assert process.returncode == 130, err
+    assert [a["frame"] for a in answers] == [0, 1, 2, 3, 4]
+
+
+def test_two_topics_on_the_clock_as_collect_reads_their_bag(joint_state_model, tmp_path):
+    """/joint_states at 100 Hz and /gripper at 20 Hz from 55 ms on (the clock starts there), as a bag read by
+    collect at 100 Hz and as messages through HoldLast one at a time, the gripper also sent at 1 kHz."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from mlnseq import sources
+    from mlnseq.sources import SourceOptions, rostopic
+    from mlnseq.sources.recording import Labels, TableColumns
+
+    rows = joint_state_model["live"][:200]
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Float64 = store.types["sensor_msgs/msg/JointState"], store.types["std_msgs/msg/Float64"]
+    Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    start, step = ros_episode.START, ros_episode.STEP
+    messages = [(start + k * step, "/joint_states", row[:7]) for k, row in enumerate(rows)]
+    messages += [(start + 55_000_000 + k * 50_000_000, "/gripper", np.array([float(k)])) for k in range(39)]
+    messages.sort(key=lambda m: (m[0], m[1] != "/joint_states"))
+    with Writer(tmp_path / "two.bag") as writer:
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        gripper = writer.add_connection("/gripper", Float64.__msgtype__, typestore=store)
+        for t, topic, values in messages:
+            if topic == "/gripper":
+                writer.write(gripper, t, store.serialize_ros1(Float64(data=values[0]), Float64.__msgtype__))
+            else:
+                stamp = Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="")
+                message = JointState(header=stamp, name=ros_episode.JOINTS, position=values.copy(),
+                                     velocity=np.zeros(0), effort=np.zeros(0))
+                writer.write(joints, t, store.serialize_ros1(message, JointState.__msgtype__))
+    recording = sources.read("rosbag", tmp_path / "two.bag", TableColumns(),
+                             SourceOptions(topics=("/joint_states", "/gripper"), rate=100), label=Labels.NONE)[0]
+    names = recording.features.columns
+    slots = rostopic.features_by_topic(names, ["/joint_states", "/gripper"])
+    thousand = sorted([*(m for m in messages if m[1] == "/joint_states"),
+                       *((t + j * 1_000_000, topic, values) for t, topic, values in messages if topic == "/gripper"
+                         for j in range(50))], key=lambda m: (m[0], m[1] != "/joint_states"))
+    for fast, feed in ((False, messages), (True, thousand)):
+        clock, ticks = rostopic.HoldLast(slots, len(names), 100), []
+        for t, topic, values in feed:
+            ticks += clock.push(topic, t, values)
+        ticks += clock.finish()
+        times, got = np.array([t for t, _ in ticks]), np.array([r for _, r in ticks])
+        expected = recording.features.to_numpy()
+        assert times[0] == start + 55_000_000 and len(ticks) == len(expected) + fast  # 1 kHz: 14 ms more, one tick
+        np.testing.assert_array_equal(got[:len(expected)], expected)
+        np.testing.assert_allclose(times[:len(expected)], start + recording.time.to_numpy() * 1e9, rtol=0, atol=1)

@@ -1,0 +1,134 @@
+"""The sweep file and the options of `mlnseq sweep`: a bad one is one line on stderr, exit 2, nothing written or
+submitted (no OUT folder); a good one expands into the grid's configs with the stages' flags."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sweeps import grid
+from typer.testing import CliRunner
+
+from mlnseq_cli.main import app
+from mlnseq_cli.sweep import STAGES
+from sweep_files import refused, write_sweep
+
+runner = CliRunner()
+
+
+def mlnseq(*args: str, cwd: Path):
+    """`mlnseq ARGS` in this process (every refusal comes before Snakemake would start)."""
+    return runner.invoke(app, list(args))
+
+
+def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tiny_desk_workdir):
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm", "gru"]\nhidden_size = [8, 16]\nepochs = [3]\n'
+                       'export.method = ["conflation"]\nmln_mode = ["exact"]\n', seeds="[3]")
+    sweep = grid.read(path, STAGES)
+    assert sweep.seeds == (3,) and sweep.keys == ("cell", "hidden_size", "epochs", "export.method", "mln_mode")
+    assert [c.name for c in sweep.configs] == ["cell-lstm_hidden-size-8", "cell-lstm_hidden-size-16",
+                                              "cell-gru_hidden-size-8", "cell-gru_hidden-size-16"]
+    last = sweep.configs[-1]
+    assert grid.flags("train", last.options["train"]) == ["--epochs", "3", "--mode", "stream", "--cell", "gru",
+                                                         "--hidden-size", "16"]
+    assert grid.flags("conflate", last.options["conflate"]) == ["--mln-mode", "exact"]
+    assert grid.flags("export", last.options["export"]) == ["--method", "conflation", "--decode", "filter",
+                                                          "--mln-mode", "exact"]
+
+
+@pytest.mark.parametrize("grid_lines, words", [
+    ('cell = ["lstm", "lstmm"]', ["line 6", "'cell'", "'lstmm'", "choose one of lstm"]),
+    ('epochs = [5]\nhiden_size = [8]', ["line 7", "'hiden_size'", "hidden_size"]),
+    ('epochs = ["five"]', ["line 6", "'epochs'", "whole number"]),
+    ('epochs = [0]', ["line 6", "--epochs must be at least 1"]),
+    ('export.decode = ["sideways"]', ["line 6", "'export.decode'", "'sideways'", "filter"]),
+    ('export.output = ["x.mlnseq"]', ["line 6", "'export.output'"]),
+    ('cell = "tcn"', ["line 6", "non-empty list", '["tcn"]']),
+    ('decode = ["none"]', ["refused by export", "--method auto chooses among decoded methods"]),
+    ('formulas = ["no-such.mln"]', ["line 6", "'formulas'", "'no-such.mln' is not a formulas file"]),
+])
+def test_a_bad_grid_is_one_line_naming_its_line_and_key(tmp_path, tiny_desk_workdir, grid_lines, words):
+    path = write_sweep(tmp_path, tiny_desk_workdir, grid_lines)
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), str(path), *words)
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_bad_sweep_heads_and_files(tmp_path, tiny_desk_workdir):
+    path = tmp_path / "s.toml"
+    path.write_text('[sweep]\nworkdir = "w"\nseeds = [0, 0]\n')
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), "line 3", "distinct")
+    path.write_text('[sweep]\nworkdir = "w"\nseed = [0]\n')
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), "line 3", "unknown [sweep] key 'seed'", "seeds")
+    path.write_text('[sweep\n')
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), "not valid TOML", "line 1")
+    refused(mlnseq("sweep", str(tmp_path / "none.toml"), cwd=tmp_path), "none.toml not found")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml"]
+
+
+def test_a_missing_workdir_input_names_the_stage_that_writes_it(tmp_path, tiny_desk_workdir):
+    workdir = tmp_path / "data"
+    workdir.mkdir()
+    for name in ("frames.parquet", "predicates.parquet", "weights.parquet"):
+        (workdir / name).symlink_to(tiny_desk_workdir / name)
+    path = write_sweep(tmp_path, workdir, 'cell = ["lstm"]')
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), "weights.folds.parquet not found", "learn-weights --folds K")
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_more_than_1000_configs_need_yes(tmp_path, tiny_desk_workdir):
+    grid_lines = f"hidden_size = {list(range(1, 35))}\nwindow = {list(range(1, 31))}"
+    path = write_sweep(tmp_path, tiny_desk_workdir, grid_lines)
+    refused(mlnseq("sweep", str(path), cwd=tmp_path), "1,020 configs", "over 1,000", "--yes")
+    assert not (tmp_path / "sweep").exists()
+    assert len(grid.read(path, STAGES).configs) == 1020
+
+
+def test_a_slurm_profile_that_does_not_parse_submits_nothing(tmp_path, tiny_desk_workdir):
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm"]')
+    profile = tmp_path / "profile"
+    profile.mkdir()
+    (profile / "config.yaml").write_text("executor: slurm\njobs: [4\n")
+    refused(mlnseq("sweep", str(path), "--executor", "slurm", "--profile", str(profile), cwd=tmp_path),
+            "config.yaml line 3", "does not parse as YAML")
+    (profile / "config.yaml").write_text("- executor\n")
+    refused(mlnseq("sweep", str(path), "--executor", "slurm", "--profile", str(profile), cwd=tmp_path), "mapping")
+    refused(mlnseq("sweep", str(path), "--executor", "slurm", "--profile", str(tmp_path / "nothing"),
+                   cwd=tmp_path), "not a Snakemake profile folder")
+    refused(mlnseq("sweep", str(path), "--executor", "slurm", cwd=tmp_path), "needs --profile")
+    refused(mlnseq("sweep", str(path), "--executor", "cloud", cwd=tmp_path), "unknown --executor 'cloud'", "slurm")
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_the_example_profile_parses():
+    from mlnseq.sweep import check_profile
+
+    settings = check_profile(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "slurm-profile")
+    assert settings["executor"] == "slurm" and settings["slurm-status-command"] == "squeue"
+
+
+def test_a_formulas_key_names_configs_by_the_files_stem(tmp_path, tiny_desk_workdir, repo_root):
+    grid_lines = f'formulas = ["{repo_root}/examples/temporal.mln", "{repo_root}/examples/conjunctive.mln"]'
+    sweep = grid.read(write_sweep(tmp_path, tiny_desk_workdir, grid_lines), STAGES)
+    assert [c.name for c in sweep.configs] == ["formulas-temporal", "formulas-conjunctive"]
+    assert sweep.configs[1].formulas == (repo_root / "examples" / "conjunctive.mln").resolve()
+
+
+def test_the_example_sweep_file_reads():
+    sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
+    assert len(sweep.configs) == 6 and sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
+    assert sweep.configs[0].name == "cell-lstm_hidden-size-16"
+
+
+def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir):
+    """In a Python where Snakemake cannot be imported (blocked in sys.modules), one line names the extra `sweep`."""
+    import subprocess
+    import sys
+
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm"]')
+    code = ("import sys; sys.modules['snakemake'] = None; from mlnseq_cli.main import main; "
+            f"sys.argv = ['mlnseq', 'sweep', {str(path)!r}]; main()")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    refused(done, "pip install 'mlnseq[sweep]'")
+    assert not (tmp_path / "sweep").exists()
