@@ -31,7 +31,9 @@ def desk_run(tmp_path_factory, desk_mln_workdir, desk_folds_workdir) -> Path:
         for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
             (workdir / name).symlink_to(Path("../..") / name)
         for method in train.METHODS:
-            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0, folds=0))
+            # the segment mode's curves are measured every epoch, as `make reproduce` trains them (CURVES)
+            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0, folds=0,
+                                                  measure="every-epoch" if mode == "segment" else None))
         conflate.run(workdir, conflate.ConflateOptions())
         evaluation.run(workdir, evaluation.EvalOptions())
     temporal = runs / "desk-temporal"

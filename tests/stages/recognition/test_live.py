@@ -136,6 +136,25 @@ def test_a_malformed_lag_or_decoder_is_refused_on_load(lagged_model, tmp_path):
         assert "\n" not in str(error.value) and str(broken) in str(error.value)
 
 
+def test_a_model_file_without_the_lag_keys_decodes_as_before(lagged_model, recording, tmp_path):
+    """A format-3 file written before the lag (no lag, latency_s, rate_hz, start): its filter, lag 0."""
+    older = tmp_path / "older.mlnseq"
+    with zipfile.ZipFile(lagged_model.path) as source, zipfile.ZipFile(older, "w") as target:
+        for name in source.namelist():
+            data = source.read(name)
+            if name == "manifest.json":
+                values = {k: v for k, v in json.loads(data).items() if k not in ("lag", "latency_s", "rate_hz", "start")}
+                data = json.dumps({**values, "decode": "filter"}).encode()
+            target.writestr(name, data)
+    model = Recognizer.load(older)
+    assert model.decoding.name == "filter" and model.lag == 0 and model.start is None
+    assert model.manifest.lag == 0 and model.manifest.start is None and model.manifest.rate_hz is None
+    rows = recording[1].select(model.features).to_numpy()[:20]
+    steps = [model.step(row) for row in rows]
+    assert all([p.frame for p in s.final] == [s.frame] for s in steps) and model.finish() == []
+    assert [s.label for s in steps] == model.predict(rows)[1].tolist()
+
+
 def test_latency_without_a_rate_is_one_line_exit_2_nothing_written(live_workdir, tmp_path):
     output = tmp_path / "m.mlnseq"
     result = CliRunner().invoke(app, ["export", "--method", "auto", "--latency", "1", "-o", str(output),
