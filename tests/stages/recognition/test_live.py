@@ -3,6 +3,7 @@ and stream, predict and the Python API give conflate's classes, frame t once fra
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import shutil
@@ -143,7 +144,8 @@ def test_a_model_file_without_the_lag_keys_decodes_as_before(lagged_model, recor
         for name in source.namelist():
             data = source.read(name)
             if name == "manifest.json":
-                values = {k: v for k, v in json.loads(data).items() if k not in ("lag", "latency_s", "rate_hz", "start")}
+                dropped = ("lag", "latency_s", "rate_hz", "start")
+                values = {k: v for k, v in json.loads(data).items() if k not in dropped}
                 data = json.dumps({**values, "decode": "filter"}).encode()
             target.writestr(name, data)
     model = Recognizer.load(older)
@@ -161,3 +163,27 @@ def test_latency_without_a_rate_is_one_line_exit_2_nothing_written(live_workdir,
                                       "-w", str(live_workdir)])
     assert result.exit_code == 2, result.output
     assert "give the budget as --lag FRAMES" in result.output and not output.exists()
+
+
+def test_the_ros_live_recogniser_answers_a_frame_once_final_with_its_lag(lagged_model, recording):
+    """The ROS path (messages on the model's clock, as `mlnseq ros` and `rostopic echo -p` feed it) with lag 3:
+    a tick's frame is answered once 3 later ticks have been stepped, with its own tick time, the rest when the
+    feed ends; the classes are the batch's over the same frames."""
+    from mlnseq.recognition import live
+
+    model = Recognizer.load(lagged_model.path)
+    names = list(model.features)
+    model.manifest = dataclasses.replace(model.manifest, reading={"env": "rosbag", "topics": ["/desk"], "rate": 10.0})
+    model.features = [f"/desk/{name}" for name in names]  # the topic's fields, as a bag's frames name them
+    rows = recording[1].select(names).to_numpy()[:40]
+    feed = live.LiveRecognizer(model, lambda _: None)
+    answered = []
+    for k, row in enumerate(rows):  # a message every 100 ms: it closes the tick of the message before
+        answered += feed.message("/desk", 10**9 + k * 10**8, dict(zip(model.features, row.tolist())))
+        assert [a.prediction.frame for a in answered] == list(range(max(0, k - 3)))  # ticks 0..k-1 stepped
+    answered += feed.finish()
+    assert [a.prediction.frame for a in answered] == list(range(40)) and {a.lag for a in answered} == {3}
+    assert [a.time for a in answered] == [10**9 + k * 10**8 for k in range(40)]
+    assert answered[0].record(model.classes)["lag"] == 3
+    batch = Recognizer.load(lagged_model.path).predict(rows)[1]
+    assert [a.prediction.label for a in answered] == batch.tolist()
