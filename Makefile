@@ -218,8 +218,11 @@ $(RUNS)/%/.inputs-linked:
 $(RUNS)/%/models/lstm.pt: $$(dataset_dir)/frames.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
 	$(STAGE) $(strip train --method lstm $(train_flags) --workdir $(RUNS)/$*)
 
+# In stream mode, PriorLayer's fold networks read each fold's MLN weights (a D-tcn folder links D-temporal's).
 $(RUNS)/%/models/priorlayer.pt: $$(dataset_dir)/frames.parquet $$(dataset_dir)/predicates.parquet \
-  $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
+  $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) \
+  $$(if $$(and $$(filter stream,$$(mode_of)),$$(filter $(FOLDED) $(TCN_DATASETS),$$(call stem_word,1))),\
+    $$(dataset_dir)/weights.folds.parquet) | $(RUNS)/%/.inputs-linked
 	$(STAGE) $(strip train --method priorlayer $(train_flags) --workdir $(RUNS)/$*)
 
 $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(n).pt) \
