@@ -80,7 +80,9 @@ def test_the_report_has_every_section_and_figure(reduced):
     for dataset in ("fetch", "desk"):
         assert f"- {dataset}: deploy **" in text and f"- {dataset}, online choice (" in text
     summary = json.loads((reports / "summary.json").read_text())
-    assert set(summary) == {"fetch", "desk"} and all(set(s) == {"online", "offline", "lstm"} for s in summary.values())
+    assert set(summary) == {"fetch", "desk"}
+    assert all({"online", "offline", "lstm"} <= set(s) <= {"online", "offline", "lstm", "live"} for s in summary.values())
+    assert all(s["online"]["lag_frames"] == 0 for s in summary.values() if "lag_frames" in s["online"])
 
 
 def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(reduced):
