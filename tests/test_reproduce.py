@@ -157,11 +157,12 @@ def test_a_touched_spec_reruns_only_what_depends_on_it(reduced):
 def test_a_touched_temporal_spec_reruns_only_the_sequential_folders(reduced):
     planned = planned_after_touching(reduced, reduced["temporal_spec"])
     stages = [line.split("/mlnseq ", 1)[1] for line in planned.splitlines() if "timed_stage.sh" in line]
-    touched = ("-temporal", "-fixed-weight")
+    touched = ("-temporal", "-fixed-weight", "-tcn")  # D-tcn decodes with D-temporal's weights
     assert all(any(t in s for t in touched) or s.startswith("report") for s in stages), planned
     assert not any("--method lstm" in s or "-order" in s for s in stages), planned
-    # per dataset: formulas, learn-weights, priorlayer (stream), conflate and eval of 3 workdirs; then report
-    assert len(stages) == 2 * (2 + 1 + 3 + 3) + 1, planned
+    # per dataset: formulas, learn-weights, priorlayer (stream), conflate and eval of 3 workdirs, the TCN's
+    # priorlayer, conflate and eval; then report
+    assert len(stages) == 2 * (2 + 1 + 3 + 3 + 3) + 1, planned
 
 
 def test_without_desk_the_fetch_half_still_runs(reduced, tmp_path):
