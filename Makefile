@@ -87,8 +87,10 @@ SEED_DIRS := $(call seed_dirs,fetch,$(MODES),$(SEEDS)) $(call seed_dirs,fetch-ri
   $(foreach d,$(SEQUENTIAL),$(call seed_dirs,$(d)-temporal,$(TEMPORAL_MODES),$(SEEDS)) \
     $(call seed_dirs,$(d)-order,$(ABLATION_MODES),$(SEEDS)) $(call seed_dirs,$(d)-conjunctive,$(ABLATION_MODES),$(SEEDS)) \
     $(call seed_dirs,$(d)-fixed-weight,$(ABLATION_MODES),$(SEEDS)))
-# The causal TCN (stages/networks/tcn.py) per paper dataset D, stream mode: D-tcn links D's frames, predicates
-# and weights, and its lstm and priorlayer models are TCNs (--cell tcn), undecoded. TCN_DATASETS= leaves it out.
+# The causal TCN (stages/networks/tcn.py) per paper dataset D, stream mode: D-tcn links D-temporal's frames,
+# predicates, weights and fold weights (learned transitions), its lstm and priorlayer models are TCNs (--cell tcn)
+# trained with FOLDS fold networks like the LSTM's, and it is decoded: a candidate of the cross-validated choice
+# (issue 24). TCN_DATASETS= leaves it out.
 TCN_DATASETS ?= $(SEQUENTIAL:%=%-tcn)
 SEED_DIRS += $(foreach d,$(TCN_DATASETS),$(call seed_dirs,$(d),stream,$(SEEDS)))
 
@@ -162,7 +164,8 @@ $(foreach d,$(SEQUENTIAL),\
   $(eval $(call linked_network,$(d)-temporal,$(d),lstm)) $(eval $(call linked_network,$(d)-order,$(d),lstm)) \
   $(eval $(call linked_network,$(d)-conjunctive,$(d),lstm)) \
   $(eval $(call linked_network,$(d)-fixed-weight,$(d)-temporal,lstm)))
-$(foreach d,$(TCN_DATASETS),$(eval $(call linked_files,$(d),$(d:%-tcn=%),frames.parquet predicates.parquet weights.parquet)))
+$(foreach d,$(TCN_DATASETS),$(eval $(call linked_files,$(d),$(d:%-tcn=%)-temporal,frames.parquet predicates.parquet \
+  weights.parquet weights.folds.parquet)))
 
 .SECONDEXPANSION:
 .SECONDARY:  # keep every artifact the chain makes
@@ -197,7 +200,7 @@ mode_of = $(call stem_word,2)
 CURVES := fetch desk
 train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
   --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
-  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn --folds 0,$(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0)) \
+  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn) $(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0) \
   $(if $(and $(filter $(CURVES),$(call stem_word,1)),$(filter segment,$(mode_of))),--measure every-epoch)
 # The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
 # only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
@@ -205,7 +208,7 @@ networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter s
   $(if $(filter %-order %-conjunctive %-fixed-weight,$(call stem_word,1)),,priorlayer))
 # Decoded: the sequential folders, and the paper datasets' stream workdirs (their ablation row).
 decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-conjunctive) $(SEQUENTIAL:%=%-fixed-weight) \
-  $(if $(filter stream,$(mode_of)),$(SEQUENTIAL)),$(call stem_word,1))
+  $(if $(filter stream,$(mode_of)),$(SEQUENTIAL) $(TCN_DATASETS)),$(call stem_word,1))
 conflate_flags = $(if $(decoded),--decode all) $(if $(filter %-fixed-weight,$(call stem_word,1)),--network-weight 1)
 
 $(RUNS)/%/.inputs-linked:
@@ -215,8 +218,11 @@ $(RUNS)/%/.inputs-linked:
 $(RUNS)/%/models/lstm.pt: $$(dataset_dir)/frames.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
 	$(STAGE) $(strip train --method lstm $(train_flags) --workdir $(RUNS)/$*)
 
+# In stream mode, PriorLayer's fold networks read each fold's MLN weights (a D-tcn folder links D-temporal's).
 $(RUNS)/%/models/priorlayer.pt: $$(dataset_dir)/frames.parquet $$(dataset_dir)/predicates.parquet \
-  $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
+  $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) \
+  $$(if $$(and $$(filter stream,$$(mode_of)),$$(filter $(FOLDED) $(TCN_DATASETS),$$(call stem_word,1))),\
+    $$(dataset_dir)/weights.folds.parquet) | $(RUNS)/%/.inputs-linked
 	$(STAGE) $(strip train --method priorlayer $(train_flags) --workdir $(RUNS)/$*)
 
 $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(n).pt) \

@@ -4,7 +4,8 @@ DESK test frames, with the MLN factors of examples/temporal.mln learned (cll) on
 Online: ``Filter.step`` on precomputed factors (the filter's own cost per frame; target < 0.05 ms), and
 the whole live path per frame (the MLN factors of one frame from their cache, then the step). Also
 ``Filter.step`` with 10 classes. Batch: the three decoders over the 20,924 test frames (one chain), the
-median of a few runs, and per frame. Data: the authors' published DESK motion codes (paper predicates).
+median of a few runs, and per frame. Lagged and legal decoders (issue 24): per frame online, and batch, with
+the check that both give the same classes. Data: the authors' published DESK motion codes (paper predicates).
 """
 
 from __future__ import annotations
@@ -88,6 +89,30 @@ def main() -> None:
     print(f"decode: batch filtered is {step_ms * frames / 1000 / batch_s:.0f}x faster than stepping the filter "
           f"frame by frame (same numbers: max |diff| "
           f"{np.abs(batch[-1] - stepped_last(factors)).max():.1e} on the last frame)")
+    lagged(factors)
+
+
+def lagged(factors: chain.ChainFactors) -> None:
+    """Issue 24: the lagged and legal decoders one frame at a time (lag.Online, per frame) and over the whole
+    recording at once (lag.decode), on the same DESK test chain; the two give the same classes."""
+    from mlnseq.catalog.decoders import parse_decoding
+    from mlnseq.mln import lag
+
+    for name in ("filter-legal", "smooth@10", "smooth-legal@25", "lagviterbi@1", "lagviterbi-legal@25"):
+        decoding = parse_decoding(name)
+        online, out, times = lag.Online(factors.n_classes, decoding), [], []
+        for row, joined in zip(factors.unary, factors.link):
+            started = time.perf_counter()
+            out += online.step(row, None if joined < 0 else factors.pairwise[joined])
+            times.append(time.perf_counter() - started)
+        out += online.finish()
+        started = time.perf_counter()
+        batch = lag.decode(factors, decoding)
+        batch_s = time.perf_counter() - started
+        same = np.array_equal([f.label for f in out], batch.path)
+        print(f"decode: {name:20s} online median {statistics.median(times) * 1e6:6.1f} us, p99 "
+              f"{np.percentile(times, 99) * 1e6:6.1f} us per frame; batch {batch_s * 1000:6.1f} ms over "
+              f"{len(times):,} frames; same classes: {same}", flush=True)
 
 
 def stepped_last(factors: chain.ChainFactors) -> np.ndarray:

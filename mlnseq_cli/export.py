@@ -16,11 +16,17 @@ Defaults = stage.ExportOptions
 
 def export(
     method: Annotated[str, typer.Option(help="network (the network alone, of any cell; also lstm), mln, priorlayer, "
-                                             "conflation, combined, or auto: the decoded method (with --decode filter "
-                                             "or viterbi) with the best cross-validated figures conflate recorded "
-                                             "(needs networks trained with --folds).")] = Defaults.method.value,
-    decode: Annotated[str, typer.Option(help="none (per frame), filter (online chain decoding) or viterbi (offline; "
-                                             "stream filters).")] = Defaults.decode,
+                                             "conflation, combined, or auto: the method, decoder and lag with the "
+                                             "best cross-validated figures conflate recorded (needs networks trained "
+                                             "with --folds), within --latency or --lag if given, with --decode's "
+                                             "decoder if given.")] = Defaults.method.value,
+    decode: Annotated[str, typer.Option(help="none (per frame), filter (online), smooth or lagviterbi (with --lag), "
+                                             "their -legal forms (never a forbidden transition), posterior or viterbi "
+                                             "(offline; stream filters).")] = Defaults.decode,
+    lag: Annotated[Optional[int], typer.Option(help="Frames a lagged decoder waits (frame t decided once t + LAG has "
+                                                    "arrived); with --method auto, the budget.")] = None,
+    latency: Annotated[Optional[float], typer.Option(help="The same budget in seconds, where the recordings' frame "
+                                                          "rate is known (not DESK: give --lag).")] = None,
     mln_mode: Annotated[str, typer.Option(help="MLN class probabilities: paper or exact (as "
                                                "conflate --mln-mode).")] = Defaults.mln_mode.value,
     output: Annotated[Optional[Path], typer.Option(
@@ -33,7 +39,8 @@ def export(
     fusion and decoding (its network factor weight learned on the out-of-fold predictions of networks trained with
     --folds, else chosen on the validation part), the classes and the input digests, for `mlnseq predict`, `mlnseq
     stream` and the Python API."""
-    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output, force=force)
+    options = stage.ExportOptions(method=method, decode=decode, mln_mode=mln_mode, output=output, force=force,
+                                  lag=lag, latency=latency)
     with reported_errors():
         exported = stage.run(workdir, options)
     manifest = exported.manifest
@@ -44,7 +51,10 @@ def export(
         figures = chosen.figures
         console.print(f"export: --method auto chose {chosen.name} by {chosen.folds}-fold cross-validation on the "
                       f"training split: segment accuracy {figures['segment_accuracy']:.1f} %, frame accuracy "
-                      f"{figures['frame_accuracy']:.1f} %, edit {figures['edit']:.1f}, F1@50 {figures['f1_50']:.1f}")
+                      f"{figures['frame_accuracy']:.1f} %, edit {figures['edit']:.1f}, F1@50 {figures['f1_50']:.1f}"
+                      f" (criterion: their mean, {len(chosen.candidates)} candidates)")
     weight = manifest.network_weight
-    console.print(f"[green]export[/]: wrote {exported.path} ({manifest.method}, decode {decode}"
+    delay = "" if manifest.lag is None else f", lag {manifest.lag} frame(s)" + (
+        "" if manifest.latency_s is None else f" = {manifest.latency_s:g} s")
+    console.print(f"[green]export[/]: wrote {exported.path} ({manifest.method}, decode {manifest.decode}{delay}"
                   + ("" if weight is None else f", network factor weight {weight:g}") + ")")

@@ -17,7 +17,7 @@ def predict(
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option(help="Overwrite the output files if they exist.")] = False,
-    decode: Annotated[Optional[str], typer.Option(help="none, filter or viterbi \\[default: the model's]; viterbi decodes a filter model offline.")] = None,
+    decode: Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), \\[default: the model's]; viterbi or posterior decodes a filter model offline.")] = None,
     env: Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")] = None,
     label_column: Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; with labels the metrics are printed and stored too.")] = None,
     episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")] = None,

@@ -26,13 +26,15 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, MissingArtifact, check_choice
-from mlnseq.catalog.methods import DECODES, METHODS, MLN_MODES, NETWORKS, MLNMode, decoded_name, member, network_of
+from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder, decodings
+from mlnseq.catalog.methods import METHODS, MLN_MODES, NETWORKS, MLNMode, decoded_name, member, network_of
 from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
 from mlnseq.catalog.parts import Part
 from mlnseq.mln import chain
+from mlnseq.recognition import decoding as decoders
 from mlnseq.recognition.cross_validation import CrossValidated, cross_validate
 from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
-from mlnseq.recognition.recognizer import chain_of, decode_chain, fuse, restart_note
+from mlnseq.recognition.recognizer import chain_of, fuse, restart_note
 from mlnseq.recognition.workdir_inputs import WorkdirInputs, read_workdir
 
 
@@ -41,8 +43,9 @@ class ConflateOptions:
     """Options of `mlnseq conflate`."""
 
     mln_mode: MLNMode = MLNMode.PAPER
-    decode: tuple[str, ...] = ("none",)  # any of none, filter, viterbi
+    decode: tuple[str, ...] = ("none",)  # decoders (stages/catalog/decoders.py): none, filter, viterbi, smooth, ...
     network_weight: float | None = None  # decoded methods' network factor: None = learned (folds) or chosen
+    lags: tuple[int, ...] = DEFAULT_LAGS  # frames: each lagged decoder (smooth, lagviterbi) at each
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mln_mode", member(MLNMode, self.mln_mode))
@@ -50,20 +53,24 @@ class ConflateOptions:
     def validate(self) -> None:
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
         for kind in self.decode:
-            check_choice("decode", kind, DECODES, "all, or a comma list such as none,viterbi")
+            check_choice("decode", kind, [d.value for d in Decoder], "all, or a comma list such as none,viterbi")
         if self.network_weight is not None and not self.network_weight > 0:
             raise BadInput(f"--network-weight must be positive (or auto), got {self.network_weight}")
+        if not self.lags or min(self.lags) < 0:
+            raise BadInput(f"--lags {','.join(map(str, self.lags))}: give one or more lags of at least 0 frames")
 
     @property
     def decodes(self) -> tuple[str, ...]:
-        """The decodings asked for, undecoded first; undecoded methods are always predicted."""
-        return tuple(dict.fromkeys(("none", *self.decode)))
+        """The decodings asked for (lagged decoders at each lag: ``smooth@5``), undecoded first; undecoded methods
+        are always predicted."""
+        asked = tuple(Decoder(kind) for kind in self.decode)
+        return ("none", *dict.fromkeys(d.name for d in decodings(asked, tuple(self.lags))))
 
 
 def parse_decode(text: str) -> tuple[str, ...]:
     """``--decode`` as written: one name, ``all``, or a comma list."""
     names = tuple(n.strip() for n in text.split(",") if n.strip())
-    return DECODES if names == ("all",) else names
+    return tuple(d.value for d in Decoder) if names == ("all",) else names
 
 
 def parse_network_weight(text: str) -> float | None:
@@ -80,11 +87,12 @@ def predictions_table(keys: pl.DataFrame, probabilities: dict[str, np.ndarray],
                       predicted: dict[str, np.ndarray]) -> pl.DataFrame:
     """Keys, then per method its predicted class (int16) and its class probabilities (float32)."""
     columns = [keys]
-    for method, probs in probabilities.items():
+    for method, classes in predicted.items():  # lagged decoders: classes only (their probabilities are not stored)
+        probs = probabilities.get(method)
         columns.append(pl.DataFrame(
-            [pl.Series(artifacts.pred_column(method), predicted[method], dtype=pl.Int16)]
-            + [pl.Series(name, probs[:, k], dtype=pl.Float32)
-               for k, name in enumerate(artifacts.prob_columns(method, probs.shape[1]))]
+            [pl.Series(artifacts.pred_column(method), classes, dtype=pl.Int16)]
+            + ([] if probs is None else [pl.Series(name, probs[:, k], dtype=pl.Float32)
+                                         for k, name in enumerate(artifacts.prob_columns(method, probs.shape[1]))])
         ))
     return pl.concat(columns, how="horizontal")
 
@@ -101,6 +109,9 @@ class WorkdirPredictions:
     notes: list[Note] = field(default_factory=list)
     cross_validated: CrossValidated | None = None  # with fold networks: every method's cross-validated figures
     restarts: dict[str, list[tuple[Any, int]]] = field(default_factory=dict)  # decoded method -> (episode, frame)
+    forbidden: dict[str, int] = field(default_factory=dict)  # decoded method -> forbidden transitions on test
+    start: list[float] | None = None  # the chains' start distribution (log), from the training split's episodes
+    hard_rules: bool = False  # the chain's transition factors forbid some transition outright (-inf)
 
 
 def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("none",),
@@ -155,6 +166,9 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
     weights = WeightDecision(inputs, mln, network_weight_option)
     result.notes += weights.notes(list(networks))
     split_parts = np.where(data.splits == Part.TEST, Part.TEST, Part.TRAIN)
+    start = decoders.start_of(data.labels, data.episodes, data.splits != "test", len(inputs.classes))
+    result.start = start.tolist()
+    test = data.splits == "test"
     for kind in decoding:
         for method in available:
             network, name = network_of(method), decoded_name(method, kind)
@@ -166,9 +180,13 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
                 if network_weight_option is None:  # a weight given by option is recorded as the option
                     result.choices[name] = choice
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
-                               networks[network].log_probs if network is not None else None, weight)
-            decoded = decode_chain(kind, factors)
-            result.probabilities[name], result.predicted[name] = decoded.probabilities, decoded.path
+                               networks[network].log_probs if network is not None else None, weight, start)
+            decoded = decoders.decode(factors, kind)
+            result.hard_rules |= bool(np.isneginf(factors.pairwise).any())
+            result.predicted[name] = decoded.path
+            if "@" not in kind:
+                result.probabilities[name] = decoded.probabilities
+            result.forbidden[name] = decoders.forbidden_in(factors, decoded.path, test)
             if len(decoded.restarts):
                 keys, names = inputs.keys[decoded.restarts], inputs.meta.get("episode_names") or []  # the user's ids
                 result.restarts[name] = [(names[e] if 0 <= e < len(names) else e, f)
@@ -192,8 +210,10 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     inputs = read_workdir(workdir, NETWORKS)
     predicted = predict(inputs, options.mln_mode, options.decodes, network_weight_option=options.network_weight)
     methods = [decoded_name(m, d) for d in options.decodes for m in METHODS
-               if decoded_name(m, d) in predicted.probabilities]
-    table = predictions_table(inputs.keys, {m: predicted.probabilities[m] for m in methods}, predicted.predicted)
+               if decoded_name(m, d) in predicted.predicted]
+    table = predictions_table(inputs.keys, {m: predicted.probabilities[m] for m in methods
+                                            if m in predicted.probabilities},
+                              {m: predicted.predicted[m] for m in methods})
     meta: dict[str, Any] = {
         "methods": methods, "modes": {m: predicted.modes[m] for m in methods}, "mln_mode": str(options.mln_mode),
         "decode": list(options.decodes), "network_weight_option": options.network_weight,
@@ -201,7 +221,9 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
         "network_weights": {m: c.record() for m, c in predicted.choices.items()},
         "validation_frame_accuracy": {m: predicted.validation[m] for m in methods if m in predicted.validation},
         "notes": [n.text for n in predicted.notes], "note_codes": [n.code for n in predicted.notes],
-        "cross_validation": None,
+        "cross_validation": None, "lags": list(options.lags), "start": predicted.start,
+        "hard_rules": predicted.hard_rules,
+        "forbidden_transitions": {m: predicted.forbidden[m] for m in methods if m in predicted.forbidden},
     }
     cv = predicted.cross_validated
     if cv is not None:

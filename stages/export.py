@@ -1,12 +1,12 @@
 """export: one model file (``.mlnseq``) holding all a recogniser needs, for predict, stream and the Python API.
 
-The file is a zip: ``manifest.json`` (format version, mlnseq version, method, decoding and its network
-factor weight, classes, features in order, the source, the predicate columns, the network's
-configuration, the input digests, notes, the number of formulas, every other member's size and SHA-256),
-the predicate spec ``binarize.toml``, the MLN's ``weights.parquet`` and the network's arrays
-``network.npz`` (with its standardisation). A method that needs no MLN (the network alone, undecoded) carries
-no spec and no weights. stages/model/model_file.py writes and reads it, stages/model/manifest.py checks its
-manifest (docs/model-file.md).
+The file is a zip: ``manifest.json`` (format version, mlnseq version, method, decoding with its lag, latency,
+the recordings' rate and the chains' start distribution, its network factor weight, classes, features in order,
+the source, the predicate columns, the network's configuration, the input digests, notes, the number of formulas,
+every other member's size and SHA-256), the predicate spec ``binarize.toml``, the MLN's ``weights.parquet`` and
+the network's arrays ``network.npz`` (with its standardisation). A method that needs no MLN (the network alone,
+undecoded) carries no spec and no weights. stages/model/model_file.py writes and reads it,
+stages/model/manifest.py checks its manifest (docs/model-file.md).
 """
 
 from __future__ import annotations
@@ -16,19 +16,19 @@ from pathlib import Path
 from typing import Any
 
 from mlnseq.catalog import artifacts
+from mlnseq.catalog.decoders import Decoder
 from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.catalog.methods import (ALIASES, DECODES, METHODS, MLN_MODES, Method, MLNMode, PaperFloor, decoded_name,
-                                    member, needs_mln, network_of)
+from mlnseq.catalog.methods import (ALIASES, METHODS, MLN_MODES, Method, MLNMode, PaperFloor, decoded_name, member,
+                                    needs_mln, network_of)
 from mlnseq.catalog.notes import Note
 from mlnseq.model import model_file
 from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
-from mlnseq.model.manifest import Chosen, Manifest, NetworkEntry
-from mlnseq.recognition import recognizer
+from mlnseq.model.manifest import Manifest, NetworkEntry
+from mlnseq.recognition import latency, recognizer
 from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
 from mlnseq.recognition.workdir_inputs import paper_floor, read_workdir
 
-
-AUTO = "auto"  # --method auto: the decoded method with the best cross-validated figures in the workdir
+AUTO = latency.AUTO  # --method auto: the method, decoder and lag with the best cross-validated figures in the workdir
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,8 @@ class ExportOptions:
     mln_mode: MLNMode = MLNMode.PAPER
     output: Path | None = None  # default: WORKDIR/METHOD[+DECODE].mlnseq
     force: bool = False  # overwrite an existing --output (the default output, a workdir artifact, is replaced)
+    lag: int | None = None  # frames: a lagged decoder's lag, or with --method auto the budget
+    latency: float | None = None  # seconds: the same where the recordings' rate is known
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "method", member(Method, self.method, ALIASES))
@@ -47,16 +49,19 @@ class ExportOptions:
 
     def validate(self) -> None:
         check_choice("method", self.method, ("network", *METHODS, AUTO))
-        if self.method == AUTO and self.decode not in ("filter", "viterbi"):
-            raise BadInput(f"--method {AUTO} chooses among decoded methods: add --decode filter (online) or "
-                           "--decode viterbi (offline)")
-        check_choice("decode", self.decode, DECODES)
+        check_choice("decode", self.decode, [d.value for d in Decoder])
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
+        if self.lag is not None and self.lag < 0:
+            raise BadInput(f"--lag {self.lag}: a lag is at least 0 frames")
+        if self.latency is not None and not self.latency >= 0:
+            raise BadInput(f"--latency {self.latency:g}: a latency is at least 0 seconds")
+        if self.lag is not None and self.latency is not None:
+            raise BadInput("give --lag FRAMES or --latency SECONDS, not both")
 
-    def output_path(self, workdir: Path) -> Path:
+    def output_path(self, workdir: Path, decode: str | None = None) -> Path:
         if self.output is not None:
             return Path(self.output)
-        return Path(workdir) / f"{decoded_name(self.method, self.decode)}{model_file.MODEL_SUFFIX}"
+        return Path(workdir) / f"{decoded_name(self.method, decode or self.decode)}{model_file.MODEL_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -74,12 +79,10 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
     options.validate()
     workdir = check_output(options, Path(workdir))
-    chosen = None
-    if options.method == AUTO:
-        chosen = choose_method(workdir, options.decode)
-        options = replace(options, method=chosen.method)
     frames_path = workdir / artifacts.FRAMES
     frames_meta = artifacts.read_metadata(frames_path, "frames")
+    picked = latency.pick(workdir, options.method, options.decode, options.lag, options.latency, frames_meta)
+    options = replace(options, method=Method(picked.method), decode=picked.decoding.decoder.value)
     inputs, notes = [frames_path], []
     network = network_of(options.method)
     checkpoint = None
@@ -94,13 +97,13 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         spec_text, weights, columns = _mln(workdir, inputs)
     choice = None
     if options.decode != "none" and network is not None:
-        choice, said = weight_choice(workdir, options)
+        choice, said = weight_choice(workdir, options.method, picked.decoding.name)
         notes += [n.text for n in said]
     floor = paper_floor(workdir, frames_meta)  # as conflate floors the MLN's sums
-    manifest = _manifest(options, frames_meta, floor, choice, chosen, checkpoint, columns, inputs, notes)
+    manifest = _manifest(options, frames_meta, floor, choice, picked, checkpoint, columns, inputs, notes)
     entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
     recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
-    return Exported(model_file.write_model(options.output_path(workdir), entries), manifest)
+    return Exported(model_file.write_model(options.output_path(workdir, picked.decoding.name), entries), manifest)
 
 
 def _mln(workdir: Path, inputs: list[Path]) -> tuple[str, Any, list[str]]:
@@ -114,7 +117,7 @@ def _mln(workdir: Path, inputs: list[Path]) -> tuple[str, Any, list[str]]:
 
 
 def _manifest(options: ExportOptions, frames_meta: dict[str, Any], floor: PaperFloor, choice: WeightChoice | None,
-              chosen: Chosen | None, checkpoint: Checkpoint | None, columns: list[str], inputs: list[Path],
+              picked: latency.Picked, checkpoint: Checkpoint | None, columns: list[str], inputs: list[Path],
               notes: list[str]) -> Manifest:
     network = None
     if checkpoint is not None:
@@ -126,11 +129,12 @@ def _manifest(options: ExportOptions, frames_meta: dict[str, Any], floor: PaperF
         mlnseq_version=artifacts.package_version(), created=artifacts.created_time(), method=options.method,
         decode=options.decode, mln_mode=options.mln_mode, paper_floor=floor,
         network_weight=None if choice is None else choice.weight,
-        network_weight_how=None if choice is None else choice.how, chosen_by_cross_validation=chosen,
+        network_weight_how=None if choice is None else choice.how, chosen_by_cross_validation=picked.chosen,
         validation_frame_accuracy=None if choice is None else choice.accuracy,
         classes=list(frames_meta["classes"]), features=list(frames_meta["features"]), source=source,
         reading=frames_meta.get("reading") or {"env": source},  # how predict reads
-        predicates=columns, network=network, inputs={p.name: artifacts.file_digest(p) for p in inputs}, notes=notes)
+        predicates=columns, network=network, inputs={p.name: artifacts.file_digest(p) for p in inputs}, notes=notes,
+        lag=picked.decoding.lag, latency_s=picked.latency_s, rate_hz=picked.rate_hz, start=picked.start)
 
 
 def check_output(options: ExportOptions, workdir: Path) -> Path:
@@ -146,34 +150,13 @@ def check_output(options: ExportOptions, workdir: Path) -> Path:
     return workdir
 
 
-def choose_method(workdir: Path, decode: str) -> Chosen:
-    """``--method auto``: among the decoded methods conflate predicted in ``workdir`` with ``decode``, the one with
-    the best cross-validated choice score (cross_validation.choice_score), with its figures and the others'."""
-    from mlnseq.recognition.cross_validation import choice_score
-
-    path = workdir / artifacts.PREDICTIONS
-    if not path.exists():
-        raise BadInput(f"--method {AUTO} chooses on the cross-validated figures conflate records: {path} not found; "
-                       f"run `mlnseq train --folds K` and `mlnseq conflate --decode {decode}` first")
-    meta = artifacts.read_metadata(path, "predictions")
-    figures = (meta.get("cross_validation") or {}).get("figures") or {}
-    candidates = {name: f for name, f in figures.items() if name.endswith(f"+{decode}")}
-    if not candidates:
-        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated {decode} figures; train its networks "
-                       f"with folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
-                       f"`mlnseq conflate --decode {decode}`")
-    best = max(candidates, key=lambda name: choice_score(candidates[name], decode))
-    return Chosen(Method(best.partition("+")[0]), best, candidates[best], choice_score(candidates[best], decode),
-                  candidates, meta["cross_validation"]["folds"]["k"])
-
-
-def weight_choice(workdir: Path, options: ExportOptions) -> tuple[WeightChoice, list[Note]]:
+def weight_choice(workdir: Path, method: Method, decode: str) -> tuple[WeightChoice, list[Note]]:
     """The network factor's weight of the one decoded network method exported, decided as conflate decides it
     (recognition/network_weight.py), and the notes that bear on it."""
     from mlnseq.mln.factors import MLNFactors
 
-    network = network_of(options.method)
+    network = network_of(method)
     inputs = read_workdir(workdir, (network,))
     mln = MLNFactors.from_weights(inputs.mln.weights, inputs.mln.columns, inputs.classes)
     decision = WeightDecision(inputs, mln)
-    return decision.choice(options.method, options.decode), decision.notes([network])
+    return decision.choice(method, decode), decision.notes([network])

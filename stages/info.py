@@ -45,6 +45,7 @@ def describe(manifest: Manifest, entries: dict[str, bytes], path: Path) -> list[
         ("classes", ", ".join(manifest.classes)),
         ("features", ", ".join(manifest.features)),
         ("source", manifest.source),
+        ("decoder", _decoder_row(manifest)),
         *reading_rows(manifest.reading or {}),
     ]
     if manifest.chosen_by_cross_validation is not None:
@@ -91,3 +92,17 @@ def run(path: Path) -> ModelInfo:
     entries = model_file.read_model(path)
     manifest = Recognizer(entries, str(path)).manifest  # loads, or says in one line why it cannot
     return ModelInfo(manifest, describe(manifest, entries, path))
+
+
+def _decoder_row(manifest: Manifest) -> str:
+    """The decoder, its lag in frames and seconds, and whether it starts chains from a fitted start distribution."""
+    decode, lag, latency = manifest.decode, manifest.lag, manifest.latency_s
+    if decode == "none":
+        return "none (per frame)"
+    if decode in ("viterbi", "posterior", "posterior-legal"):
+        text = f"{decode} (offline: whole recordings; a stream filters)"
+    else:
+        seconds = "" if latency is None else f" = {latency:g} s"
+        rate = "" if manifest.rate_hz else " (frame rate unknown)"
+        text = f"{decode}, lag {lag or 0} frame(s){seconds}{rate if lag else ''}"
+    return text + (", start distribution fitted" if manifest.start is not None else "")

@@ -22,7 +22,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.timeline import metrics
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.catalog.methods import DECODES
+from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import RECORDING_ENVS, SourceOptions, intervals
 from mlnseq.sources.recording import Labels, TableColumns
@@ -48,7 +48,7 @@ class PredictOptions:
 
     def validate(self) -> None:
         if self.decode is not None:
-            check_choice("decode", self.decode, DECODES)
+            parse_decoding(self.decode)
         if self.env is not None:
             check_choice("env", self.env, RECORDING_ENVS)
         if not self.force:
@@ -143,7 +143,8 @@ def _run(options: PredictOptions, stage) -> Predicted:
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
-    decode = options.decode or model.decode
+    decoding = parse_decoding(options.decode) if options.decode else model.decoding
+    decode = decoding.name
     reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
                "time_column": columns.time, **source_options.record(env),
                **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
@@ -155,6 +156,7 @@ def _run(options: PredictOptions, stage) -> Predicted:
     artifacts.write_table(
         table, stage(path), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
+         "lag": decoding.lag,
          "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading,
          "restarts": [[str(episode), frame] for episode, frame in restarts]},
         inputs=inputs,

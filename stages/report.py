@@ -26,6 +26,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.reporting.figures import (
     FIGURES, figure_confusion, figure_efficiency, figure_test_curves, figure_timeline, figure_train_vs_test, pyplot,
 )
+from mlnseq.reporting.latency import FIGURE as LATENCY_FIGURE, figure_latency, with_live
 from mlnseq.reporting.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from mlnseq.reporting.rendering import render
 from mlnseq.reporting.tables import deploy_choices, efficiency_points, method_name, summary
@@ -63,6 +64,10 @@ def run(options: ReportOptions) -> ReportResult:
              FIGURES["efficiency"]: figure_efficiency(efficiency_points(loaded))}
     for dataset in present(loaded, PAPER_DATASETS):
         drawn[FIGURES["confusion"].format(dataset=dataset)] = figure_confusion(loaded, dataset)
+    for dataset in PAPER_DATASETS:  # issue 24: accuracy against latency, where conflate scored lagged decoders
+        latency = figure_latency(loaded, dataset)
+        if latency is not None:
+            drawn[LATENCY_FIGURE.format(dataset=dataset)] = latency
     timelines = {}
     for dataset in PAPER_DATASETS:
         drawn_timeline = timeline_of(loaded, dataset)
@@ -76,7 +81,7 @@ def run(options: ReportOptions) -> ReportResult:
         plt.close(figure)
         written.append(out / name)
     path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines))
-    artifacts.write_text(out / SUMMARY, json.dumps(summary(loaded), indent=1, sort_keys=True) + "\n")
+    artifacts.write_text(out / SUMMARY, json.dumps(with_live(loaded, summary(loaded)), indent=1, sort_keys=True) + "\n")
     n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
     return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)
 

@@ -4,8 +4,11 @@ Input: JSON lines (an object of feature name -> value per frame) or CSV (a heade
 frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
 no CSV header). An ``episode`` key or column starts a new
 episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
-next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}}``. Everything is causal
-and stateful (the previous frame for the change predicates, the network's state, the filter's belief).
+next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the
+input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames answers frame t
+once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the end of the
+input). Everything is causal and stateful (the previous frame for the change predicates, the network's state,
+the decoder's belief and its last L frames).
 
 A bad line (not JSON, not UTF-8, a missing feature, NaN, inf or a non-number) is reported on stderr with
 its line number and skipped; with ``strict`` it stops the stream (exit 2). Keys the model does not use (a
@@ -36,6 +39,7 @@ from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import rostopic
 
 EPISODE = "episode"
+TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line
 MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes
 CHUNK_BYTES = 64 * 1024  # read at most this much at once; a chunk holds many frames, or part of one
 
@@ -194,6 +198,27 @@ def answering_before_interrupt() -> Iterator[Callable[[bool], None]]:
         signal.signal(signal.SIGINT, previous)
 
 
+def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> dict[str, Any]:
+    """A decided frame's output: its episode, frame (and input time), class, probabilities and the model's lag."""
+    line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
+            "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
+            "lag": model.lag if model.decoding.decoder.lagged else 0}
+    if time is not None:
+        line["time"] = time
+    return line
+
+
+def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
+    """One frame through the model, its input time kept until its frame is answered; a bad frame names its line."""
+    time = next((frame[key] for key in TIMES if key in frame), None)
+    if time is not None:
+        times[model.next_frame] = time
+    try:
+        return model.step(frame)
+    except BadInput as error:
+        raise InputLine(f"line {number}: {error}") from None
+
+
 def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn: Callable[[str], None]) -> StreamSummary:
     """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
@@ -202,8 +227,8 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     model = Recognizer.load(options.model)
     for note in model.manifest.notes:
         warn(f"note: {note}")
-    if model.decode == "viterbi":
-        warn("note: viterbi needs a whole recording; a stream filters online with the same factors")
+    if model.decoding.decoder.offline:
+        warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
     lines = lines_of(source, options.max_line_bytes, stop_early=options.strict)
     head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
     for line in lines:
@@ -212,44 +237,59 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
             break
     if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
         return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
-    lines = itertools.chain(head, lines)
-    used = set(model.features) | {EPISODE}
+    return _serve(options, model, itertools.chain(head, lines), emit, warn)
+
+
+def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | InputLine], emit: Callable[[str], None],
+           warn: Callable[[str], None]) -> StreamSummary:
+    """JSON or CSV frames: frame t answered once frame t + lag has arrived, the pending ones at an episode's end."""
+    used = set(model.features) | {EPISODE, *TIMES}
     ignored: set[str] = set()
     summary = StreamSummary()
     episode: Any = None
-    with answering_before_interrupt() as busy:
-        for number, frame in frames_of(lines):
-            busy(True)
-            try:
-                if isinstance(frame, InputLine):
-                    raise frame
-                _check_episode(frame, number)
-                unused = set(frame) - used - ignored
-                if unused:
-                    ignored |= unused
-                    warn(f"note: line {number}: keys the model does not use are ignored: {', '.join(sorted(unused))}")
-                if not summary.episodes or frame.get(EPISODE) != episode:
-                    if summary.episodes:
-                        model.reset()
-                    episode = frame.get(EPISODE)
-                    summary.episodes += 1
-                try:
-                    prediction = model.step(frame)
-                except BadInput as error:
-                    raise InputLine(f"line {number}: {error}") from None
-            except InputLine as error:
-                summary.skipped += 1
-                if options.strict:
-                    raise
-                warn(f"error: {error}")
-                busy(False)
-                continue
-            emit(json.dumps({
-                EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
-                "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
-            }))
+    times: dict[int, Any] = {}  # the input time of each frame not answered yet (at most lag + 1)
+
+    def answer(predictions: Iterable[Any], episode: Any) -> None:
+        for prediction in predictions:
+            emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
-            busy(False)
+
+    with answering_before_interrupt() as busy:
+        try:
+            for number, frame in frames_of(lines):
+                busy(True)
+                try:
+                    if isinstance(frame, InputLine):
+                        raise frame
+                    _check_episode(frame, number)
+                    unused = set(frame) - used - ignored
+                    if unused:
+                        ignored |= unused
+                        warn(f"note: line {number}: keys the model does not use are ignored: "
+                             f"{', '.join(sorted(unused))}")
+                    if not summary.episodes or frame.get(EPISODE) != episode:
+                        if summary.episodes:
+                            answer(model.finish(), episode)  # the episode's pending frames, decided at once
+                            times.clear()
+                            model.reset()
+                        episode = frame.get(EPISODE)
+                        summary.episodes += 1
+                    prediction = _step(model, frame, number, times)
+                except InputLine as error:
+                    summary.skipped += 1
+                    if options.strict:
+                        raise
+                    warn(f"error: {error}")
+                    busy(False)
+                    continue
+                answer(prediction.final, episode)
+                busy(False)
+        except KeyboardInterrupt:  # Ctrl-C: the frames read so far are answered, the pending ones at once
+            answer(model.finish(), episode)
+            raise
+        busy(True)
+        answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
+        busy(False)
     return summary
 
 

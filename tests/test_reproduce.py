@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from mlnseq import conflate
 from mlnseq.catalog import artifacts, methods
 from mlnseq.reporting import loading
 
@@ -79,7 +80,9 @@ def test_the_report_has_every_section_and_figure(reduced):
     for dataset in ("fetch", "desk"):
         assert f"- {dataset}: deploy **" in text and f"- {dataset}, online choice (" in text
     summary = json.loads((reports / "summary.json").read_text())
-    assert set(summary) == {"fetch", "desk"} and all(set(s) == {"online", "offline", "lstm"} for s in summary.values())
+    assert set(summary) == {"fetch", "desk"}
+    assert all({"online", "offline", "lstm"} <= set(s) <= {"online", "offline", "lstm", "live"} for s in summary.values())
+    assert all(s["online"]["lag_frames"] == 0 for s in summary.values() if "lag_frames" in s["online"])
 
 
 def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(reduced):
@@ -99,8 +102,8 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert (fixed / "models" / "lstm.pt").resolve() == (stream / "lstm.pt").resolve()
         meta = artifacts.read_metadata(fixed / artifacts.PREDICTIONS)
         assert meta["network_weight_option"] == 1.0 and meta["network_weights"] == {}
-        assert meta["methods"] == [methods.decoded_name(m, d) for d in methods.DECODES
-                                   for m in ("lstm", "mln", "conflation")]
+        every = conflate.ConflateOptions(decode=conflate.parse_decode("all")).decodes  # each decoder at each lag
+        assert meta["methods"] == [methods.decoded_name(m, d) for d in every for m in ("lstm", "mln", "conflation")]
         paper = artifacts.read_metadata(runs / dataset / "stream" / "seed-0" / artifacts.PREDICTIONS)
         assert "conflation+filter" in paper["methods"] and paper["cross_validation"]["folds"]["k"] == 5
         assert set(paper["cross_validation"]["figures"]) == set(paper["methods"])
@@ -108,7 +111,9 @@ def test_the_sequential_folders_reuse_the_paper_datasets_frames_and_networks(red
         assert artifacts.read_metadata(runs / dataset / "segment" / "seed-0" / artifacts.PREDICTIONS)["methods"] == [
             "lstm", "mln", "priorlayer", "conflation", "combined"]
         tcn = runs / f"{dataset}-tcn"
-        assert (tcn / "weights.parquet").resolve() == (runs / dataset / "weights.parquet").resolve()
+        assert (tcn / "weights.parquet").resolve() == (runs / f"{dataset}-temporal" / "weights.parquet").resolve()
+        tcn_meta = artifacts.read_metadata(tcn / "stream" / "seed-0" / artifacts.PREDICTIONS)
+        assert "conflation+filter" in tcn_meta["methods"] and tcn_meta["cross_validation"]["folds"]["k"] == 5
         assert not (tcn / "segment").exists()
         for method in ("lstm", "priorlayer"):
             assert torch.load(tcn / "stream/seed-0/models" / f"{method}.pt", weights_only=True)["config"]["model"][
@@ -152,11 +157,12 @@ def test_a_touched_spec_reruns_only_what_depends_on_it(reduced):
 def test_a_touched_temporal_spec_reruns_only_the_sequential_folders(reduced):
     planned = planned_after_touching(reduced, reduced["temporal_spec"])
     stages = [line.split("/mlnseq ", 1)[1] for line in planned.splitlines() if "timed_stage.sh" in line]
-    touched = ("-temporal", "-fixed-weight")
+    touched = ("-temporal", "-fixed-weight", "-tcn")  # D-tcn decodes with D-temporal's weights
     assert all(any(t in s for t in touched) or s.startswith("report") for s in stages), planned
     assert not any("--method lstm" in s or "-order" in s for s in stages), planned
-    # per dataset: formulas, learn-weights, priorlayer (stream), conflate and eval of 3 workdirs; then report
-    assert len(stages) == 2 * (2 + 1 + 3 + 3) + 1, planned
+    # per dataset: formulas, learn-weights, priorlayer (stream), conflate and eval of 3 workdirs, the TCN's
+    # priorlayer, conflate and eval; then report
+    assert len(stages) == 2 * (2 + 1 + 3 + 3 + 3) + 1, planned
 
 
 def test_without_desk_the_fetch_half_still_runs(reduced, tmp_path):

@@ -99,13 +99,19 @@ def method_names() -> list[str]:
 
 
 def parse_method(name: str, option: str = "--method") -> tuple[Method, str]:
-    """(method, decode) of a name such as ``combined+viterbi`` or ``network+filter``; an unknown one is a BadInput
-    naming ``option``."""
+    """(method, decode) of a name such as ``combined+viterbi``, ``network+filter`` or ``conflation+smooth-legal@5``;
+    an unknown one is a BadInput naming ``option``."""
+    from mlnseq.catalog.decoders import Decoder, parse_decoding
+
     method, plus, decode = name.partition("+")
     method = as_method(method)
-    if method not in METHODS or (plus and decode not in DECODES[1:]):
+    known = plus and decode not in DECODES[1:] and decode.partition("@")[0] in {d.value for d in Decoder} - {"none"}
+    if known:
+        parse_decoding(decode, option)  # a lagged decoder names its lag: smooth@5
+    if method not in METHODS or (plus and decode not in DECODES[1:] and not known):
         raise BadInput(f"unknown {option} {name!r}: choose one of network (or lstm), "
-                       f"{', '.join(METHODS[1:])}, optionally with +filter or +viterbi (e.g. combined+filter)")
+                       f"{', '.join(METHODS[1:])}, optionally with +filter or +viterbi (e.g. combined+filter), or "
+                       f"another decoder (e.g. conflation+smooth-legal@5)")
     return method, decode or "none"
 
 

@@ -10,8 +10,9 @@ from enum import Enum
 from typing import Any, NoReturn
 
 from mlnseq import networks
+from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.catalog.errors import BadInput
-from mlnseq.catalog.methods import DECODES, NETWORKS, MLNMode, Method, PaperFloor, Prior, WeightSource, network_of
+from mlnseq.catalog.methods import NETWORKS, MLNMode, Method, PaperFloor, Prior, WeightSource, network_of
 from mlnseq.timeline.sequences import MODES
 
 MODEL_FORMAT = 3  # 3: the paper floor of the MLN's sums; 2: members' sizes and digests, the number of formulas
@@ -110,12 +111,55 @@ def _text(value: Any) -> bool:
 
 
 def _figures(value: Any) -> bool:
-    return isinstance(value, dict) and set(value) == set(FIGURES) and all(_number(v) for v in value.values())
+    """Cross-validated figures: at least FIGURES (conflate adds the log-likelihood, forbidden transitions)."""
+    return (isinstance(value, dict) and set(FIGURES) <= set(value)
+            and all(_number(v) or (v is None and k not in FIGURES) for k, v in value.items()))
 
 
 def _member(value: Any) -> bool:
     return (isinstance(value, dict) and set(value) == {"bytes", "sha256"} and _integer(value["bytes"])
             and value["bytes"] >= 0 and isinstance(value["sha256"], str))
+
+
+def _optional_count(read: Fields, key: str) -> int | None:
+    """A count or null, None where absent (files written before the key)."""
+    return None if read.values.get(key) is None else read.count(key)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """A model's decoder and its lag, the lag in seconds, the recordings' rate and the chains' start distribution
+    (log-probabilities per class). Absent in older files: their filter or viterbi, no start distribution."""
+
+    decoding: Decoding
+    latency_s: float | None
+    rate_hz: float | None
+    start: list[float] | None
+
+    @classmethod
+    def read(cls, values: dict[str, Any], where: Any, n_classes: int) -> Timing:
+        refuse = Fields({}, where).refuse
+        decode, lag = values.get("decode"), values.get("lag")
+        try:
+            decoder = Decoder(decode)
+        except ValueError:
+            refuse(f"its manifest's decoder {decode!r} is not one this mlnseq runs "
+                   f"({', '.join(d.value for d in Decoder)})")
+        if lag is not None and not _integer(lag):
+            refuse(f"its manifest's lag {lag!r} is not a whole number of frames")
+        try:
+            decoding = Decoding(decoder, lag)
+        except BadInput as error:
+            refuse(f"its manifest's {error}")
+        numbers = {k: values.get(k) for k in ("latency_s", "rate_hz")}
+        for key, value in numbers.items():
+            if value is not None and not (_number(value) and math.isfinite(value) and value >= 0):
+                refuse(f"its manifest's {key} {value!r} is not null or a number >= 0")
+        start = values.get("start")
+        if start is not None and not (isinstance(start, list) and len(start) == n_classes
+                                      and all(_number(v) and math.isfinite(v) for v in start)):
+            refuse(f"its manifest's start is not a list of {n_classes} finite log-probabilities")
+        return cls(decoding, numbers["latency_s"], numbers["rate_hz"], start)
 
 
 @dataclass(frozen=True)
@@ -128,6 +172,7 @@ class Chosen:
     score: float
     candidates: dict[str, dict[str, float]]
     folds: int
+    budget_frames: int | None = None  # export --lag/--latency: the budget the candidates fitted
 
     @classmethod
     def read(cls, values: Any, where: Any) -> Chosen:
@@ -136,7 +181,7 @@ class Chosen:
                      read.check("figures", _figures(read.get("figures")), f"an object of {', '.join(FIGURES)}"),
                      read.number("score", -math.inf, math.inf, nan=True),
                      read.mapping("candidates", _figures, "an object of method name -> figures"),
-                     read.count("folds"))
+                     read.count("folds"), _optional_count(read, "budget_frames"))
         read.check("name", chosen.name in chosen.candidates, "one of its candidates")
         return chosen
 
@@ -202,6 +247,13 @@ class NetworkEntry:
                 refuse(f"its network's receptive field is over {RECEPTIVE_FIELD_LIMIT:,} frames")
 
 
+def _timing_fields(values: dict[str, Any], where: Any) -> dict[str, Any]:
+    """The decoder's lag, latency, rate and start distribution, checked (defaults where an older file lacks them)."""
+    classes = values.get("classes")
+    timing = Timing.read(values, where, len(classes) if isinstance(classes, list) else 0)
+    return {"lag": timing.decoding.lag, "latency_s": timing.latency_s, "rate_hz": timing.rate_hz, "start": timing.start}
+
+
 @dataclass(frozen=True)
 class Manifest:
     """What a model file declares: the recogniser (method, decoding, MLN mode and paper floor, network factor
@@ -228,6 +280,15 @@ class Manifest:
     formulas: int = 0
     members: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> {bytes, sha256}
     format: int = MODEL_FORMAT
+    lag: int | None = None  # frames a lagged decoder waits (0 for filter, None offline or undecoded)
+    latency_s: float | None = None  # the lag in seconds where the recordings' rate is known
+    rate_hz: float | None = None  # the recordings' frame rate, where known
+    start: list[float] | None = None  # the chains' start distribution (log, per class), fitted on training episodes
+
+    @property
+    def decoding(self) -> Decoding:
+        """The decoder with its lag."""
+        return Decoding(Decoder(self.decode), self.lag if Decoder(self.decode).lagged else None)
 
     @classmethod
     def read(cls, values: Any, where: Any) -> Manifest:
@@ -240,7 +301,7 @@ class Manifest:
         chosen = read.get("chosen_by_cross_validation")
         manifest = cls(
             read.text("mlnseq_version"), read.text("created"), read.choice("method", Method),
-            read.choice("decode", DECODES), read.choice("mln_mode", MLNMode), read.choice("paper_floor", PaperFloor),
+            read.text("decode"), read.choice("mln_mode", MLNMode), read.choice("paper_floor", PaperFloor),
             read.number("network_weight", 0, math.inf, optional=True),
             read.choice("network_weight_how", WeightSource, optional=True),
             None if chosen is None else Chosen.read(chosen, where),
@@ -250,7 +311,8 @@ class Manifest:
             read.names("predicates", empty=True), None if network is None else NetworkEntry.read(network, where),
             read.mapping("inputs", _text, "an object of file name -> digest"),
             read.names("notes", empty=True, unique=False), read.count("formulas"),
-            read.mapping("members", _member, "an object of member name -> {bytes, sha256}"), read.count("format"))
+            read.mapping("members", _member, "an object of member name -> {bytes, sha256}"), read.count("format"),
+            **_timing_fields(values, where))
         read.check("members", set(manifest.members) <= {SPEC, WEIGHTS, NETWORK},
                    f"an object of member name ({SPEC}, {WEIGHTS}, {NETWORK}) -> {{bytes, sha256}}")
         manifest.check(where)

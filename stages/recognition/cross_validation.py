@@ -17,13 +17,15 @@ import numpy as np
 
 from mlnseq.catalog.methods import decoded_name, network_of
 from mlnseq.mln import chain
-from mlnseq.recognition.recognizer import chain_of, decode_chain, fuse
+from mlnseq.recognition import decoding as decoders
+from mlnseq.recognition.recognizer import chain_of, fuse
 
 if TYPE_CHECKING:
     from mlnseq.mln.factors import MLNFactors
     from mlnseq.recognition.workdir_inputs import MLNInputs, WorkdirInputs
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
+# beside them: log_likelihood (nats per frame, of the true labels) and forbidden_transitions (decoded methods)
 
 
 def choice_score(figures: dict[str, float], decode: str) -> float:
@@ -79,6 +81,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     usable = [m for m in methods if (network_of(m) is None or network_of(m) in cv.log_probs)
               and (network_of(m) == m or cv.mln)]
     predicted = {decoded_name(m, d): np.zeros(len(data.labels), dtype=np.int64) for m in usable for d in decodes}
+    likelihood = {name: np.zeros(len(data.labels)) for name in predicted}  # log p(true label) per frame
+    forbidden = dict.fromkeys((name for name in predicted if "+" in name), 0)
     for k in range(folds.k):
         held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
         rows, starts = chains(held, data.episodes, folds.fold)
@@ -88,6 +92,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         factors = None
         if fold_mln is not None and any(d != "none" for d in decodes):
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
+        start = decoders.start_of(data.labels, data.episodes, fit, n_classes)
+        truth = data.labels[rows]
         learned: dict[str, float] = {}  # method -> its network factor's weight on this fold: one for every decoding
         for method in usable:
             network = network_of(method)
@@ -98,6 +104,7 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                     probabilities = fuse(method, None if log_p is None else np.exp(log_p[rows]),
                                          None if p_mln is None else p_mln[rows])
                     predicted[name][rows] = probabilities.argmax(1)
+                    likelihood[name][rows] = _log_likelihoods(probabilities, truth)
                     continue
                 weight = 1.0
                 if network is not None:
@@ -107,14 +114,28 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                     weight = fixed_weight if fixed_weight is not None else learned[method]
                     result.fold_weights.setdefault(name, []).append(weight)
                 chained = chain_of(method, factors, fold_mln.evidence[rows], starts,
-                                   None if log_p is None else log_p[rows], weight)
-                predicted[name][rows] = decode_chain(decode, chained).path
+                                   None if log_p is None else log_p[rows], weight, start)
+                decoded = decoders.decode(chained, decode)
+                predicted[name][rows] = decoded.path
+                likelihood[name][rows] = _log_likelihoods(decoded.probabilities, truth)
+                forbidden[name] += decoded.forbidden
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
         segmental = network is None or inputs.networks[network].checkpoint.mode != "segment"
         result.figures[name] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental)
+        result.figures[name]["log_likelihood"] = float(likelihood[name][rows].mean())
+        if name in forbidden:
+            result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result
+
+
+def _log_likelihoods(probabilities: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """log p(true label) per frame, floored (decoding.LIKELIHOOD_FLOOR), probabilities renormalised per frame."""
+    probabilities = np.asarray(probabilities, dtype=np.float64)
+    total = probabilities.sum(axis=1)
+    picked = probabilities[np.arange(len(labels)), labels] / np.where(total > 0, total, 1.0)
+    return np.log(np.maximum(picked, decoders.LIKELIHOOD_FLOOR))
 
 
 def test_weight(method: str, inputs: WorkdirInputs, mln: MLNFactors) -> float:

@@ -30,11 +30,13 @@ class LiveFrame:
     time: int
     prediction: Prediction
 
+    lag: int = 0  # frames the model waited before deciding this one
+
     def record(self, classes: list[str]) -> dict[str, Any]:
-        """The frame as stream writes it: episode, frame, time (s), class, probabilities."""
+        """The frame as stream writes it: episode, frame, time (s), class, probabilities, lag."""
         p = self.prediction
         return {"episode": 0, "frame": p.frame, "time": self.time / 1e9, "class": p.name,
-                "probabilities": dict(zip(classes, p.probabilities.tolist()))}
+                "probabilities": dict(zip(classes, p.probabilities.tolist())), "lag": self.lag}
 
     def json(self, classes: list[str]) -> str:
         return json.dumps(self.record(classes))
@@ -60,6 +62,8 @@ class LiveRecognizer:
         self.clock = rostopic.HoldLast(self.slots, len(model.features), self.rate)
         self.probe: list[int] | None = []  # the clock topic's first message times, until its rate is known
         self.said: set[str] = set()
+        self.times: dict[int, int] = {}  # tick time of each frame not decided yet (a lagged decoder: lag + 1)
+        self.lag = model.lag if model.decoding.decoder.lagged else 0
 
     def message(self, topic: str, time: int, values: Mapping[str, float]) -> list[LiveFrame]:
         """The ticks this message closes, recognised; then its values are held."""
@@ -85,11 +89,19 @@ class LiveRecognizer:
         return self._recognise(ticks)
 
     def finish(self) -> list[LiveFrame]:
-        """The ticks up to the last message, once the feed has ended."""
-        return self._recognise(self.clock.finish())
+        """The ticks up to the last message, once the feed has ended, and a lagged decoder's pending frames."""
+        return self._recognise(self.clock.finish()) + self._decided(self.model.finish())
 
     def _recognise(self, ticks: Iterable[tuple[int, np.ndarray]]) -> list[LiveFrame]:
-        return [LiveFrame(time, self.model.step(row)) for time, row in ticks]
+        """Each tick stepped; the frames it decides (itself, or with a lag L the frame L ticks back) answered."""
+        out = []
+        for time, row in ticks:
+            self.times[self.model.next_frame] = time
+            out += self._decided(self.model.step(row).final)
+        return out
+
+    def _decided(self, predictions: Iterable[Prediction]) -> list[LiveFrame]:
+        return [LiveFrame(self.times.pop(p.frame), p, self.lag) for p in predictions]
 
     def _probe(self, time: int) -> None:
         if self.probe is None:

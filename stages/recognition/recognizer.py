@@ -22,11 +22,13 @@ import polars as pl
 from mlnseq.model import model_file
 from mlnseq.timeline import sequences
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.decoders import Decoder
 from mlnseq.catalog.methods import (FUSED, NETWORKS, Method, MLNMode, PaperFloor, Prior, decoded_name, needs_mln,
                                     network_of)
 from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
+from mlnseq.mln.lag import Online
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
@@ -81,19 +83,25 @@ def frame_factor(method: str, mln_unary: np.ndarray, log_p_network: np.ndarray |
 
 
 def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
-             log_p_network: np.ndarray | None, weight: float) -> chain.ChainFactors:
-    """The chain a decoded method runs: its frame factors and the MLN's transition factors."""
+             log_p_network: np.ndarray | None, weight: float, start: np.ndarray | None = None) -> chain.ChainFactors:
+    """The chain a decoded method runs: its frame factors and the MLN's transition factors, and the start
+    distribution ``start`` (log [C]) at each chain's first frame, if given."""
+    from mlnseq.mln.lag import with_start
+
     factors = mln.chain(evidence, starts)
-    return replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight))
+    return with_start(replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight)), start)
 
 
 def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
     """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
     filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
     forward-backward marginals as probabilities)."""
-    if kind not in ("filter", "viterbi"):
-        raise BadInput(f"unknown decoding {kind!r}: choose filter or viterbi")
-    return chain.decode(factors, kind)
+    if kind in ("filter", "viterbi"):
+        return chain.decode(factors, kind)
+    from mlnseq.recognition.decoding import decode  # the lagged, posterior and legal decoders
+
+    decoded = decode(factors, kind)
+    return chain.Decoded(decoded.probabilities, decoded.path, decoded.restarts)
 
 
 def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:
@@ -116,6 +124,7 @@ class Prediction:
     name: str
     probabilities: np.ndarray
     restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
+    final: tuple[Prediction, ...] = ()  # the frames of the episode decided by this step (a lagged decoder: t - lag)
 
 
 class Recognizer:
@@ -134,6 +143,8 @@ class Recognizer:
         model = model_file.parse_model(entries, where)  # every manifest field checked (model/manifest.py)
         self.manifest: Manifest = model.manifest
         self.method, self.decode = self.manifest.method, self.manifest.decode
+        self.decoding, self.lag = self.manifest.decoding, self.manifest.decoding.lag
+        self.start = None if self.manifest.start is None else np.asarray(self.manifest.start, dtype=np.float64)
         needed = [NETWORK] * (network_of(self.method) is not None) + [SPEC, WEIGHTS] * needs_mln(self.method,
                                                                                                   self.decode)
         missing = [name for name in needed if name not in entries]
@@ -175,8 +186,16 @@ class Recognizer:
         self._evidence: np.ndarray | None = None
         self._network = StreamingNetwork(self.network) if self.network is not None else None
         self._filter = chain.Filter(len(self.classes)) if self.decode != "none" else None
+        self._online = None  # a lagged or legal decoder's buffer (filter and the offline decoders: the filter)
+        if self.decode != "none" and self.decoding.decoder is not Decoder.FILTER and not self.decoding.decoder.offline:
+            self._online = Online(len(self.classes), self.decoding)
         if self.spec is not None:
             self.binarizer.reset()
+
+    @property
+    def next_frame(self) -> int:
+        """The index within the episode that the next ``step``'s frame gets."""
+        return self._frame
 
     def vector(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> np.ndarray:
         """A frame's feature values in the model's order, as float64; refuses missing and non-finite values."""
@@ -213,14 +232,37 @@ class Recognizer:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
         else:
             factor = frame_factor(self.method, unary, log_p_network, self.network_weight)
+            if self._evidence is None and self.start is not None:  # an episode's first frame: the start distribution
+                factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            if self._online is not None:
+                return self._step_online(evidence, factor, pairwise)
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
         restarted = self._filter is not None and self._filter.restarted
         prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
         self._frame += 1
+        return replace(prediction, final=(prediction,))
+
+    def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None) -> Prediction:
+        """A lagged or legal decoder's step: the current frame's filtered belief, and the frames decided by it."""
+        final = self._finals(self._online.step(factor, pairwise))
+        self._evidence = evidence
+        probabilities = self._online.current
+        label = int(np.argmax(probabilities))
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, self._online.restarted,
+                                final)
+        self._frame += 1
         return prediction
+
+    def _finals(self, finals: list) -> tuple[Prediction, ...]:
+        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted) for f in finals)
+
+    def finish(self) -> list[Prediction]:
+        """The episode (or the input) ended: decide its pending frames at once (a lagged decoder's last ``lag``
+        frames); ``reset`` then starts the next. Decoders without a lag have none pending."""
+        return [] if self._online is None else list(self._finals(self._online.finish()))
 
     def _mln_of(self, evidence: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The MLN's per-frame class probabilities, PriorLayer input and chain factor of one evidence row."""
@@ -257,8 +299,8 @@ class Recognizer:
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
         ``restarts`` then lists (episode, frame within it) of each."""
-        decode = self.decode if decode is None else decode
-        if decode != self.decode and decode != "none" and self.mln is None:
+        decode = self.decoding.name if decode is None else decode
+        if decode != self.decoding.name and decode != "none" and self.mln is None:
             raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
                            "transition factors; export it again with --decode filter or viterbi")
         features = np.asarray(features, dtype=np.float64)
@@ -280,7 +322,7 @@ class Recognizer:
         if decode == "none":
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
             return probabilities, probabilities.argmax(1)
-        factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight)
+        factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight, self.start)
         decoded = decode_chain(decode, factors)
         self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
         return decoded.probabilities, decoded.path

@@ -250,6 +250,7 @@ def _deploy(run: Run) -> list[str]:
            markdown_table(["dataset", "use", "method", "variant (folder)", "CV segment acc.", "CV frame acc.",
                            "CV edit", "CV F1@50", "test segment acc.", "test frame acc.", "test edit",
                            "test F1@50"], deploy_table(run))]
+    out += live_section(run)
     sentences = [line for line in (deploy_sentence(run, d) for d in PAPER_DATASETS) if line]
     if sentences:
         out.append("\n".join(f"- {line}" for line in sentences) + "\n")
@@ -266,3 +267,22 @@ def _targets(run: Run) -> list[str]:
     out.append("\n".join(f"- {line}" for line in checks) + "\n" if checks
                else "_nothing to check: this run has no decoded stream-mode results._\n")
     return out
+
+
+def live_section(run: Run) -> list[str]:
+    """Issue 24: accuracy against latency, per decoder and lag, and the live choice within its budget."""
+    from mlnseq.reporting.latency import FIGURE, LATENCY_HEADER, latency_rows
+
+    rows = latency_rows(run)
+    if not rows:
+        return []
+    figures = [f"![{d}: accuracy against latency]({FIGURE.format(dataset=d)})\n" for d in PAPER_DATASETS
+               if any(row[0] == d for row in rows)]
+    return ["### Live recognition: accuracy against latency\n",
+            "Per decoder and lag (frame t decided once frame t + lag has arrived; Fetch runs at 25 Hz, DESK's rate is "
+            "unknown), the method of the deployable folders with the best cross-validated criterion (the mean of "
+            "segment accuracy, frame accuracy and edit on the training split's out-of-fold predictions; ties: the "
+            "log-likelihood of the true labels), its test figures (means over seeds) and the transitions it emits "
+            "on test that the chain forbids. `-legal` decoders take the argmax among the classes allowed after the "
+            "one emitted last. summary.json's `live` entry is the choice within 25 frames (DESK) or 1 s (Fetch).\n",
+            markdown_table(LATENCY_HEADER, rows), *figures]

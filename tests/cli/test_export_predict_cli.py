@@ -47,7 +47,9 @@ def test_export_then_info_then_predict(workdir, desk_test_recording, tmp_path):
 
 @pytest.mark.parametrize(("args", "needle"), [
     (["export", "--method", "hmm"], "unknown --method 'hmm'"),
-    (["export", "--decode", "smooth"], "unknown --decode 'smooth'"),
+    (["export", "--decode", "blur"], "unknown --decode 'blur'"),
+    (["export", "--decode", "smooth"], "--decode smooth waits a number of frames: give --lag FRAMES"),
+    (["export", "--lag", "-1"], "--lag -1: a lag is at least 0 frames"),
     (["info", "absent.mlnseq"], "model file absent.mlnseq not found"),
     (["predict", "absent.mlnseq", "--source", "x.csv"], "model file absent.mlnseq not found"),
 ])

@@ -98,7 +98,7 @@ def test_every_decoding_is_predicted_with_its_weight_chosen_on_validation(desk_s
 
 
 def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tmp_path, desk_mln_workdir):
-    from mlnseq.mln import classifier
+    from mlnseq.mln import chain, classifier
 
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
         shutil.copy(desk_mln_workdir / name, tmp_path / name)
@@ -109,6 +109,10 @@ def test_without_temporal_formulas_decoding_says_so_and_filters_the_exact_mln(tm
     frames, meta = artifacts.read_table(tmp_path / artifacts.FRAMES, "frames")
     scores = workdir_inputs.mln_class_scores(tmp_path, frames, meta["classes"])[0]  # weights name the classes so
     expected = np.exp(classifier.class_log_probs(scores, "exact", "clamp"))
+    # each chain's first frame also weighs the start distribution fitted on the training split's episodes
+    starts = chain.chain_starts(frames["episode"].to_numpy(), frames["split"].to_numpy() == "test")
+    primed = expected[starts] * np.exp(artifacts.read_metadata(result.path, "predictions")["start"])
+    expected[starts] = primed / primed.sum(axis=1, keepdims=True)
     np.testing.assert_allclose(table.select(artifacts.prob_columns("mln+filter", 7)).to_numpy(), expected, atol=1e-5)
 
 
@@ -126,8 +130,11 @@ def test_decoding_needs_the_mln_and_known_names(tmp_path, desk_stream_workdir):
     with pytest.raises(BadInput, match="--decode filter needs the MLN's factors: run `mlnseq learn-weights`"):
         conflate.run(tmp_path, conflate.ConflateOptions(decode=("filter",)))
     with pytest.raises(BadInput, match="--decode"):
-        conflate.ConflateOptions(decode=("smooth",)).validate()
-    assert conflate.parse_decode("all") == ("none", "filter", "viterbi")
+        conflate.ConflateOptions(decode=("blur",)).validate()
+    with pytest.raises(BadInput, match="--lags"):
+        conflate.ConflateOptions(decode=("smooth",), lags=(-1,)).validate()
+    assert conflate.parse_decode("all")[:3] == ("none", "filter", "filter-legal") and "smooth" in conflate.parse_decode("all")
+    assert conflate.ConflateOptions(decode=("smooth", "viterbi"), lags=(0, 4)).decodes == ("none", "smooth@4", "viterbi")
     assert conflate.parse_decode("none, viterbi") == ("none", "viterbi")
     with pytest.raises(BadInput, match="--network-weight"):
         conflate.parse_network_weight("heavy")

@@ -31,7 +31,9 @@ def desk_run(tmp_path_factory, desk_mln_workdir, desk_folds_workdir) -> Path:
         for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS):
             (workdir / name).symlink_to(Path("../..") / name)
         for method in train.METHODS:
-            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0, folds=0))
+            # the segment mode's curves are measured every epoch, as `make reproduce` trains them (CURVES)
+            train.run(workdir, train.TrainOptions(method=method, mode=mode, epochs=2, seed=0, folds=0,
+                                                  measure="every-epoch" if mode == "segment" else None))
         conflate.run(workdir, conflate.ConflateOptions())
         evaluation.run(workdir, evaluation.EvalOptions())
     temporal = runs / "desk-temporal"
@@ -188,7 +190,8 @@ def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
     assert "desk: stream mode, seed 0, test episode 1 (the first wholly in the test split), frames 0–599" in text
     assert "- desk: deploy **" in text and "- desk, online choice (" in text
     summary = json.loads((tmp_path / report.SUMMARY).read_text())
-    assert set(summary["desk"]) == {"online", "offline", "lstm"}
+    assert {"online", "offline", "lstm"} <= set(summary["desk"]) <= {"online", "offline", "lstm", "live"}
+    assert summary["desk"]["online"]["decoder"] == "filter" and "forbidden_transitions" in summary["desk"]["online"]
     assert set(summary["desk"]["online"]["cv"]) == {"segment_accuracy", "frame_accuracy", "edit", "f1_50"}
     assert result.n_seed_runs == 3
 

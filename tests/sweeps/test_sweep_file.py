@@ -46,7 +46,7 @@ def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tin
     ('export.decode = ["sideways"]', ["line 6", "'export.decode'", "'sideways'", "filter"]),
     ('export.output = ["x.mlnseq"]', ["line 6", "'export.output'"]),
     ('cell = "tcn"', ["line 6", "non-empty list", '["tcn"]']),
-    ('decode = ["none"]', ["refused by export", "--method auto chooses among decoded methods"]),
+    ('lag = [-1]', ["line 6", "'lag'", "--lag -1: a lag is at least 0 frames"]),
     ('formulas = ["no-such.mln"]', ["line 6", "'formulas'", "'no-such.mln' is not a formulas file"]),
 ])
 def test_a_bad_grid_is_one_line_naming_its_line_and_key(tmp_path, tiny_desk_workdir, grid_lines, words):

@@ -139,5 +139,6 @@ def test_decoding_refuses_an_unknown_kind(desk_stream_workdir):
 
     factors = chain.ChainFactors(np.zeros((3, 2)), np.zeros((1, 2, 2)), np.array([-1, 0, 0]))
     assert recognizer.decode_chain("viterbi", factors).path.shape == (3,)
-    with pytest.raises(BadInput, match="unknown decoding 'smooth'"):
-        recognizer.decode_chain("smooth", factors)
+    with pytest.raises(BadInput, match="unknown decoding 'blur'"):
+        recognizer.decode_chain("blur", factors)
+    assert recognizer.decode_chain("smooth-legal@1", factors).path.shape == (3,)

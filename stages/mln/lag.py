@@ -1,0 +1,400 @@
+"""Decoding a chain with a lag: fixed-lag smoothing, fixed-lag Viterbi, full posterior marginals, and the legal
+forms that never emit a transition the chain forbids (stages/catalog/decoders.py names them).
+
+Scores of frame t with lag L, over the frames of t's chain up to s = min(t + L, its last frame):
+  sum (smooth, posterior):  p(y_t | frames to s)  = alpha_t * beta_t^(s), beta from s back to t
+  max (lagviterbi):         the best score of a path to s through y_t = delta_t + psi_t^(s) (max-product)
+and the decision is their argmax (ties: the lower class); a legal form takes the argmax among the classes the
+transition factor allows after the class it emitted last (allowed: finite and at most FORBID nats below the
+row's best; none of them possible given the frames: the first allowed class; none allowed at all: the free
+argmax). Dead ends (no class possible given the previous frames)
+restart the chain there, as ``chain.Filter`` does; the windows do not reach across a chain start.
+
+``Online`` runs one frame at a time with a buffer of L + 1 frames (O(L C^2) per frame); ``decode`` runs whole
+recordings, every chain side by side one position at a time for the forward pass, every window side by side
+one step at a time for the backward. Both apply the same row-wise operations in the same order, so they give
+the same classes bit for bit (tests/stages/test_lag.py checks this on DESK and Fetch chains).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from mlnseq.catalog.decoders import Decoder, Decoding
+from mlnseq.mln.chain_factors import CLIP, ChainFactors
+
+FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
+
+
+def allowed(pairwise: np.ndarray) -> np.ndarray:
+    """bool [..., C, C]: transitions (class at t-1, class at t) the factor allows: finite, within FORBID of the best
+    transition from that class."""
+    pairwise = np.asarray(pairwise, dtype=np.float64)
+    top = pairwise.max(axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(pairwise) & (pairwise - np.where(np.isfinite(top), top, 0.0) > -FORBID)
+
+
+def forbidden_transitions(factors: ChainFactors, path: np.ndarray) -> int:
+    """How many frames of ``path`` follow their previous frame by a transition the chain forbids."""
+    path = np.asarray(path, dtype=np.int64)
+    joined = np.flatnonzero(factors.link >= 0)
+    if not len(joined):
+        return 0
+    ok = allowed(factors.pairwise)[factors.link[joined], path[joined - 1], path[joined]]
+    return int((~ok).sum())
+
+
+def with_start(factors: ChainFactors, start: np.ndarray | None) -> ChainFactors:
+    """The factors with a start distribution's log-probabilities [C] added at every chain's first frame."""
+    if start is None:
+        return factors
+    unary = factors.unary.copy()
+    unary[factors.link < 0] += np.asarray(start, dtype=np.float64)
+    return ChainFactors(unary, factors.pairwise, factors.link)
+
+
+def fit_start(labels: np.ndarray, starts: np.ndarray, n_classes: int, smoothing: float = 1.0) -> np.ndarray:
+    """log p(class of a chain's first frame) [C]: the classes chains begin with, counted with ``smoothing`` added
+    to every class (Laplace)."""
+    counts = np.bincount(np.asarray(labels)[np.asarray(starts, dtype=bool)], minlength=n_classes)[:n_classes]
+    counts = counts + smoothing
+    return np.log(counts / counts.sum())
+
+
+# --- row-wise steps (the same on one row and on many) -------------------------------------------------------
+
+
+def _linear(values: np.ndarray, axes: tuple[int, ...] = (-1,)) -> np.ndarray:
+    """exp(values - max over ``axes``) (each row, or each matrix), finite entries clipped at e^-CLIP, -inf as 0."""
+    top = values.max(axis=axes, keepdims=True)
+    finite = np.isfinite(values)
+    with np.errstate(invalid="ignore"):
+        shifted = np.where(finite, values - np.where(np.isfinite(top), top, 0.0), 0.0)
+    return np.where(finite, np.exp(np.maximum(shifted, -CLIP)), 0.0)
+
+
+def _normal(values: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows over their totals; a row of total 0 is ``fallback``'s row normalised (all 0: uniform); and which rows."""
+    total = values.sum(axis=1)
+    dead = ~(total > 0)
+    if dead.any():
+        rescue = np.where(fallback[dead].sum(axis=1, keepdims=True) > 0, fallback[dead], 1.0)
+        values, total = values.copy(), total.copy()
+        values[dead], total[dead] = rescue, rescue.sum(axis=1)
+    return values / total[:, None], dead
+
+
+def _sum_forward(previous: np.ndarray | None, transition: np.ndarray,
+                 linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """alpha rows after one step [B, C] and the rows that were dead ends (restarted from the unary alone)."""
+    if previous is None:
+        alpha, _ = _normal(linear, linear)
+        return alpha, np.zeros(len(linear), dtype=bool)
+    return _normal((previous[:, :, None] * transition).sum(axis=1) * linear, linear)
+
+
+def _top(values: np.ndarray) -> np.ndarray:
+    top = values.max(axis=1, keepdims=True)
+    return np.where(np.isfinite(top), top, 0.0)
+
+
+def _max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
+                 unary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """delta rows after one step [B, C] (max 0) and the rows that were dead ends."""
+    fresh = np.where(np.isfinite(unary.max(axis=1, keepdims=True)), unary - _top(unary), 0.0)
+    if previous is None:
+        return fresh, np.zeros(len(unary), dtype=bool)
+    best = (previous[:, :, None] + log_transition).max(axis=1) + unary
+    dead = ~np.isfinite(best.max(axis=1))
+    best = np.where(dead[:, None], fresh, best - _top(best))
+    return best, dead
+
+
+def _sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
+    moved = (transition * (linear * vectors)[:, None, :]).sum(axis=2)
+    top = moved.max(axis=1, keepdims=True)
+    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+
+
+def _max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray) -> np.ndarray:
+    moved = (log_transition + (unary + vectors)[:, None, :]).max(axis=2)
+    return np.where(np.isfinite(moved.max(axis=1, keepdims=True)), moved - _top(moved), 0.0)
+
+
+def _scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+    """Each frame's decision scores: the normalised marginal (sum) or the max-marginal minus its max (max)."""
+    if semiring == "max":
+        joint = forward + backward
+        return joint - _top(joint)
+    joint = forward * backward
+    total = joint.sum(axis=1, keepdims=True)
+    return np.where(total > 0, joint / np.where(total > 0, total, 1.0), forward)
+
+
+def _choose(scores: np.ndarray, semiring: str, mask: np.ndarray | None) -> np.ndarray:
+    """The argmax of each row, among the ``mask``ed classes where any of them is possible."""
+    free = scores.argmax(axis=1)
+    if mask is None:
+        return free
+    possible = mask & (scores > (0.0 if semiring == "sum" else -np.inf))
+    kept = np.where(possible, scores, -np.inf).argmax(axis=1)
+    # no allowed class possible given the frames (a dead end for the output): the first allowed class all the same
+    return np.where(possible.any(axis=1), kept, np.where(mask.any(axis=1), mask.argmax(axis=1), free))
+
+
+def probabilities_of(scores: np.ndarray, semiring: str) -> np.ndarray:
+    """Class probabilities [T, C] from decision scores: the marginals, or max-marginals normalised."""
+    if semiring == "sum":
+        return scores
+    weights = np.exp(scores)
+    return weights / weights.sum(axis=1, keepdims=True)
+
+
+# --- whole recordings -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """A chain's factors in the form both passes use: per pairwise row its scaled and log matrices and allowed
+    transitions, per frame its scaled and log unary."""
+
+    link: np.ndarray
+    transition: np.ndarray  # [P, C, C] exp(pairwise - row max), clipped
+    log_transition: np.ndarray  # [P, C, C]
+    allowed: np.ndarray  # [P, C, C] bool
+    linear: np.ndarray  # [T, C]
+    unary: np.ndarray  # [T, C]
+
+    @classmethod
+    def of(cls, factors: ChainFactors) -> _Tables:
+        pairwise = factors.pairwise
+        return cls(factors.link, _linear(pairwise, (-2, -1)), pairwise, allowed(pairwise), _linear(factors.unary),
+                   factors.unary)
+
+
+def _positions(link: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per position within a chain: the chains that reach it and their frames at it (every chain side by side)."""
+    first = np.flatnonzero(link < 0)
+    length = np.diff(np.r_[first, len(link)])
+    out = []
+    for p in range(int(length.max(initial=0))):
+        chains = np.flatnonzero(length > p)
+        out.append((chains, first[chains] + p))
+    return out
+
+
+def _forward_pass(tables: _Tables, semiring: str, positions: list) -> tuple[np.ndarray, np.ndarray]:
+    """The forward vectors [T, C] (alpha or delta) and the dead ends [T] of every chain, side by side."""
+    n_frames, n_classes = tables.unary.shape
+    out, dead = np.empty((n_frames, n_classes)), np.zeros(n_frames, dtype=bool)
+    last = None  # [chains, C] each chain's last forward vector
+    for chains, frames in positions:
+        previous = None if last is None else last[chains]
+        rows = tables.link[frames]
+        if semiring == "sum":
+            step = _sum_forward(previous, tables.transition[rows] if previous is not None else None,
+                                tables.linear[frames])
+        else:
+            step = _max_forward(previous, tables.log_transition[rows] if previous is not None else None,
+                                tables.unary[frames])
+        out[frames], dead[frames] = step
+        if last is None:
+            last = np.empty((len(chains), n_classes))
+        last[chains] = step[0]
+    return out, dead
+
+
+def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    rows = tables.link[frames]
+    if semiring == "sum":
+        return _sum_back(vectors, tables.transition[rows], tables.linear[frames])
+    return _max_back(vectors, tables.log_transition[rows], tables.unary[frames])
+
+
+def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: int | None) -> np.ndarray:
+    """[T, C] each frame's backward vector over its window: frames up to t + lag (None: to its chain's end)."""
+    n_frames, n_classes = tables.unary.shape
+    fill = 1.0 if semiring == "sum" else 0.0
+    vectors = np.full((n_frames, n_classes), fill)
+    if lag is None:  # the whole chain: one backward pass, every chain side by side from its end
+        ends = np.r_[np.flatnonzero(np.diff(segment)), n_frames - 1]
+        length = np.diff(np.r_[-1, ends])
+        for p in range(1, int(length.max(initial=1))):
+            frames = ends[length > p] - p + 1  # frame r moves into r - 1
+            vectors[frames - 1] = _back(tables, semiring, vectors[frames], frames)
+        return vectors
+    frames = np.arange(n_frames)
+    for step in range(lag, 0, -1):
+        reach = frames + step
+        ok = reach < n_frames
+        ok[ok] = segment[reach[ok]] == segment[ok.nonzero()[0]]
+        rows = np.flatnonzero(ok)
+        vectors[rows] = _back(tables, semiring, vectors[rows], reach[rows])
+    return vectors
+
+
+def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str, positions: list) -> np.ndarray:
+    """Each frame's argmax among the classes allowed after the previous frame's choice, every chain side by side."""
+    path = np.empty(len(scores), dtype=np.int64)
+    last = None  # [chains] each chain's last choice
+    for chains, frames in positions:
+        mask = None if last is None else tables.allowed[tables.link[frames], last[chains]]
+        path[frames] = chosen = _choose(scores[frames], semiring, mask)
+        if last is None:
+            last = np.empty(len(chains), dtype=np.int64)
+        last[chains] = chosen
+    return path
+
+
+@dataclass(frozen=True)
+class LagDecoded:
+    """Classes [T], decision scores turned into class probabilities [T, C], and the dead ends [R]."""
+
+    path: np.ndarray
+    probabilities: np.ndarray
+    restarts: np.ndarray
+
+
+def decode(factors: ChainFactors, decoding: Decoding) -> LagDecoded:
+    """Decode whole recordings with a smooth, lagviterbi, posterior or filter decoder (or a legal form); frames whose
+    chains end before t + lag are decided with what their chain holds (as ``Online.finish``)."""
+    decoder = decoding.decoder
+    if decoder in (Decoder.NONE, Decoder.VITERBI):
+        raise ValueError(f"lag.decode runs the chain's marginal and lagged decoders, not {decoder.value}")
+    semiring = decoder.semiring
+    n_frames = len(factors.link)
+    if n_frames == 0:
+        empty = np.zeros((0, factors.n_classes))
+        return LagDecoded(np.zeros(0, dtype=np.int64), empty, np.zeros(0, dtype=np.int64))
+    tables = _Tables.of(factors)
+    positions = _positions(tables.link)
+    forward, dead = _forward_pass(tables, semiring, positions)
+    segment = np.cumsum((tables.link < 0) | dead)
+    lag = None if decoder.offline else decoding.lag
+    backward = _backward_window(tables, semiring, segment, lag) if lag != 0 else \
+        np.full_like(forward, 1.0 if semiring == "sum" else 0.0)
+    scores = _scores(semiring, forward, backward)
+    if decoder.legal:
+        path = _legal_pass(tables, scores, semiring, positions)
+    else:
+        path = _choose(scores, semiring, None)
+    return LagDecoded(path, probabilities_of(scores, semiring), np.flatnonzero(dead))
+
+
+# --- one frame at a time -------------------------------------------------------------------------------------
+
+
+def _window(semiring: str, n_classes: int, later: list) -> np.ndarray:
+    """[C] the backward vector of one frame over the frames held after it: ``_sum_back`` and ``_max_back`` on one
+    row, the same numbers with fewer numpy calls (each row's sum runs over the same axis in the same order)."""
+    if semiring == "sum":
+        vector = np.ones(n_classes)
+        for frame in reversed(later):  # (..., transition, log_transition, allowed, linear, unary, ...)
+            moved = (frame[3][0] * (frame[6][0] * vector)).sum(axis=1)
+            top = moved.max()
+            vector = moved / top if top > 0 else np.ones(n_classes)
+        return vector
+    vector = np.zeros(n_classes)
+    for frame in reversed(later):
+        moved = (frame[4][0] + (frame[7][0] + vector)).max(axis=1)
+        top = moved.max()
+        vector = moved - top if np.isfinite(top) else np.zeros(n_classes)
+    return vector
+
+
+@dataclass(frozen=True)
+class Final:
+    """A frame decided: its index in the stream (frames counted from the first step), class and probabilities."""
+
+    index: int
+    label: int
+    probabilities: np.ndarray
+    restarted: bool  # a dead end: no class possible given the previous frames, the chain started anew there
+
+
+class Online:
+    """A lagged decoder one frame at a time: ``step`` takes a frame's unary [C] and the pairwise matrix [C, C]
+    joining it to the previous frame (None: it starts a chain) and returns the frames decided by it (frame t once
+    t + lag has arrived); ``finish`` decides the pending frames at once (an episode's end). Offline decoders
+    (posterior) keep the whole episode and decide it at ``finish``. Holds at most lag + 1 frames otherwise."""
+
+    def __init__(self, n_classes: int, decoding: Decoding):
+        if decoding.decoder in (Decoder.NONE, Decoder.VITERBI):
+            raise ValueError(f"no online form of {decoding.decoder.value} here")
+        self.n_classes, self.decoding = n_classes, decoding
+        self.semiring = decoding.decoder.semiring
+        self.lag = None if decoding.decoder.offline else decoding.lag
+        self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary)
+        self._index = 0
+        self._segment = 0
+        self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
+        self._emitted: int | None = None  # the class emitted last within the chain (None: none yet)
+        self._matrix = (b"", None)  # the last pairwise matrix's bytes and its forms
+        self._dead = False
+
+    @property
+    def current(self) -> np.ndarray:
+        """The last frame's class probabilities given the frames so far (its filtered belief; max: normalised)."""
+        return probabilities_of(self._previous, self.semiring)[0]
+
+    @property
+    def restarted(self) -> bool:
+        """Whether the last frame was a dead end (the chain started anew there)."""
+        return self._dead
+
+    @property
+    def pending(self) -> int:
+        """Frames received but not decided yet."""
+        return len(self._frames)
+
+    def _forms(self, pairwise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = pairwise.tobytes()
+        if key != self._matrix[0]:  # a stream passes the same few matrices again and again
+            self._matrix = (key, (_linear(pairwise, (-2, -1))[None], pairwise[None], allowed(pairwise)))
+        return self._matrix[1]
+
+    def step(self, unary: np.ndarray, pairwise: np.ndarray | None) -> list[Final]:
+        unary = np.asarray(unary, dtype=np.float64)[None]
+        linear = _linear(unary)
+        if pairwise is None or self._previous is None:
+            self._previous = None
+            self._segment += 1
+            transition = log_transition = allowed_ = None
+        else:
+            transition, log_transition, allowed_ = self._forms(np.asarray(pairwise, dtype=np.float64))
+        if self.semiring == "sum":
+            forward, dead = _sum_forward(self._previous, transition, linear)
+        else:
+            forward, dead = _max_forward(self._previous, log_transition, unary)
+        if dead[0]:
+            self._segment += 1
+        self._previous, self._dead = forward, bool(dead[0])
+        self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear,
+                             unary, transition is None, bool(dead[0])))
+        self._index += 1
+        if self.lag is None or len(self._frames) <= self.lag:
+            return []
+        return [self._decide()]
+
+    def finish(self) -> list[Final]:
+        """Decide every pending frame (the episode or the input ended); the next step starts a new chain."""
+        out = [self._decide() for _ in range(len(self._frames))]
+        self._previous, self._emitted = None, None
+        return out
+
+    def _decide(self) -> Final:
+        """Decide the oldest pending frame from the frames of its chain held after it."""
+        index, forward, segment, *_, starts, dead = self._frames[0]
+        later = [f for f in list(self._frames)[1:] if f[2] == segment]
+        scores = _scores(self.semiring, forward, _window(self.semiring, self.n_classes, later)[None])
+        mask = None
+        if self.decoding.decoder.legal and not starts and self._emitted is not None:
+            mask = self._frames[0][5][self._emitted][None]
+        label = int(_choose(scores, self.semiring, mask)[0])
+        self._frames.popleft()
+        self._emitted = label
+        return Final(index, label, probabilities_of(scores, self.semiring)[0], dead)

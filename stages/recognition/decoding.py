@@ -1,0 +1,60 @@
+"""Decoding a method's chain with any decoder (stages/catalog/decoders.py): the filter and Viterbi of
+stages/mln/chain.py, the lagged, posterior and legal decoders of stages/mln/lag.py; the chain's start
+distribution; and the figures a choice among decoders reads beside the accuracies (the forbidden transitions
+emitted, the log-likelihood of the true labels).
+
+The start distribution is fitted, not learned jointly: the classes the training split's episodes begin with,
+counted with one added to every class (Laplace), as log-probabilities added to each chain's first frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mlnseq.catalog.decoders import Decoder, Decoding, parse_decoding
+from mlnseq.mln import chain, lag
+
+LIKELIHOOD_FLOOR = 1e-4  # a true label's probability counts as at least this in the log-likelihood
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A decoded chain: classes [T], class probabilities [T, C], dead ends [R] and forbidden transitions emitted."""
+
+    path: np.ndarray
+    probabilities: np.ndarray
+    restarts: np.ndarray
+    forbidden: int
+
+
+def decoding_of(name: str | Decoding) -> Decoding:
+    """A decoding from its name as methods carry it (``filter``, ``smooth-legal@5``)."""
+    return name if isinstance(name, Decoding) else parse_decoding(name, "decoding")
+
+
+def decode(factors: chain.ChainFactors, decoding: str | Decoding) -> Decoded:
+    """Decode ``factors`` (its start distribution already added: ``lag.with_start``) with ``decoding``."""
+    decoding = decoding_of(decoding)
+    if decoding.decoder in (Decoder.FILTER, Decoder.VITERBI):
+        out = chain.decode(factors, decoding.decoder.value)
+        path, probabilities, restarts = out.path, out.probabilities, out.restarts
+    else:
+        out = lag.decode(factors, decoding)
+        path, probabilities, restarts = out.path, out.probabilities, out.restarts
+    return Decoded(path, probabilities, restarts, lag.forbidden_transitions(factors, path))
+
+
+def forbidden_in(factors: chain.ChainFactors, path: np.ndarray, rows: np.ndarray) -> int:
+    """Forbidden transitions ``path`` emits into the frames ``rows`` (bool [T]) selects."""
+    keep = np.asarray(rows, dtype=bool) & (factors.link >= 0)
+    link = np.where(keep, factors.link, -1)
+    return lag.forbidden_transitions(chain.ChainFactors(factors.unary, factors.pairwise, link), path)
+
+
+def start_of(labels: np.ndarray, episodes: np.ndarray, rows: np.ndarray, n_classes: int) -> np.ndarray:
+    """The start distribution (log [C]) from the episodes' first frames among ``rows`` (bool or indices)."""
+    rows = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+    first = chain.chain_starts(np.asarray(episodes)[rows])
+    return lag.fit_start(np.asarray(labels)[rows], first, n_classes)

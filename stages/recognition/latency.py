@@ -1,0 +1,195 @@
+"""Choosing a method, a decoder and a lag within a latency budget, on the cross-validated figures conflate records
+(never on test), and the recordings' frame rate that turns a lag into seconds.
+
+Candidates: every method conflate cross-validated, undecoded (lag 0) and with every decoder at every lag it was
+scored at, within the budget (offline decoders only without one). Where the chain has hard rules (a transition
+factor of -inf), only decoders that keep them are candidates (the -legal forms and viterbi). Criterion: the mean
+of the cross-validated segment accuracy, frame accuracy and edit score, ties broken by the out-of-fold
+log-likelihood of the true labels. Segment accuracy alone moves in steps of 2-8 points on the few dozen
+segments of a training split; frame accuracy moves by a frame at a time, and the mean of the three follows
+what a live user reads (the segments, the frames and their order).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from mlnseq.catalog.decoders import Decoder, Decoding, parse_decoding
+from mlnseq.catalog.errors import BadInput
+
+RATES_HZ = {"fetch": 25.0}  # sources whose frame rate the frames do not record: FetchPickAndPlace-v4 steps 0.04 s
+CRITERION = ("segment_accuracy", "frame_accuracy", "edit")
+
+
+def rate_of(frames_meta: dict[str, Any]) -> float | None:
+    """Frames per second of a workdir's recordings: the reading's rate (bags), the source's known rate, or None."""
+    reading = frames_meta.get("reading") or {}
+    rate = reading.get("rate") if isinstance(reading, dict) else None
+    if isinstance(rate, (int, float)) and rate > 0:
+        return float(rate)
+    return RATES_HZ.get(frames_meta.get("source", ""))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str  # as predictions name it: conflation+smooth-legal@5
+    method: str
+    decoding: Decoding
+    figures: dict[str, float]
+
+    @property
+    def score(self) -> tuple[float, float]:
+        accuracy = sum(self.figures.get(k, math.nan) for k in CRITERION) / len(CRITERION)
+        return (accuracy if accuracy == accuracy else -math.inf, self.figures.get("log_likelihood", -math.inf))
+
+    def record(self) -> dict[str, Any]:
+        return {"name": self.name, "method": self.method, "decoder": self.decoding.decoder.value,
+                "lag_frames": self.decoding.lag, "criterion": self.score[0], "log_likelihood": self.score[1],
+                "cv": self.figures}
+
+
+def candidates(figures: dict[str, dict[str, float]]) -> list[Candidate]:
+    """Every cross-validated method of a predictions table's metadata, with its decoding."""
+    out = []
+    for name, values in figures.items():
+        method, plus, decode = name.partition("+")
+        decoding = parse_decoding(decode, "decoding") if plus else Decoding(Decoder.NONE)
+        out.append(Candidate(name, method, decoding, values))
+    return out
+
+
+def budget_frames(lag: int | None, latency_s: float | None, rate_hz: float | None, where: str) -> int | None:
+    """The budget in frames from --lag or --latency (None: no budget); --latency needs a known rate."""
+    if lag is not None and latency_s is not None:
+        raise BadInput("give --lag FRAMES or --latency SECONDS, not both")
+    if lag is not None:
+        if lag < 0:
+            raise BadInput(f"--lag {lag}: a lag is at least 0 frames")
+        return lag
+    if latency_s is None:
+        return None
+    if not latency_s >= 0:
+        raise BadInput(f"--latency {latency_s:g}: a latency is at least 0 seconds")
+    if rate_hz is None:
+        raise BadInput(f"--latency: the frame rate of {where}'s recordings is not known; give the budget as --lag "
+                       "FRAMES instead")
+    return int(math.floor(latency_s * rate_hz + 1e-9))
+
+
+def within(candidate: Candidate, budget: int | None, decoder: Decoder | None, hard_rules: bool) -> bool:
+    """Whether a candidate fits: its lag within ``budget`` frames (None: any, offline included), the decoder asked
+    (None: any), and the hard rules kept where the chain has them."""
+    decoding = candidate.decoding
+    if decoder is not None and decoding.decoder is not decoder:
+        return False
+    if hard_rules and decoding.decoder is not Decoder.NONE and not decoding.decoder.legal:
+        return False
+    if hard_rules and decoding.decoder is Decoder.NONE:
+        return False  # per-frame classes ignore the rules
+    if budget is None:
+        return True
+    return not decoding.decoder.offline and (decoding.lag or 0) <= budget
+
+
+def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: Decoder | None = None,
+           hard_rules: bool = False, where: str = "the workdir") -> tuple[Candidate, list[Candidate]]:
+    """The best candidate by the criterion, and all those that fitted; none fits: a BadInput saying why."""
+    fitting = [c for c in candidates(figures) if within(c, budget, decoder, hard_rules)]
+    if not fitting:
+        what = f"{decoder.value} " if decoder is not None else ""
+        limit = "" if budget is None else f" within {budget} frame(s)"
+        raise BadInput(f"no cross-validated {what}candidate in {where}{limit}"
+                       + (" that keeps its hard rules" if hard_rules else "")
+                       + ": run `mlnseq conflate --decode all` (with --lags including smaller lags) or allow more")
+    return max(fitting, key=lambda c: c.score), fitting
+
+
+AUTO = "auto"  # export --method auto: the method, decoder and lag with the best cross-validated figures
+SCORED_ALWAYS = ("none", "filter", "viterbi")  # decoders export runs without asking conflate whether it scored them
+
+
+@dataclass(frozen=True)
+class Picked:
+    """What export writes: the method and its decoding (chosen by cross-validation with --method auto), the lag in
+    seconds, the recordings' rate and the chains' start distribution (log, per class; decoded methods)."""
+
+    method: str
+    decoding: Decoding
+    chosen: Any  # model.manifest.Chosen or None
+    latency_s: float | None
+    rate_hz: float | None
+    start: list[float] | None
+
+
+def pick(workdir: Any, method: str, decode: str, lag: int | None, latency_s: float | None,
+         frames_meta: dict[str, Any]) -> Picked:
+    """export's method and decoding: ``--method auto`` chooses within the budget (--lag or --latency), else
+    ``--decode`` with ``--lag`` (a lagged decoder conflate must have scored)."""
+    from mlnseq.catalog.methods import decoded_name
+
+    rate = rate_of(frames_meta)
+    decoder = Decoder(decode)
+    chosen = None
+    if method == AUTO:
+        chosen, method, decoding = _auto(workdir, decoder, budget_frames(lag, latency_s, rate, str(workdir)))
+    else:
+        if latency_s is not None and decoder.lagged:
+            lag = budget_frames(None, latency_s, rate, str(workdir))
+        if decoder.lagged and lag is None:
+            raise BadInput(f"--decode {decoder.value} waits a number of frames: give --lag FRAMES "
+                           "(or --latency SECONDS)")
+        decoding = Decoding(decoder, lag)
+        if decoder.value not in SCORED_ALWAYS:
+            name = decoded_name(method, decoding.name)
+            if name not in _scored(workdir, f"--decode {decoding.name}").get("methods", []):
+                raise BadInput(f"--decode {decoding.name}: {workdir} has no {name} predictions; run `mlnseq conflate "
+                               f"--decode {decoder.value}" + (f" --lags {decoding.lag}`" if decoder.lagged else "`")
+                               + " first")
+    offline = decoding.decoder.offline
+    start = None if decoding.decoder is Decoder.NONE else start_distribution(workdir).tolist()
+    return Picked(str(method), decoding, chosen, None if offline else decoding.latency_s(rate), rate, start)
+
+
+def _auto(workdir: Any, decoder: Decoder, budget: int | None) -> tuple[Any, str, Decoding]:
+    """``--method auto``: the candidate with the best criterion within the budget, and its record."""
+    from mlnseq.catalog.methods import Method
+    from mlnseq.model.manifest import Chosen
+
+    meta = _scored(workdir, f"--method {AUTO}")
+    figures = (meta.get("cross_validation") or {}).get("figures") or {}
+    if not figures:
+        raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated figures; train its networks with "
+                       f"folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
+                       f"`mlnseq conflate --decode all`")
+    best, fitting = choose(figures, budget, None if decoder is Decoder.NONE else decoder,
+                           bool(meta.get("hard_rules")), str(workdir))
+    chosen = Chosen(Method(best.method), best.name, best.figures, best.score[0],
+                    {c.name: c.figures for c in fitting}, meta["cross_validation"]["folds"]["k"], budget)
+    return chosen, best.method, best.decoding
+
+
+def _scored(workdir: Any, option: str) -> dict[str, Any]:
+    from mlnseq.catalog import artifacts
+
+    path = workdir / artifacts.PREDICTIONS
+    if not path.exists():
+        raise BadInput(f"{option} reads the figures conflate records: {path} not found; run `mlnseq conflate "
+                       "--decode all` first")
+    return artifacts.read_metadata(path, "predictions")
+
+
+def start_distribution(workdir: Any) -> Any:
+    """The chains' start distribution (log [C]) from the training split's episodes, as conflate fits it."""
+    import numpy as np
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.decoding import start_of
+
+    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
+    meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
+    train = frames["split"].to_numpy() != "test"
+    return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,
+                    len(meta["classes"]))
