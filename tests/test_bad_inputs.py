@@ -7,7 +7,6 @@ workdir byte-identical: no artifact replaced, no half-written or temporary file 
 from __future__ import annotations
 
 import errno
-import hashlib
 import os
 import shutil
 from pathlib import Path
@@ -18,6 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
+from refusals import refused_in, snapshot
 from mlnseq.catalog import artifacts
 from mlnseq import binarize, collect
 
@@ -37,28 +37,9 @@ def workdir(tmp_path, desk_full_workdir) -> Path:
     return Path(shutil.copytree(desk_full_workdir, tmp_path / "work"))
 
 
-def snapshot(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (hidden ones too) -> its sha256 (size and mtime if we cannot read it)."""
-    def digest(path: Path) -> str:
-        try:
-            return hashlib.sha256(path.read_bytes()).hexdigest()
-        except PermissionError:
-            return f"unreadable {path.stat().st_size} {path.stat().st_mtime_ns}"
-    return {str(p.relative_to(folder)): digest(p) for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
 def refused(workdir: Path, *args, needles: tuple[str, ...] = ()) -> str:
     """Run ``mlnseq ARGS -w WORKDIR``; assert exit 2, one error line, no traceback, workdir unchanged."""
-    before = snapshot(workdir)
-    result = runner.invoke(app, [str(a) for a in (*args, "-w", workdir)])
-    assert result.exit_code == 2, (args, result.exit_code, result.output)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    assert "Traceback" not in result.output
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    assert snapshot(workdir) == before, "a refused command changed the workdir"
-    return lines[0]
+    return refused_in(workdir, *args, "-w", workdir, needles=needles)
 
 
 def rewrite_frames(workdir: Path, change) -> None:

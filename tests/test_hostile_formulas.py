@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
+from refusals import refused
 from mlnseq.catalog import artifacts
 
 runner = CliRunner()
@@ -31,16 +32,6 @@ def ok(*args) -> str:
     result = runner.invoke(app, [str(a) for a in args])
     assert result.exit_code == 0, result.output
     return result.output
-
-
-def refused(*args, needles: tuple[str, ...] = ()) -> str:
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 2, (args, result.exit_code, result.output)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in result.output, result.stderr
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    return lines[0]
 
 
 def test_a_tiny_and_a_huge_fixed_weight_come_back_from_formulas_mln_as_written(workdir, tmp_path):

@@ -4,7 +4,6 @@ Runs the real CLI on a real DESK model and the DESK test split as a recording.""
 
 from __future__ import annotations
 
-import hashlib
 import shutil
 import subprocess
 from pathlib import Path
@@ -13,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
+from refusals import refused_in as refused
 from mlnseq import export
 from mlnseq.catalog import artifacts
 
@@ -33,23 +33,6 @@ def model(tmp_path_factory, desk_full_workdir) -> Path:
 @pytest.fixture
 def recording(tmp_path, desk_test_recording) -> Path:
     return Path(shutil.copy(desk_test_recording, tmp_path / "trial.csv"))
-
-
-def snapshot(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def refused(folder: Path, *args, needles: tuple[str, ...] = ()) -> str:
-    before = snapshot(folder)
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 2, (args, result.exit_code, result.output)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in result.output, result.stderr
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    assert snapshot(folder) == before, "a refused command changed the files"
-    return lines[0]
 
 
 @pytest.mark.parametrize("extra", ["--intervals", "--rerun"])

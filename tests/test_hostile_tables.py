@@ -14,6 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
+from refusals import refused
 
 runner = CliRunner()
 
@@ -26,17 +27,6 @@ def quiet_errors(monkeypatch):
 @pytest.fixture(scope="module")
 def motion(shared_data) -> np.ndarray:
     return np.loadtxt(shared_data / "desk-taurus" / "taurus_motion_train.txt")
-
-
-def refused(*args, needles: tuple[str, ...] = ()) -> str:
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 2, (args, result.exit_code, result.output)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    assert "Traceback" not in result.output
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    return lines[0]
 
 
 def table(motion: np.ndarray, labels, path: Path) -> Path:
