@@ -17,13 +17,12 @@ from typing import Any
 import polars as pl
 
 from mlnseq import sources
+from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
 from mlnseq.sources.recording import Collected, TableColumns, split_by_position
 from mlnseq.sources.table import collect_frames, reading_record
-
-DESK_CHANNELS = ("motion", "kinematics")  # mlnseq.sources.desk.CHANNELS, without importing the reader
 
 
 @dataclass(frozen=True)
@@ -59,7 +58,7 @@ class CollectOptions:
         if self.env == "desk":
             if self.source is None:
                 raise BadInput("--env desk needs --source DIR, the folder of the DESK Taurus files")
-            if self.channels not in DESK_CHANNELS:
+            if self.channels not in desk.CHANNELS:
                 raise BadInput(f"unknown --channels {self.channels!r}: choose motion or kinematics")
 
 
