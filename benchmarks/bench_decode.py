@@ -93,14 +93,14 @@ def main() -> None:
 
 
 def lagged(factors: chain.ChainFactors) -> None:
-    """Issue 24: the lagged and legal decoders one frame at a time (lag.Online, per frame) and over the whole
+    """Issue 24: the lagged and legal decoders one frame at a time (lag_online.Online, per frame) and over the whole
     recording at once (lag.decode), on the same DESK test chain; the two give the same classes."""
     from mlnseq.catalog.decoders import parse_decoding
-    from mlnseq.mln import lag
+    from mlnseq.mln import lag, lag_online
 
     for name in ("filter-legal", "smooth@10", "smooth-legal@25", "lagviterbi@1", "lagviterbi-legal@25"):
         decoding = parse_decoding(name)
-        online, out, times = lag.Online(factors.n_classes, decoding), [], []
+        online, out, times = lag_online.Online(factors.n_classes, decoding), [], []
         for row, joined in zip(factors.unary, factors.link):
             started = time.perf_counter()
             out += online.step(row, None if joined < 0 else factors.pairwise[joined])

@@ -169,26 +169,32 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
     start = decoders.start_of(data.labels, data.episodes, data.splits != "test", len(inputs.classes))
     result.start = start.tolist()
     test = data.splits == "test"
-    for kind in decoding:
-        for method in available:
-            network, name = network_of(method), decoded_name(method, kind)
-            rows = networks[network].parts if network is not None else split_parts
-            weight = 1.0
-            if network is not None:
-                choice = weights.choice(method, kind)
-                weight = choice.weight
-                if network_weight_option is None:  # a weight given by option is recorded as the option
-                    result.choices[name] = choice
+    decoded: dict[tuple[str, str], tuple[chain.ChainFactors, decoders.Decoded, WeightChoice | None]] = {}
+    for method in available:  # one chain per method and weight, decoded with every decoding that weight serves
+        network = network_of(method)
+        rows = networks[network].parts if network is not None else split_parts
+        chosen = {kind: weights.choice(method, kind) if network is not None else None for kind in decoding}
+        by_weight: dict[float, list[str]] = {}
+        for kind, choice in chosen.items():
+            by_weight.setdefault(1.0 if choice is None else choice.weight, []).append(kind)
+        for weight, kinds in by_weight.items():
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
                                networks[network].log_probs if network is not None else None, weight, start)
-            decoded = decoders.decode(factors, kind)
+            for kind, out in zip(kinds, decoders.decode_all(factors, kinds)):
+                decoded[method, kind] = factors, out, chosen[kind]
+    for kind in decoding:
+        for method in available:
+            name = decoded_name(method, kind)
+            factors, out, choice = decoded[method, kind]
+            if choice is not None and network_weight_option is None:  # a weight given by option is the option's
+                result.choices[name] = choice
             result.hard_rules |= bool(np.isneginf(factors.pairwise).any())
-            result.predicted[name] = decoded.path
+            result.predicted[name] = out.path
             if "@" not in kind:
-                result.probabilities[name] = decoded.probabilities
-            result.forbidden[name] = decoders.forbidden_in(factors, decoded.path, test)
-            if len(decoded.restarts):
-                keys, names = inputs.keys[decoded.restarts], inputs.meta.get("episode_names") or []  # the user's ids
+                result.probabilities[name] = out.probabilities
+            result.forbidden[name] = decoders.forbidden_in(factors, out.path, test)
+            if len(out.restarts):
+                keys, names = inputs.keys[out.restarts], inputs.meta.get("episode_names") or []  # the user's ids
                 result.restarts[name] = [(names[e] if 0 <= e < len(names) else e, f)
                                          for e, f in zip(keys["episode"].to_list(), keys["frame"].to_list())]
                 result.notes.append(Note(CHAIN_RESTARTED, restart_note(name, result.restarts[name])))

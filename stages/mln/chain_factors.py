@@ -10,6 +10,7 @@ uniform: ``Filter`` does this one frame at a time, ``_restarted`` marks the same
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,15 @@ class ChainFactors:
     @property
     def n_classes(self) -> int:
         return self.unary.shape[1]
+
+    @classmethod
+    def joined(cls, parts: Sequence[ChainFactors]) -> ChainFactors:
+        """Several chains' factors one after another, as one (each part's chains stay its own: a part starts a
+        chain at its first frame)."""
+        offsets = np.cumsum([0] + [len(part.pairwise) for part in parts[:-1]])
+        link = [np.where(part.link >= 0, part.link + offset, -1) for part, offset in zip(parts, offsets)]
+        return cls(np.concatenate([part.unary for part in parts]), np.concatenate([part.pairwise for part in parts]),
+                   np.concatenate(link))
 
 
 def _scaled(values: np.ndarray, axes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:

@@ -10,15 +10,16 @@ row's best; none of them possible given the frames: the first allowed class; non
 argmax). Dead ends (no class possible given the previous frames)
 restart the chain there, as ``chain.Filter`` does; the windows do not reach across a chain start.
 
-``Online`` runs one frame at a time with a buffer of L + 1 frames (O(L C^2) per frame); ``decode`` runs whole
+``lag_online.Online`` runs one frame at a time with a buffer of L + 1 frames (O(L C^2) per frame); ``decode`` runs whole
 recordings, every chain side by side one position at a time for the forward pass, every window side by side
 one step at a time for the backward. Both apply the same row-wise operations in the same order, so they give
-the same classes bit for bit (tests/stages/test_lag.py checks this on DESK and Fetch chains).
+the same classes bit for bit (tests/stages/mln/test_lag.py checks this on DESK and Fetch chains).
+``decode_all`` decodes one chain with several decoders, sharing their forward passes and scores.
 """
 
 from __future__ import annotations
 
-from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,7 +69,7 @@ def fit_start(labels: np.ndarray, starts: np.ndarray, n_classes: int, smoothing:
 # --- row-wise steps (the same on one row and on many) -------------------------------------------------------
 
 
-def _linear(values: np.ndarray, axes: tuple[int, ...] = (-1,)) -> np.ndarray:
+def scaled(values: np.ndarray, axes: tuple[int, ...] = (-1,)) -> np.ndarray:
     """exp(values - max over ``axes``) (each row, or each matrix), finite entries clipped at e^-CLIP, -inf as 0."""
     top = values.max(axis=axes, keepdims=True)
     finite = np.isfinite(values)
@@ -88,7 +89,7 @@ def _normal(values: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.nd
     return values / total[:, None], dead
 
 
-def _sum_forward(previous: np.ndarray | None, transition: np.ndarray,
+def sum_forward(previous: np.ndarray | None, transition: np.ndarray,
                  linear: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """alpha rows after one step [B, C] and the rows that were dead ends (restarted from the unary alone)."""
     if previous is None:
@@ -102,7 +103,7 @@ def _top(values: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(top), top, 0.0)
 
 
-def _max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
+def max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
                  unary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """delta rows after one step [B, C] (max 0) and the rows that were dead ends."""
     fresh = np.where(np.isfinite(unary.max(axis=1, keepdims=True)), unary - _top(unary), 0.0)
@@ -125,7 +126,7 @@ def _max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray
     return np.where(np.isfinite(moved.max(axis=1, keepdims=True)), moved - _top(moved), 0.0)
 
 
-def _scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+def decision_scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     """Each frame's decision scores: the normalised marginal (sum) or the max-marginal minus its max (max)."""
     if semiring == "max":
         joint = forward + backward
@@ -135,7 +136,7 @@ def _scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndar
     return np.where(total > 0, joint / np.where(total > 0, total, 1.0), forward)
 
 
-def _choose(scores: np.ndarray, semiring: str, mask: np.ndarray | None) -> np.ndarray:
+def choose(scores: np.ndarray, semiring: str, mask: np.ndarray | None) -> np.ndarray:
     """The argmax of each row, among the ``mask``ed classes where any of them is possible."""
     free = scores.argmax(axis=1)
     if mask is None:
@@ -172,7 +173,7 @@ class _Tables:
     @classmethod
     def of(cls, factors: ChainFactors) -> _Tables:
         pairwise = factors.pairwise
-        return cls(factors.link, _linear(pairwise, (-2, -1)), pairwise, allowed(pairwise), _linear(factors.unary),
+        return cls(factors.link, scaled(pairwise, (-2, -1)), pairwise, allowed(pairwise), scaled(factors.unary),
                    factors.unary)
 
 
@@ -196,10 +197,10 @@ def _forward_pass(tables: _Tables, semiring: str, positions: list) -> tuple[np.n
         previous = None if last is None else last[chains]
         rows = tables.link[frames]
         if semiring == "sum":
-            step = _sum_forward(previous, tables.transition[rows] if previous is not None else None,
+            step = sum_forward(previous, tables.transition[rows] if previous is not None else None,
                                 tables.linear[frames])
         else:
-            step = _max_forward(previous, tables.log_transition[rows] if previous is not None else None,
+            step = max_forward(previous, tables.log_transition[rows] if previous is not None else None,
                                 tables.unary[frames])
         out[frames], dead[frames] = step
         if last is None:
@@ -237,16 +238,29 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
     return vectors
 
 
-def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str, positions: list) -> np.ndarray:
-    """Each frame's argmax among the classes allowed after the previous frame's choice, every chain side by side."""
-    path = np.empty(len(scores), dtype=np.int64)
-    last = None  # [chains] each chain's last choice
-    for chains, frames in positions:
-        mask = None if last is None else tables.allowed[tables.link[frames], last[chains]]
-        path[frames] = chosen = _choose(scores[frames], semiring, mask)
-        if last is None:
-            last = np.empty(len(chains), dtype=np.int64)
-        last[chains] = chosen
+def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarray:
+    """Each frame's argmax among the classes allowed after the previous frame's choice (a chain's first frame: the
+    free argmax). The free argmax stands wherever it is possible and allowed after the previous choice; only the
+    other frames run ``choose`` with their mask, one at a time."""
+    link = tables.link
+    free = choose(scores, semiring, None)
+    floor = 0.0 if semiring == "sum" else -np.inf
+    possible = scores[np.arange(len(scores)), free] > floor
+    joined = link >= 0
+    previous = np.r_[0, free[:-1]]
+    agrees = ~joined | (possible & tables.allowed[np.where(joined, link, 0), previous, free])
+    path, n_frames = free.copy(), len(free)
+    disagreeing = np.flatnonzero(~agrees)  # frames where following the free argmax breaks a rule
+    k = 0
+    while k < len(disagreeing):
+        t = int(disagreeing[k])
+        while t < n_frames and joined[t]:  # off the free path: decide frame by frame until it is rejoined
+            mask = tables.allowed[link[t], path[t - 1]][None]
+            path[t] = choose(scores[t:t + 1], semiring, mask)[0]
+            if path[t] == free[t]:  # back on the free path: the next frame follows ``agrees``
+                break
+            t += 1
+        k = int(np.searchsorted(disagreeing, t + 1))
     return path
 
 
@@ -261,140 +275,36 @@ class LagDecoded:
 
 def decode(factors: ChainFactors, decoding: Decoding) -> LagDecoded:
     """Decode whole recordings with a smooth, lagviterbi, posterior or filter decoder (or a legal form); frames whose
-    chains end before t + lag are decided with what their chain holds (as ``Online.finish``)."""
-    decoder = decoding.decoder
-    if decoder in (Decoder.NONE, Decoder.VITERBI):
-        raise ValueError(f"lag.decode runs the chain's marginal and lagged decoders, not {decoder.value}")
-    semiring = decoder.semiring
-    n_frames = len(factors.link)
-    if n_frames == 0:
-        empty = np.zeros((0, factors.n_classes))
-        return LagDecoded(np.zeros(0, dtype=np.int64), empty, np.zeros(0, dtype=np.int64))
+    chains end before t + lag are decided with what their chain holds (as ``lag_online.Online.finish``)."""
+    return decode_all(factors, [decoding])[0]
+
+
+def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[LagDecoded]:
+    """``decode`` with each of ``decodings``, sharing what they have in common: the forward pass of each semiring,
+    and the decision scores of each (semiring, lag), which a decoder and its legal form both read."""
+    for decoding in decodings:
+        if decoding.decoder in (Decoder.NONE, Decoder.VITERBI):
+            raise ValueError(f"lag.decode runs the chain's marginal and lagged decoders, not {decoding.decoder.value}")
+    if len(factors.link) == 0:
+        empty = LagDecoded(np.zeros(0, dtype=np.int64), np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64))
+        return [empty for _ in decodings]
     tables = _Tables.of(factors)
     positions = _positions(tables.link)
-    forward, dead = _forward_pass(tables, semiring, positions)
-    segment = np.cumsum((tables.link < 0) | dead)
-    lag = None if decoder.offline else decoding.lag
-    backward = _backward_window(tables, semiring, segment, lag) if lag != 0 else \
-        np.full_like(forward, 1.0 if semiring == "sum" else 0.0)
-    scores = _scores(semiring, forward, backward)
-    if decoder.legal:
-        path = _legal_pass(tables, scores, semiring, positions)
-    else:
-        path = _choose(scores, semiring, None)
-    return LagDecoded(path, probabilities_of(scores, semiring), np.flatnonzero(dead))
-
-
-# --- one frame at a time -------------------------------------------------------------------------------------
-
-
-def _window(semiring: str, n_classes: int, later: list) -> np.ndarray:
-    """[C] the backward vector of one frame over the frames held after it: ``_sum_back`` and ``_max_back`` on one
-    row, the same numbers with fewer numpy calls (each row's sum runs over the same axis in the same order)."""
-    if semiring == "sum":
-        vector = np.ones(n_classes)
-        for frame in reversed(later):  # (..., transition, log_transition, allowed, linear, unary, ...)
-            moved = (frame[3][0] * (frame[6][0] * vector)).sum(axis=1)
-            top = moved.max()
-            vector = moved / top if top > 0 else np.ones(n_classes)
-        return vector
-    vector = np.zeros(n_classes)
-    for frame in reversed(later):
-        moved = (frame[4][0] + (frame[7][0] + vector)).max(axis=1)
-        top = moved.max()
-        vector = moved - top if np.isfinite(top) else np.zeros(n_classes)
-    return vector
-
-
-@dataclass(frozen=True)
-class Final:
-    """A frame decided: its index in the stream (frames counted from the first step), class and probabilities."""
-
-    index: int
-    label: int
-    probabilities: np.ndarray
-    restarted: bool  # a dead end: no class possible given the previous frames, the chain started anew there
-
-
-class Online:
-    """A lagged decoder one frame at a time: ``step`` takes a frame's unary [C] and the pairwise matrix [C, C]
-    joining it to the previous frame (None: it starts a chain) and returns the frames decided by it (frame t once
-    t + lag has arrived); ``finish`` decides the pending frames at once (an episode's end). Offline decoders
-    (posterior) keep the whole episode and decide it at ``finish``. Holds at most lag + 1 frames otherwise."""
-
-    def __init__(self, n_classes: int, decoding: Decoding):
-        if decoding.decoder in (Decoder.NONE, Decoder.VITERBI):
-            raise ValueError(f"no online form of {decoding.decoder.value} here")
-        self.n_classes, self.decoding = n_classes, decoding
-        self.semiring = decoding.decoder.semiring
-        self.lag = None if decoding.decoder.offline else decoding.lag
-        self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary)
-        self._index = 0
-        self._segment = 0
-        self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
-        self._emitted: int | None = None  # the class emitted last within the chain (None: none yet)
-        self._matrix = (b"", None)  # the last pairwise matrix's bytes and its forms
-        self._dead = False
-
-    @property
-    def current(self) -> np.ndarray:
-        """The last frame's class probabilities given the frames so far (its filtered belief; max: normalised)."""
-        return probabilities_of(self._previous, self.semiring)[0]
-
-    @property
-    def restarted(self) -> bool:
-        """Whether the last frame was a dead end (the chain started anew there)."""
-        return self._dead
-
-    @property
-    def pending(self) -> int:
-        """Frames received but not decided yet."""
-        return len(self._frames)
-
-    def _forms(self, pairwise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        key = pairwise.tobytes()
-        if key != self._matrix[0]:  # a stream passes the same few matrices again and again
-            self._matrix = (key, (_linear(pairwise, (-2, -1))[None], pairwise[None], allowed(pairwise)))
-        return self._matrix[1]
-
-    def step(self, unary: np.ndarray, pairwise: np.ndarray | None) -> list[Final]:
-        unary = np.asarray(unary, dtype=np.float64)[None]
-        linear = _linear(unary)
-        if pairwise is None or self._previous is None:
-            self._previous = None
-            self._segment += 1
-            transition = log_transition = allowed_ = None
-        else:
-            transition, log_transition, allowed_ = self._forms(np.asarray(pairwise, dtype=np.float64))
-        if self.semiring == "sum":
-            forward, dead = _sum_forward(self._previous, transition, linear)
-        else:
-            forward, dead = _max_forward(self._previous, log_transition, unary)
-        if dead[0]:
-            self._segment += 1
-        self._previous, self._dead = forward, bool(dead[0])
-        self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear,
-                             unary, transition is None, bool(dead[0])))
-        self._index += 1
-        if self.lag is None or len(self._frames) <= self.lag:
-            return []
-        return [self._decide()]
-
-    def finish(self) -> list[Final]:
-        """Decide every pending frame (the episode or the input ended); the next step starts a new chain."""
-        out = [self._decide() for _ in range(len(self._frames))]
-        self._previous, self._emitted = None, None
-        return out
-
-    def _decide(self) -> Final:
-        """Decide the oldest pending frame from the frames of its chain held after it."""
-        index, forward, segment, *_, starts, dead = self._frames[0]
-        later = [f for f in list(self._frames)[1:] if f[2] == segment]
-        scores = _scores(self.semiring, forward, _window(self.semiring, self.n_classes, later)[None])
-        mask = None
-        if self.decoding.decoder.legal and not starts and self._emitted is not None:
-            mask = self._frames[0][5][self._emitted][None]
-        label = int(_choose(scores, self.semiring, mask)[0])
-        self._frames.popleft()
-        self._emitted = label
-        return Final(index, label, probabilities_of(scores, self.semiring)[0], dead)
+    forward: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    scored: dict[tuple[str, int | None], np.ndarray] = {}
+    out = []
+    for decoding in decodings:
+        semiring = decoding.decoder.semiring
+        if semiring not in forward:
+            forward[semiring] = _forward_pass(tables, semiring, positions)
+        vectors, dead = forward[semiring]
+        lag = None if decoding.decoder.offline else decoding.lag
+        if (semiring, lag) not in scored:
+            segment = np.cumsum((tables.link < 0) | dead)
+            backward = _backward_window(tables, semiring, segment, lag) if lag != 0 else \
+                np.full_like(vectors, 1.0 if semiring == "sum" else 0.0)
+            scored[semiring, lag] = decision_scores(semiring, vectors, backward)
+        scores = scored[semiring, lag]
+        path = _legal_pass(tables, scores, semiring) if decoding.decoder.legal else choose(scores, semiring, None)
+        out.append(LagDecoded(path, probabilities_of(scores, semiring), np.flatnonzero(dead)))
+    return out

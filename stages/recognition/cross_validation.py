@@ -17,6 +17,7 @@ import numpy as np
 
 from mlnseq.catalog.methods import decoded_name, network_of
 from mlnseq.mln import chain
+from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.recognition import decoding as decoders
 from mlnseq.recognition.recognizer import chain_of, fuse
 
@@ -83,6 +84,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     predicted = {decoded_name(m, d): np.zeros(len(data.labels), dtype=np.int64) for m in usable for d in decodes}
     likelihood = {name: np.zeros(len(data.labels)) for name in predicted}  # log p(true label) per frame
     forbidden = dict.fromkeys((name for name in predicted if "+" in name), 0)
+    decoded = [d for d in decodes if d != "none"]
+    held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]] = {}  # method -> each fold's rows and chain
     for k in range(folds.k):
         held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
         rows, starts = chains(held, data.episodes, folds.fold)
@@ -94,31 +97,28 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
         start = decoders.start_of(data.labels, data.episodes, fit, n_classes)
         truth = data.labels[rows]
-        learned: dict[str, float] = {}  # method -> its network factor's weight on this fold: one for every decoding
         for method in usable:
             network = network_of(method)
             log_p = cv.log_probs.get(network)
-            for decode in decodes:
-                name = decoded_name(method, decode)
-                if decode == "none":
-                    probabilities = fuse(method, None if log_p is None else np.exp(log_p[rows]),
-                                         None if p_mln is None else p_mln[rows])
-                    predicted[name][rows] = probabilities.argmax(1)
-                    likelihood[name][rows] = _log_likelihoods(probabilities, truth)
-                    continue
-                weight = 1.0
-                if network is not None:
-                    if fixed_weight is None and method not in learned:
-                        learned[method] = learned_weight(method, factors, fold_mln.evidence,
-                                                         *chains(fit, data.episodes, folds.fold), log_p, data.labels)
-                    weight = fixed_weight if fixed_weight is not None else learned[method]
-                    result.fold_weights.setdefault(name, []).append(weight)
-                chained = chain_of(method, factors, fold_mln.evidence[rows], starts,
-                                   None if log_p is None else log_p[rows], weight, start)
-                decoded = decoders.decode(chained, decode)
-                predicted[name][rows] = decoded.path
-                likelihood[name][rows] = _log_likelihoods(decoded.probabilities, truth)
-                forbidden[name] += decoded.forbidden
+            if "none" in decodes:
+                probabilities = fuse(method, None if log_p is None else np.exp(log_p[rows]),
+                                     None if p_mln is None else p_mln[rows])
+                name = decoded_name(method, "none")
+                predicted[name][rows] = probabilities.argmax(1)
+                likelihood[name][rows] = _log_likelihoods(probabilities, truth)
+            if not decoded:
+                continue
+            weight = 1.0
+            if network is not None:
+                weight = fixed_weight if fixed_weight is not None else learned_weight(
+                    method, factors, fold_mln.evidence, *chains(fit, data.episodes, folds.fold), log_p, data.labels)
+                for decode in decoded:
+                    result.fold_weights.setdefault(decoded_name(method, decode), []).append(weight)
+            held_out.setdefault(method, []).append((rows, chain_of(method, factors, fold_mln.evidence[rows], starts,
+                                                                   None if log_p is None else log_p[rows], weight,
+                                                                   start)))
+    for method, parts in held_out.items():
+        _decode_held_out(method, parts, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
@@ -128,6 +128,19 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         if name in forbidden:
             result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result
+
+
+def _decode_held_out(method: str, parts: list[tuple[np.ndarray, ChainFactors]], decodes: list[str],
+                     labels: np.ndarray, predicted: dict, likelihood: dict, forbidden: dict) -> None:
+    """Decode every fold's held-out chain of ``method`` at once, one after another (the decoders' passes shared),
+    and fill in its classes, log-likelihoods of the true labels and forbidden transitions per decoding."""
+    rows = np.concatenate([part_rows for part_rows, _ in parts])
+    joined = ChainFactors.joined([chained for _, chained in parts])
+    for decode, out in zip(decodes, decoders.decode_all(joined, decodes)):
+        name = decoded_name(method, decode)
+        predicted[name][rows] = out.path
+        likelihood[name][rows] = _log_likelihoods(out.probabilities, labels[rows])
+        forbidden[name] += out.forbidden
 
 
 def _log_likelihoods(probabilities: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ counted with one added to every class (Laplace), as log-probabilities added to e
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,14 +37,20 @@ def decoding_of(name: str | Decoding) -> Decoding:
 
 def decode(factors: chain.ChainFactors, decoding: str | Decoding) -> Decoded:
     """Decode ``factors`` (its start distribution already added: ``lag.with_start``) with ``decoding``."""
-    decoding = decoding_of(decoding)
-    if decoding.decoder in (Decoder.FILTER, Decoder.VITERBI):
-        out = chain.decode(factors, decoding.decoder.value)
-        path, probabilities, restarts = out.path, out.probabilities, out.restarts
-    else:
-        out = lag.decode(factors, decoding)
-        path, probabilities, restarts = out.path, out.probabilities, out.restarts
-    return Decoded(path, probabilities, restarts, lag.forbidden_transitions(factors, path))
+    return decode_all(factors, [decoding])[0]
+
+
+def decode_all(factors: chain.ChainFactors, decodings: Sequence[str | Decoding]) -> list[Decoded]:
+    """``decode`` with each of ``decodings``; the lagged, posterior and legal ones share their passes
+    (``lag.decode_all``)."""
+    wanted = [decoding_of(d) for d in decodings]
+    lagged = [d for d in wanted if d.decoder not in (Decoder.FILTER, Decoder.VITERBI)]
+    shared = dict(zip(lagged, lag.decode_all(factors, lagged)))
+    out = []
+    for decoding in wanted:
+        got = shared[decoding] if decoding in shared else chain.decode(factors, decoding.decoder.value)
+        out.append(Decoded(got.path, got.probabilities, got.restarts, lag.forbidden_transitions(factors, got.path)))
+    return out
 
 
 def forbidden_in(factors: chain.ChainFactors, path: np.ndarray, rows: np.ndarray) -> int:

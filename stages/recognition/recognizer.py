@@ -28,7 +28,7 @@ from mlnseq.catalog.methods import (FUSED, NETWORKS, Method, MLNMode, PaperFloor
 from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
-from mlnseq.mln.lag import Online
+from mlnseq.mln.lag_online import Online
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec

@@ -11,7 +11,7 @@ import pytest
 
 from mlnseq.catalog.decoders import Decoder, Decoding, decodings, parse_decoding, parse_lags
 from mlnseq.catalog.errors import BadInput
-from mlnseq.mln import chain, lag
+from mlnseq.mln import chain, lag, lag_online
 from mlnseq.mln.chain import ChainFactors
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
@@ -56,7 +56,7 @@ def head(factors: ChainFactors, frames: int) -> ChainFactors:
 
 def online(factors: ChainFactors, decoding: Decoding) -> tuple[np.ndarray, int]:
     """Classes one frame at a time (pending frames decided at each chain's end), and the most frames held."""
-    decoder, out, held = lag.Online(factors.n_classes, decoding), [], 0
+    decoder, out, held = lag_online.Online(factors.n_classes, decoding), [], 0
     for t, row in enumerate(factors.link):
         if row < 0:
             out += decoder.finish()
@@ -80,6 +80,24 @@ def test_online_gives_the_batch_classes_on_desk_with_bounded_state(desk_order, d
     np.testing.assert_array_equal(path, batch.path)
     if not decoding.decoder.offline:
         assert held <= decoding.lag + 1
+
+
+def test_decoding_with_every_decoder_at_once_gives_each_decoders_own_classes(desk_order):
+    factors = desk_order[0]
+    for decoding, shared in zip(EVERY, lag.decode_all(factors, EVERY)):
+        alone = lag.decode(factors, decoding)
+        np.testing.assert_array_equal(shared.path, alone.path, err_msg=decoding.name)
+        np.testing.assert_array_equal(shared.probabilities, alone.probabilities, err_msg=decoding.name)
+
+
+def test_chains_joined_one_after_another_decode_as_each_alone(desk_order):
+    factors = desk_order[0]
+    training, test = head(factors, 1405), ChainFactors(factors.unary[1405:], factors.pairwise, factors.link[1405:])
+    joined = ChainFactors.joined([test, training])
+    for decoding in (Decoding(Decoder.SMOOTH_LEGAL, 5), Decoding(Decoder.POSTERIOR), Decoding(Decoder.LAGVITERBI, 2)):
+        together = lag.decode(joined, decoding).path
+        np.testing.assert_array_equal(together[:len(test.link)], lag.decode(test, decoding).path)
+        np.testing.assert_array_equal(together[len(test.link):], lag.decode(training, decoding).path)
 
 
 @pytest.mark.mujoco

@@ -1,0 +1,125 @@
+"""Lagged decoding one frame at a time: ``Online`` holds at most lag + 1 frames and decides frame t once t + lag
+has arrived, with the row-wise steps of stages/mln/lag.py, so that it gives the same classes as ``lag.decode``
+over the whole recording."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from mlnseq.catalog.decoders import Decoder, Decoding
+from mlnseq.mln.lag import allowed, choose, decision_scores, max_forward, probabilities_of, scaled, sum_forward
+
+
+def _window(semiring: str, n_classes: int, later: list) -> np.ndarray:
+    """[C] the backward vector of one frame over the frames held after it: the backward steps of stages/mln/lag.py on
+    one row, the same numbers with fewer numpy calls (each row's sum runs over the same axis in the same order)."""
+    if semiring == "sum":
+        vector = np.ones(n_classes)
+        for frame in reversed(later):  # (..., transition, log_transition, allowed, linear, unary, ...)
+            moved = (frame[3][0] * (frame[6][0] * vector)).sum(axis=1)
+            top = moved.max()
+            vector = moved / top if top > 0 else np.ones(n_classes)
+        return vector
+    vector = np.zeros(n_classes)
+    for frame in reversed(later):
+        moved = (frame[4][0] + (frame[7][0] + vector)).max(axis=1)
+        top = moved.max()
+        vector = moved - top if np.isfinite(top) else np.zeros(n_classes)
+    return vector
+
+
+@dataclass(frozen=True)
+class Final:
+    """A frame decided: its index in the stream (frames counted from the first step), class and probabilities."""
+
+    index: int
+    label: int
+    probabilities: np.ndarray
+    restarted: bool  # a dead end: no class possible given the previous frames, the chain started anew there
+
+
+class Online:
+    """A lagged decoder one frame at a time: ``step`` takes a frame's unary [C] and the pairwise matrix [C, C]
+    joining it to the previous frame (None: it starts a chain) and returns the frames decided by it (frame t once
+    t + lag has arrived); ``finish`` decides the pending frames at once (an episode's end). Offline decoders
+    (posterior) keep the whole episode and decide it at ``finish``. Holds at most lag + 1 frames otherwise."""
+
+    def __init__(self, n_classes: int, decoding: Decoding):
+        if decoding.decoder in (Decoder.NONE, Decoder.VITERBI):
+            raise ValueError(f"no online form of {decoding.decoder.value} here")
+        self.n_classes, self.decoding = n_classes, decoding
+        self.semiring = decoding.decoder.semiring
+        self.lag = None if decoding.decoder.offline else decoding.lag
+        self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary)
+        self._index = 0
+        self._segment = 0
+        self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
+        self._emitted: int | None = None  # the class emitted last within the chain (None: none yet)
+        self._matrix = (b"", None)  # the last pairwise matrix's bytes and its forms
+        self._dead = False
+
+    @property
+    def current(self) -> np.ndarray:
+        """The last frame's class probabilities given the frames so far (its filtered belief; max: normalised)."""
+        return probabilities_of(self._previous, self.semiring)[0]
+
+    @property
+    def restarted(self) -> bool:
+        """Whether the last frame was a dead end (the chain started anew there)."""
+        return self._dead
+
+    @property
+    def pending(self) -> int:
+        """Frames received but not decided yet."""
+        return len(self._frames)
+
+    def _forms(self, pairwise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = pairwise.tobytes()
+        if key != self._matrix[0]:  # a stream passes the same few matrices again and again
+            self._matrix = (key, (scaled(pairwise, (-2, -1))[None], pairwise[None], allowed(pairwise)))
+        return self._matrix[1]
+
+    def step(self, unary: np.ndarray, pairwise: np.ndarray | None) -> list[Final]:
+        unary = np.asarray(unary, dtype=np.float64)[None]
+        linear = scaled(unary)
+        if pairwise is None or self._previous is None:
+            self._previous = None
+            self._segment += 1
+            transition = log_transition = allowed_ = None
+        else:
+            transition, log_transition, allowed_ = self._forms(np.asarray(pairwise, dtype=np.float64))
+        if self.semiring == "sum":
+            forward, dead = sum_forward(self._previous, transition, linear)
+        else:
+            forward, dead = max_forward(self._previous, log_transition, unary)
+        if dead[0]:
+            self._segment += 1
+        self._previous, self._dead = forward, bool(dead[0])
+        self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear,
+                             unary, transition is None, bool(dead[0])))
+        self._index += 1
+        if self.lag is None or len(self._frames) <= self.lag:
+            return []
+        return [self._decide()]
+
+    def finish(self) -> list[Final]:
+        """Decide every pending frame (the episode or the input ended); the next step starts a new chain."""
+        out = [self._decide() for _ in range(len(self._frames))]
+        self._previous, self._emitted = None, None
+        return out
+
+    def _decide(self) -> Final:
+        """Decide the oldest pending frame from the frames of its chain held after it."""
+        index, forward, segment, *_, starts, dead = self._frames[0]
+        later = [f for f in list(self._frames)[1:] if f[2] == segment]
+        scores = decision_scores(self.semiring, forward, _window(self.semiring, self.n_classes, later)[None])
+        mask = None
+        if self.decoding.decoder.legal and not starts and self._emitted is not None:
+            mask = self._frames[0][5][self._emitted][None]
+        label = int(choose(scores, self.semiring, mask)[0])
+        self._frames.popleft()
+        self._emitted = label
+        return Final(index, label, probabilities_of(scores, self.semiring)[0], dead)
