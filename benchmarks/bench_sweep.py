@@ -6,7 +6,9 @@ and `eval --method all`, as the sweep's Snakefile runs them, each with its outpu
 
 Printed per side: wall time and CPU time (user + system of every process it started), the ratio of the walls,
 the sweep's own CPU beyond the stage commands (the difference of the CPU times: `mlnseq sweep`'s and Snakemake's
-start, the DAG, the scheduling and bookkeeping, the results table), and the load average before and after.
+start, the DAG, the scheduling and bookkeeping, the results table; under load, CPU times vary by a few seconds
+either way), the sweep's fixed cost alone (`mlnseq sweep` run again with nothing to do), and the load average
+before and after.
 Both sides must end with the same results table, which is checked. On 2 free cores the ratio approaches 2;
 other work on the machine (the load average) lowers it. The stage commands are long enough that fixed start-up
 does not dominate: most of the work is conflate's cross-validated decoding (about 45 s a config and seed).
@@ -86,9 +88,9 @@ def main() -> None:
                         f"epochs = [{epochs}]\n")
         sweep = grid.read(path, STAGES)
         load = os.getloadavg()[0]
-        swept, swept_cpu = timed(lambda: subprocess.run(
-            [mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")], check=True,
-            capture_output=True))
+        command = [mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")]
+        swept, swept_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
+        rerun, rerun_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
         serial, serial_cpu = timed(lambda: one_after_another(sweep, folder / "serial", mlnseq))
         after = os.getloadavg()[0]
         same = results.gather(sweep, folder / "sweep").drop("deploy").equals(
@@ -96,7 +98,8 @@ def main() -> None:
         print(f"sweep of 2 cells x 2 seeds on DESK ({epochs} epochs; 4 x train with 3 fold networks, conflate "
               f"--decode all, eval): mlnseq sweep --cores {CORES} {swept:.1f} s (CPU {swept_cpu:.1f} s), the same "
               f"commands one after another {serial:.1f} s (CPU {serial_cpu:.1f} s), ratio {serial / swept:.2f}x; "
-              f"the sweep's own CPU {swept_cpu - serial_cpu:+.1f} s; same results table: {'yes' if same else 'NO'} "
+              f"the sweep's own CPU {swept_cpu - serial_cpu:+.1f} s; its rerun with nothing to do {rerun:.1f} s "
+              f"(CPU {rerun_cpu:.1f} s); same results table: {'yes' if same else 'NO'} "
               f"(load average {load:.1f} before, {after:.1f} after, on {os.cpu_count()} cores)")
         if not same:
             raise SystemExit("the sweep and the commands one after another gave different results tables")
