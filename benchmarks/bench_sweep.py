@@ -5,10 +5,10 @@ frames): a grid of 2 network types x 2 seeds; per config and seed the workdir li
 and `eval --method all`, as the sweep's Snakefile runs them, each with its output to a log file.
 
 Printed per side: wall time and CPU time (user + system of every process it started), the ratio of the walls,
-the sweep's own CPU beyond the stage commands (the difference of the CPU times: `mlnseq sweep`'s and Snakemake's
-start, the DAG, the scheduling and bookkeeping, the results table; under load, CPU times vary by a few seconds
-either way), the sweep's fixed cost alone (`mlnseq sweep` run again with nothing to do), and the load average
-before and after.
+the difference of the CPU times (the sweep's own cost beyond the stage commands, `mlnseq sweep`'s and Snakemake's
+start, DAG, scheduling and results table, about 2 s (bench_sweep_overhead measures it apart), plus the stage
+commands' own variation from run to run, several seconds either way on about 200 s), the sweep's fixed cost
+alone (`mlnseq sweep` run again with nothing to do), and the load average before and after.
 Both sides must end with the same results table, which is checked. On 2 free cores the ratio approaches 2;
 other work on the machine (the load average) lowers it. The stage commands are long enough that fixed start-up
 does not dominate: most of the work is conflate's cross-validated decoding (about 45 s a config and seed).
@@ -98,7 +98,7 @@ def main() -> None:
         print(f"sweep of 2 cells x 2 seeds on DESK ({epochs} epochs; 4 x train with 3 fold networks, conflate "
               f"--decode all, eval): mlnseq sweep --cores {CORES} {swept:.1f} s (CPU {swept_cpu:.1f} s), the same "
               f"commands one after another {serial:.1f} s (CPU {serial_cpu:.1f} s), ratio {serial / swept:.2f}x; "
-              f"the sweep's own CPU {swept_cpu - serial_cpu:+.1f} s; its rerun with nothing to do {rerun:.1f} s "
+              f"CPU difference {swept_cpu - serial_cpu:+.1f} s; the sweep's rerun with nothing to do {rerun:.1f} s "
               f"(CPU {rerun_cpu:.1f} s); same results table: {'yes' if same else 'NO'} "
               f"(load average {load:.1f} before, {after:.1f} after, on {os.cpu_count()} cores)")
         if not same:
