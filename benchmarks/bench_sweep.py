@@ -1,7 +1,17 @@
 """Sweep speed: `mlnseq sweep --cores 2` (Snakemake running two stage commands at a time) against the same stage
-commands run one after another, side by side in one run, on DESK (temporal.mln, weights with 3 folds): a grid of
-2 network types x 2 seeds, each `train --mode stream` (3 fold networks), `conflate --decode all` and `eval`.
-On 2 free cores the ratio approaches 2; other work on the machine (its load average is printed) lowers it.
+commands run one after another, side by side in one run, on DESK (temporal.mln, weights with 3 folds, all 22,329
+frames): a grid of 2 network types x 2 seeds; per config and seed the workdir linked to the dataset's inputs,
+`train --mode stream` (the network and 3 fold networks), `conflate --decode all` (every decoder, cross-validated)
+and `eval --method all`, as the sweep's Snakefile runs them, each with its output to a log file.
+
+Printed per side: wall time and CPU time (user + system of every process it started), the ratio of the walls,
+the difference of the CPU times (the sweep's own cost beyond the stage commands, `mlnseq sweep`'s and Snakemake's
+start, DAG, scheduling and results table, about 2 s (bench_sweep_overhead measures it apart), plus the stage
+commands' own variation from run to run, several seconds either way on about 200 s), the sweep's fixed cost
+alone (`mlnseq sweep` run again with nothing to do), and the load average before and after.
+Both sides must end with the same results table, which is checked. On 2 free cores the ratio approaches 2;
+other work on the machine (the load average) lowers it. The stage commands are long enough that fixed start-up
+does not dominate: most of the work is conflate's cross-validated decoding (about 45 s a config and seed).
 
 ``BENCH_SWEEP_EPOCHS`` sets the epochs (default 10).
 """
@@ -17,7 +27,7 @@ import time
 from pathlib import Path
 
 from mlnseq import binarize, collect, formulas, learn_weights
-from mlnseq.sweeps import grid, workflow
+from mlnseq.sweeps import grid, results, workflow
 from mlnseq_cli.sweep import STAGES
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,29 +45,36 @@ def dataset(folder: Path) -> Path:
     return workdir
 
 
-def one_after_another(sweep: grid.Sweep, folder: Path, mlnseq: str) -> float:
-    """The sweep's stage commands, as its Snakefile writes them, run in turn: the wall time."""
+def one_after_another(sweep: grid.Sweep, out: Path, mlnseq: str) -> None:
+    """The sweep's stage commands, as its Snakefile writes them, run in turn in OUT/runs/CONFIG/seed-N."""
     config = workflow.workflow_config(sweep, mlnseq)
-    started = time.perf_counter()
     for name, flags in config["configs"].items():
         for seed in sweep.seeds:
-            workdir = folder / name / f"seed-{seed}"
-            workdir.mkdir(parents=True)
+            workdir = workflow.run_dir(out, name, seed)
+            (workdir / "logs").mkdir(parents=True)
             for input_name, source in flags["sources"].items():
-                (workdir / input_name).symlink_to(source)
-            for command in (f"train {flags['train']} --seed {seed}", f"conflate --decode all {flags['conflate']}",
-                            "eval --method all"):
-                subprocess.run([mlnseq, *shlex.split(command), "--workdir", str(workdir)], check=True,
-                               capture_output=True)
-    return time.perf_counter() - started
+                (workdir / input_name).symlink_to(Path(source).resolve())
+            commands = {f"train-{flags['network']}": f"train {flags['train']} --seed {seed}",
+                        "conflate": f"conflate --decode all {flags['conflate']}", "eval": "eval --method all"}
+            for log, command in commands.items():
+                with open(workdir / "logs" / f"{log}.log", "w") as output:
+                    subprocess.run([mlnseq, *shlex.split(command), "--workdir", str(workdir)], check=True,
+                                   stdout=output, stderr=subprocess.STDOUT)
 
 
 def children_cpu() -> float:
-    """CPU seconds (user + system) of the finished child processes so far."""
+    """CPU seconds (user + system) of the finished child processes (and theirs) so far."""
     import resource
 
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
+
+
+def timed(work) -> tuple[float, float]:
+    """Wall and CPU seconds of ``work()``'s child processes."""
+    cpu, started = children_cpu(), time.perf_counter()
+    work()
+    return time.perf_counter() - started, children_cpu() - cpu
 
 
 def main() -> None:
@@ -71,17 +88,21 @@ def main() -> None:
                         f"epochs = [{epochs}]\n")
         sweep = grid.read(path, STAGES)
         load = os.getloadavg()[0]
-        cpu, started = children_cpu(), time.perf_counter()
-        subprocess.run([mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")],
-                       check=True, capture_output=True)
-        swept, swept_cpu = time.perf_counter() - started, children_cpu() - cpu
-        cpu = children_cpu()
-        serial = one_after_another(sweep, folder / "serial", mlnseq)
-        serial_cpu = children_cpu() - cpu
-        print(f"sweep of 2 cells x 2 seeds on DESK ({epochs} epochs, 4 trainings with 3 fold networks, 4 conflate "
-              f"and 4 eval): mlnseq sweep --cores {CORES} {swept:.1f} s (CPU {swept_cpu:.1f} s), the same commands "
-              f"one after another {serial:.1f} s (CPU {serial_cpu:.1f} s), ratio {serial / swept:.2f}x (load "
-              f"average {load:.1f} before, {os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores)")
+        command = [mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")]
+        swept, swept_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
+        rerun, rerun_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
+        serial, serial_cpu = timed(lambda: one_after_another(sweep, folder / "serial", mlnseq))
+        after = os.getloadavg()[0]
+        same = results.gather(sweep, folder / "sweep").drop("deploy").equals(
+            results.gather(sweep, folder / "serial").drop("deploy"))
+        print(f"sweep of 2 cells x 2 seeds on DESK ({epochs} epochs; 4 x train with 3 fold networks, conflate "
+              f"--decode all, eval): mlnseq sweep --cores {CORES} {swept:.1f} s (CPU {swept_cpu:.1f} s), the same "
+              f"commands one after another {serial:.1f} s (CPU {serial_cpu:.1f} s), ratio {serial / swept:.2f}x; "
+              f"CPU difference {swept_cpu - serial_cpu:+.1f} s; the sweep's rerun with nothing to do {rerun:.1f} s "
+              f"(CPU {rerun_cpu:.1f} s); same results table: {'yes' if same else 'NO'} "
+              f"(load average {load:.1f} before, {after:.1f} after, on {os.cpu_count()} cores)")
+        if not same:
+            raise SystemExit("the sweep and the commands one after another gave different results tables")
 
 
 if __name__ == "__main__":

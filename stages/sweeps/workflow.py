@@ -1,9 +1,11 @@
 """The sweep's Snakemake workflow: a Snakefile whose rules are the stage commands, and the configs it reads.
 
 Per config and seed, a workdir ``runs/CONFIG/seed-N`` links the dataset's shared inputs (as `make reproduce`
-does), then ``mlnseq train``, ``conflate --decode all`` and ``eval --method all`` run in it as shell commands,
-so that Snakemake's own bookkeeping (file times, the rules' parameters and code) decides what is missing or
-stale, and its executors run the same rules on this machine or on a cluster.
+does; the train rule's command makes the links), then ``mlnseq train``, ``conflate --decode all`` and ``eval
+--method all`` run in it as shell commands, so that Snakemake's own bookkeeping (file times, the rules'
+parameters and code) decides what is missing or stale, and its executors run the same rules on this machine or
+on a cluster. Every rule is a ``shell:`` command: Snakemake 9's local executor runs a ``run:`` block in a new
+Snakemake process that parses the workflow again (about 1 s of CPU and 2-3 s of wall per job).
 """
 
 from __future__ import annotations
@@ -28,8 +30,11 @@ RESOURCES = {"train": {"mem_mb": 2000, "runtime": 60}, "conflate": {"mem_mb": 40
 
 TEMPLATE = '''\
 # Written by `mlnseq sweep {sweep_file}`: the stage commands per config and seed. Edit the sweep file and run
-# `mlnseq sweep` again rather than this file, which it rewrites.
+# `mlnseq sweep` again rather than this file, which it rewrites. Every rule is a shell command: Snakemake runs
+# those itself, where a `run:` block would cost a second Snakemake process (it parses this file again) per job.
+import os
 import re
+import shlex
 
 configfile: "{config_file}"
 
@@ -41,36 +46,31 @@ wildcard_constraints:
     config="|".join(re.escape(name) for name in CONFIGS),
     seed=r"\\d+",
 
-localrules: all, link
+localrules: all
 
 rule all:
     input: expand(WORKDIR + "/{metrics}", config=list(CONFIGS), seed=config["seeds"])
 
-def link_sources(wildcards):
+def shared_inputs(wildcards):
     return list(CONFIGS[wildcards.config]["sources"].values())
 
-rule link:
-    input: link_sources
-    output: touch(WORKDIR + "/.inputs-linked")
-    run:
-        import os
-        for name, source in CONFIGS[wildcards.config]["sources"].items():
-            target = os.path.join(os.path.dirname(output[0]), name)
-            if os.path.lexists(target):
-                os.remove(target)
-            os.symlink(os.path.abspath(source), target)
+def links(wildcards):
+    """The shell commands that link a config's workdir to its inputs (again on a rerun: ln -sfn replaces them)."""
+    folder = f"{runs}/{{wildcards.config}}/seed-{{wildcards.seed}}"
+    return " && ".join(f"ln -sfn {{shlex.quote(os.path.abspath(source))}} {{shlex.quote(os.path.join(folder, name))}}"
+                       for name, source in CONFIGS[wildcards.config]["sources"].items())
 
 # A formulas file of the grid: the dataset's frames and predicates linked, `formulas --spec`, then its weights and
 # each fold's, learned with the dataset's folds.
 rule formulas:
     input: lambda w: config["specs"][w.spec]
     output: "{formulas}/{{spec}}/formulas.mln"
-    params: spec=lambda w: config["specs_quoted"][w.spec], mlnseq=config["mlnseq"], dir="{formulas}/{{spec}}"
+    params: spec=lambda w: config["specs_quoted"][w.spec], mlnseq=config["mlnseq"], dir="{formulas}/{{spec}}",
+            shared=config["shared_quoted"]
     log: "{formulas}/{{spec}}/logs/formulas.log"
-    run:
-        for name in ("{frames}", "{predicates}"):
-            shell("ln -sfn {{config[shared_quoted]}}/" + name + " {{params.dir}}/" + name)
-        shell("{{params.mlnseq}} formulas --spec {{params.spec}} --workdir {{params.dir}} > {{log}} 2>&1")
+    shell: "ln -sfn {{params.shared}}/{frames} {{params.dir}}/{frames} && "
+           "ln -sfn {{params.shared}}/{predicates} {{params.dir}}/{predicates} && "
+           "{{params.mlnseq}} formulas --spec {{params.spec}} --workdir {{params.dir}} > {{log}} 2>&1"
 
 rule learn_weights:
     input: "{formulas}/{{spec}}/formulas.mln"
@@ -81,14 +81,15 @@ rule learn_weights:
     resources: mem_mb=2000, runtime=30
     shell: "{{params.mlnseq}} learn-weights {{input}} --folds {{params.folds}} --workdir {{params.dir}} > {{log}} 2>&1"
 
+# The config's workdir linked to the dataset's inputs (or its formulas' weights), then the networks trained in it.
 rule train:
-    input: WORKDIR + "/.inputs-linked"
+    input: shared_inputs
     output: WORKDIR + "/models/{{network}}.pt"
-    params: flags=lambda w: CONFIGS[w.config]["train"] + " --seed " + w.seed, mlnseq=config["mlnseq"]
+    params: links=links, flags=lambda w: CONFIGS[w.config]["train"] + " --seed " + w.seed, mlnseq=config["mlnseq"]
     log: WORKDIR + "/logs/train-{{network}}.log"
     threads: 1
     resources: {train}
-    shell: "{{params.mlnseq}} train {{params.flags}} --workdir " + IN_SHELL + " > {{log}} 2>&1"
+    shell: "{{params.links}} && {{params.mlnseq}} train {{params.flags}} --workdir " + IN_SHELL + " > {{log}} 2>&1"
 
 rule conflate:
     input: lambda w: f"{runs}/{{w.config}}/seed-{{w.seed}}/models/{{CONFIGS[w.config]['network']}}.pt"

@@ -1,0 +1,89 @@
+"""The sweep's own cost, measured apart from its stage commands: the sweep's Snakefile for 2 cells x 2 seeds
+(1 epoch) on a small DESK dataset (the training recording and the first 1,500 test frames, as tests/sweeps use)
+run by Snakemake with `--cores 2`, each stage command through a shell wrapper that logs its own CPU time (bash's
+``times``); Snakemake's CPU is the whole run's CPU less the stage commands'. Unlike a difference of two whole
+runs (bench_sweep), this holds under load: only the 12 jobs' own CPU is subtracted.
+"""
+
+from __future__ import annotations
+
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks.bench_sweep import children_cpu
+from mlnseq import binarize, collect, formulas, learn_weights
+from mlnseq import sweep as stage
+from mlnseq.sweeps import grid, workflow
+from mlnseq_cli.sweep import STAGES
+
+REPO = Path(__file__).resolve().parents[1]
+DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
+TEST_FRAMES = 1500
+
+
+def small_dataset(folder: Path) -> Path:
+    """DESK's training recording and its first 1,500 test frames, with temporal.mln's weights over 3 folds."""
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+
+    full, workdir = folder / "full", folder / "desk"
+    collect.run(full, collect.CollectOptions(env="desk", source=DESK_SOURCE))
+    frames, meta = artifacts.read_table(full / artifacts.FRAMES, "frames")
+    small = pl.concat([frames.filter(pl.col("split") == "train"),
+                       frames.filter(pl.col("split") == "test").head(TEST_FRAMES)])
+    kept = {k: v for k, v in meta.items() if k not in ("schema_version", "kind", "mlnseq_version", "created", "inputs")}
+    artifacts.write_table(small, workdir / artifacts.FRAMES, "frames", kept)
+    binarize.run(workdir, binarize.BinarizeOptions())
+    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
+    return workdir
+
+
+def timing_wrapper(folder: Path, mlnseq: str, logs: Path) -> str:
+    """A command that runs mlnseq, then writes bash's ``times`` (its own CPU, then its children's) to a file of
+    its own in ``logs``."""
+    wrapper = folder / "timed-mlnseq"
+    wrapper.write_text(f'#!/bin/bash\n{shlex.quote(mlnseq)} "$@"\nstatus=$?\ntimes > {shlex.quote(str(logs))}/$$'
+                       '\nexit $status\n')
+    wrapper.chmod(0o755)
+    return str(wrapper)
+
+
+def seconds(text: str) -> float:
+    """bash's ``times`` figure, e.g. 1m2.500s, in seconds."""
+    minutes, _, rest = text.partition("m")
+    return 60 * float(minutes) + float(rest.rstrip("s"))
+
+
+def main() -> None:
+    mlnseq = str(Path(sys.executable).with_name("mlnseq"))
+    with tempfile.TemporaryDirectory() as name:
+        folder = Path(name)
+        workdir = small_dataset(folder)
+        path = folder / "sweep.toml"
+        path.write_text(f'[sweep]\nworkdir = "{workdir}"\nseeds = [0, 1]\n\n[grid]\ncell = ["lstm", "tcn"]\n'
+                        "epochs = [1]\n")
+        sweep, logs, out = grid.read(path, STAGES), folder / "stage-cpu", folder / "sweep"
+        logs.mkdir()
+        snakefile = workflow.write(sweep, out, timing_wrapper(folder, mlnseq, logs))
+        command = stage.snakemake_command(snakefile, out, stage.SweepOptions(cores=2))
+        cpu, started = children_cpu(), time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True)
+        wall, cpu = time.perf_counter() - started, children_cpu() - cpu
+        jobs = [sum(map(seconds, log.read_text().splitlines()[1].split())) for log in logs.iterdir()]
+        noop = children_cpu()
+        subprocess.run(command, check=True, capture_output=True)
+        noop = children_cpu() - noop
+        print(f"the sweep's Snakemake run, 2 cells x 2 seeds (1 epoch) on 1,405 + {TEST_FRAMES:,} DESK frames, "
+              f"--cores 2: {wall:.1f} s, CPU {cpu:.1f} s, of which its {len(jobs)} stage commands {sum(jobs):.1f} s "
+              f"and Snakemake {cpu - sum(jobs):.1f} s (with nothing left to do: {noop:.1f} s; per job "
+              f"{(cpu - sum(jobs) - noop) / len(jobs):.2f} s)")
+
+
+if __name__ == "__main__":
+    main()
