@@ -22,10 +22,10 @@ $(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/link_ros1.py
 $(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
 	bash scripts/install_pracmln.sh $(VENV) && touch $@
 
-test: setup ## Run the test suite (without the SLURM cluster's test)
-	$(VENV)/bin/pytest -q -m "not slurm"
+test: setup ## Run the test suite (the SLURM cluster's test included: root, about a minute)
+	$(VENV)/bin/pytest -q
 
-test-slurm: setup ## Run the sweep through a real one-node SLURM cluster started on this machine (root; minutes)
+test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
 	$(VENV)/bin/pytest -q -m slurm tests/sweeps
 
 bench: setup ## Run the benchmarks (figures and ratios measured side by side)

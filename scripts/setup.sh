@@ -19,11 +19,11 @@ if ! ros_ready && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     || echo "setup: apt-get could not install $ROS_PACKAGES; the ROS test will say so"
 fi
 if ros_ready; then /usr/bin/python3 scripts/link_ros1.py .venv; fi
-# mlnseq sweep's cluster test (make test-slurm) starts a one-node SLURM: Debian's slurm-wlm and munge, installed
+# mlnseq sweep's cluster test (in make test) starts a one-node SLURM: Debian's slurm-wlm and munge, installed
 # where apt-get exists and we are root (elsewhere that test skips, or fails under CI, saying what is missing).
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v slurmctld >/dev/null; then
   { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge >/dev/null; } \
-    || echo "setup: slurm-wlm and munge not installed (make test-slurm needs them)"
+    || echo "setup: slurm-wlm and munge not installed (the SLURM cluster test needs them)"
 fi
 touch .venv/.setup-done
 echo "setup: .venv ready"

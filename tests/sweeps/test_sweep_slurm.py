@@ -1,9 +1,9 @@
 """The tiny sweep through a real one-node SLURM cluster (Snakemake's SLURM executor, one cluster job per rule, the
 example profile's settings) gives the same results table as the same sweep run locally.
 
-Its own target, `make test-slurm` (several minutes: the executor's status checks wait 2 s, then 10 s more at a
-time while no job has finished); `make test` leaves it out (marker slurm). Without slurm-wlm, munge or root it
-skips with the reason, except under CI (CI=true), where it fails."""
+In `make test`, and alone in `make test-slurm` (about a minute on a free machine, several when loaded: the
+executor's status checks wait 2 s, then 10 s more at a time while no job has finished; marker slurm). Without
+slurm-wlm, munge or root it skips with the reason, except under CI (CI=true), where it fails."""
 
 from __future__ import annotations
 
