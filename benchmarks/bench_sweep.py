@@ -77,18 +77,23 @@ def timed(work) -> tuple[float, float]:
     return time.perf_counter() - started, children_cpu() - cpu
 
 
+def sweep_file(folder: Path, workdir: Path, epochs: int) -> grid.Sweep:
+    """FOLDER/sweep.toml: 2 network types (lstm, tcn) x seeds 0 and 1 on ``workdir``, ``epochs`` each; read back."""
+    path = folder / "sweep.toml"
+    path.write_text(f'[sweep]\nworkdir = "{workdir}"\nseeds = [0, 1]\n\n[grid]\ncell = ["lstm", "tcn"]\n'
+                    f"epochs = [{epochs}]\n")
+    return grid.read(path, STAGES)
+
+
 def main() -> None:
     epochs = int(os.environ.get("BENCH_SWEEP_EPOCHS", "10"))
     mlnseq = str(Path(sys.executable).with_name("mlnseq"))
     with tempfile.TemporaryDirectory() as name:
         folder = Path(name)
         workdir = dataset(folder)
-        path = folder / "sweep.toml"
-        path.write_text(f'[sweep]\nworkdir = "{workdir}"\nseeds = [0, 1]\n\n[grid]\ncell = ["lstm", "tcn"]\n'
-                        f"epochs = [{epochs}]\n")
-        sweep = grid.read(path, STAGES)
+        sweep = sweep_file(folder, workdir, epochs)
         load = os.getloadavg()[0]
-        command = [mlnseq, "sweep", str(path), "--cores", str(CORES), "--out", str(folder / "sweep")]
+        command = [mlnseq, "sweep", str(sweep.path), "--cores", str(CORES), "--out", str(folder / "sweep")]
         swept, swept_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
         rerun, rerun_cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
         serial, serial_cpu = timed(lambda: one_after_another(sweep, folder / "serial", mlnseq))

@@ -11,14 +11,12 @@ import shlex
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from benchmarks.bench_sweep import children_cpu
+from benchmarks.bench_sweep import sweep_file, timed
 from mlnseq import binarize, collect, formulas, learn_weights
 from mlnseq import sweep as stage
-from mlnseq.sweeps import grid, workflow
-from mlnseq_cli.sweep import STAGES
+from mlnseq.sweeps import workflow
 
 REPO = Path(__file__).resolve().parents[1]
 DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
@@ -65,20 +63,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as name:
         folder = Path(name)
         workdir = small_dataset(folder)
-        path = folder / "sweep.toml"
-        path.write_text(f'[sweep]\nworkdir = "{workdir}"\nseeds = [0, 1]\n\n[grid]\ncell = ["lstm", "tcn"]\n'
-                        "epochs = [1]\n")
-        sweep, logs, out = grid.read(path, STAGES), folder / "stage-cpu", folder / "sweep"
+        sweep, logs, out = sweep_file(folder, workdir, 1), folder / "stage-cpu", folder / "sweep"
         logs.mkdir()
         snakefile = workflow.write(sweep, out, timing_wrapper(folder, mlnseq, logs))
         command = stage.snakemake_command(snakefile, out, stage.SweepOptions(cores=2))
-        cpu, started = children_cpu(), time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True)
-        wall, cpu = time.perf_counter() - started, children_cpu() - cpu
+        wall, cpu = timed(lambda: subprocess.run(command, check=True, capture_output=True))
         jobs = [sum(map(seconds, log.read_text().splitlines()[1].split())) for log in logs.iterdir()]
-        noop = children_cpu()
-        subprocess.run(command, check=True, capture_output=True)
-        noop = children_cpu() - noop
+        _, noop = timed(lambda: subprocess.run(command, check=True, capture_output=True))
         print(f"the sweep's Snakemake run, 2 cells x 2 seeds (1 epoch) on 1,405 + {TEST_FRAMES:,} DESK frames, "
               f"--cores 2: {wall:.1f} s, CPU {cpu:.1f} s, of which its {len(jobs)} stage commands {sum(jobs):.1f} s "
               f"and Snakemake {cpu - sum(jobs):.1f} s (with nothing left to do: {noop:.1f} s; per job "
