@@ -27,8 +27,10 @@ def segment_frame(length: int, fraction: float) -> int:
     return max(int(length * fraction) - 1, 0)
 
 
-def segment_predictions(spans: list[slice], predictions: np.ndarray, fraction: float) -> np.ndarray:
-    return np.array([predictions[s.start + segment_frame(s.stop - s.start, fraction)] for s in spans])
+def segment_predictions(starts: np.ndarray, lengths: np.ndarray, predictions: np.ndarray,
+                        fraction: float) -> np.ndarray:
+    """The prediction recognising each segment (``starts``, ``lengths``): :func:`segment_frame` of every one at once."""
+    return predictions[starts + np.maximum((lengths * fraction).astype(np.int64) - 1, 0)]
 
 
 def label_runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
@@ -64,10 +66,27 @@ def levenshtein(a: np.ndarray, b: np.ndarray) -> int:
 
 def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
     """100·(1 − Levenshtein distance of the segment label sequences / the longer one's length)."""
-    p, t = _runs_array(predicted)[:, 0], _runs_array(truth)[:, 0]
+    return _edit(_runs_array(predicted)[:, 0], _runs_array(truth)[:, 0])
+
+
+def _edit(p: np.ndarray, t: np.ndarray) -> float:
     if not len(p) and not len(t):
         return 100.0
     return float(100 * (1 - levenshtein(p, t) / max(len(p), len(t))))
+
+
+def edit_scores(predicted: np.ndarray, truth: np.ndarray, episodes: np.ndarray) -> list[float]:
+    """:func:`edit_score` of each episode (a maximal run of ``episodes``), the runs of all found at once."""
+    p, t = _runs_array(predicted, episodes), _runs_array(truth, episodes)
+    if not len(p):
+        return []
+    first = np.flatnonzero(np.r_[True, np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]])
+    return [_edit(a, b) for a, b in zip(_by_episode(p, first), _by_episode(t, first))]
+
+
+def _by_episode(runs: np.ndarray, first: np.ndarray) -> list[np.ndarray]:
+    """The labels of ``runs`` (cut at every episode start ``first``) split per episode."""
+    return np.split(runs[:, 0], np.searchsorted(runs[:, 1], first[1:]))
 
 
 def _runs_array(labels: np.ndarray, episodes: np.ndarray | None = None) -> np.ndarray:
@@ -157,8 +176,10 @@ def score_method(
 ) -> dict[str, Any]:
     """Every metric of one method on test frames (rows in order; ``episodes`` delimits sequences)."""
     spans = sequences.segments(episodes, np.zeros_like(episodes), labels)
-    truth = np.array([labels[s.start] for s in spans])
-    recognised = segment_predictions(spans, predictions, fraction)
+    starts = np.array([s.start for s in spans], dtype=np.int64)
+    lengths = np.array([s.stop - s.start for s in spans], dtype=np.int64)
+    truth = labels[starts]
+    recognised = segment_predictions(starts, lengths, predictions, fraction)
     confusion = np.zeros((n_classes, n_classes), dtype=np.int64)
     np.add.at(confusion, (truth, recognised), 1)
     per_class = {k: float(confusion[k, k] / confusion[k].sum()) if confusion[k].sum() else float("nan")
@@ -172,13 +193,14 @@ def score_method(
         "segment_accuracy": float((recognised == truth).mean()),
         "frame_accuracy": float((predictions == labels).mean()),
         "per_class": per_class,
-        "early": {f: float((segment_predictions(spans, predictions, f) == truth).mean()) for f in EARLY_FRACTIONS},
+        "early": {f: float((segment_predictions(starts, lengths, predictions, f) == truth).mean())
+                  for f in EARLY_FRACTIONS},
         "macro_f1": float(np.mean(f1_per_class)),
         "confusion": confusion.tolist(),
         "n_segments": len(spans),
     }
     if segmental:
-        result["edit"] = float(np.mean([edit_score(predictions[b], labels[b]) for b in sequences.runs(episodes)]))
+        result["edit"] = float(np.mean(edit_scores(predictions, labels, episodes)))
         counts = overlap_counts_all(predictions, labels, OVERLAPS, episodes)  # tp, fp, fn summed over episodes
         for o in OVERLAPS:
             result[f"f1@{int(o * 100)}"] = f1(*counts[o])

@@ -176,3 +176,29 @@ def test_overlap_counts_over_episodes_in_one_pass_are_the_sums_over_each_episode
     check()
     with pytest.raises(ValueError):
         stage.overlap_counts_all(np.zeros(3, int), np.zeros(3, int), (0.0,), np.zeros(3, int))
+
+
+def test_edit_scores_over_episodes_in_one_pass_are_each_episodes_edit_score():
+    """score_method's edit: the runs of every episode found at once give each episode's own edit score, and each
+    segment's recognising frame taken at once is segment_frame's (random episodes, an id may come back later)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=200, deadline=None, derandomize=True, database=None)
+    @given(_label_sequences(), st.lists(st.integers(1, 15), min_size=1, max_size=8),
+           st.sampled_from(stage.EARLY_FRACTIONS + (0.5, 1.0)))
+    def check(pair, lengths, fraction):
+        predicted, truth = pair
+        n = min(len(predicted), len(truth))
+        predicted, truth = predicted[:n], truth[:n]
+        episodes = np.resize(np.repeat(np.arange(len(lengths)) % 3, lengths), n)
+        blocks = stage.sequences.runs(episodes)
+        assert stage.edit_scores(predicted, truth, episodes) == [stage.edit_score(predicted[b], truth[b])
+                                                                 for b in blocks]
+        spans = stage.sequences.segments(episodes, np.zeros_like(episodes), truth)
+        starts = np.array([s.start for s in spans], dtype=np.int64)
+        lengths_ = np.array([s.stop - s.start for s in spans], dtype=np.int64)
+        at = [predicted[s.start + stage.segment_frame(s.stop - s.start, fraction)] for s in spans]
+        assert stage.segment_predictions(starts, lengths_, predicted, fraction).tolist() == at
+
+    check()
