@@ -169,23 +169,29 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
     start = decoders.start_of(data.labels, data.episodes, data.splits != "test", len(inputs.classes))
     result.start = start.tolist()
     test = data.splits == "test"
-    decoded: dict[tuple[str, str], tuple[chain.ChainFactors, decoders.Decoded, WeightChoice | None]] = {}
-    for method in available:  # one chain per method and weight, decoded with every decoding that weight serves
+    # one chain per method and weight, decoded with every decoding that weight serves; the chains served by the same
+    # decodings are decoded at once (decoders.decode_each)
+    chains: dict[tuple[str, ...], list[tuple[str, chain.ChainFactors]]] = {}
+    chosen: dict[tuple[str, str], WeightChoice | None] = {}
+    for method in available:
         network = network_of(method)
         rows = networks[network].parts if network is not None else split_parts
-        chosen = {kind: weights.choice(method, kind) if network is not None else None for kind in decoding}
         by_weight: dict[float, list[str]] = {}
-        for kind, choice in chosen.items():
+        for kind in decoding:
+            choice = chosen[method, kind] = weights.choice(method, kind) if network is not None else None
             by_weight.setdefault(1.0 if choice is None else choice.weight, []).append(kind)
         for weight, kinds in by_weight.items():
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
                                networks[network].log_probs if network is not None else None, weight, start)
-            for kind, out in zip(kinds, decoders.decode_all(factors, kinds)):
-                decoded[method, kind] = factors, out, chosen[kind]
+            chains.setdefault(tuple(kinds), []).append((method, factors))
+    decoded: dict[tuple[str, str], tuple[chain.ChainFactors, decoders.Decoded]] = {}
+    for kinds, group in chains.items():
+        for (method, factors), outs in zip(group, decoders.decode_each([f for _, f in group], kinds)):
+            decoded.update({(method, kind): (factors, out) for kind, out in zip(kinds, outs)})
     for kind in decoding:
         for method in available:
             name = decoded_name(method, kind)
-            factors, out, choice = decoded[method, kind]
+            (factors, out), choice = decoded[method, kind], chosen[method, kind]
             if choice is not None and network_weight_option is None:  # a weight given by option is the option's
                 result.choices[name] = choice
             result.hard_rules |= bool(np.isneginf(factors.pairwise).any())

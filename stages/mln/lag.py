@@ -27,6 +27,7 @@ import numpy as np
 from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.mln.chain_factors import CLIP, ChainFactors
 
+_GROUPED = 64  # frames per transition matrix from which a backward step moves each matrix's frames together
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
 
@@ -122,7 +123,10 @@ def _sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -
 
 
 def _max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray) -> np.ndarray:
-    moved = (log_transition + (unary + vectors)[:, None, :]).max(axis=2)
+    shifted = unary + vectors
+    moved = log_transition[:, :, 0] + shifted[:, 0, None]  # the max over the next class, one class at a time
+    for j in range(1, shifted.shape[1]):
+        np.maximum(moved, log_transition[:, :, j] + shifted[:, j, None], out=moved)
     return np.where(np.isfinite(moved.max(axis=1, keepdims=True)), moved - _top(moved), 0.0)
 
 
@@ -210,10 +214,19 @@ def _forward_pass(tables: _Tables, semiring: str, positions: list) -> tuple[np.n
 
 
 def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """The backward vectors moved from ``frames`` into the frames before them. Where few transition matrices serve
+    many frames, each matrix moves its frames at once (broadcast, not copied per frame: the same numbers)."""
     rows = tables.link[frames]
-    if semiring == "sum":
-        return _sum_back(vectors, tables.transition[rows], tables.linear[frames])
-    return _max_back(vectors, tables.log_transition[rows], tables.unary[frames])
+    back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
+        (_max_back, tables.log_transition, tables.unary)
+    kinds = np.unique(rows) if len(rows) >= _GROUPED else rows
+    if len(kinds) * _GROUPED > len(rows):
+        return back(vectors, matrices[rows], frame_values[frames])
+    out = np.empty_like(vectors)
+    for kind in kinds:
+        mine = rows == kind
+        out[mine] = back(vectors[mine], matrices[kind][None], frame_values[frames[mine]])
+    return out
 
 
 def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: int | None) -> np.ndarray:

@@ -117,8 +117,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
             held_out.setdefault(method, []).append((rows, chain_of(method, factors, fold_mln.evidence[rows], starts,
                                                                    None if log_p is None else log_p[rows], weight,
                                                                    start)))
-    for method, parts in held_out.items():
-        _decode_held_out(method, parts, decoded, data.labels, predicted, likelihood, forbidden)
+    if held_out:
+        _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
@@ -130,17 +130,19 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     return result
 
 
-def _decode_held_out(method: str, parts: list[tuple[np.ndarray, ChainFactors]], decodes: list[str],
+def _decode_held_out(held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]], decodes: list[str],
                      labels: np.ndarray, predicted: dict, likelihood: dict, forbidden: dict) -> None:
-    """Decode every fold's held-out chain of ``method`` at once, one after another (the decoders' passes shared),
-    and fill in its classes, log-likelihoods of the true labels and forbidden transitions per decoding."""
-    rows = np.concatenate([part_rows for part_rows, _ in parts])
-    joined = ChainFactors.joined([chained for _, chained in parts])
-    for decode, out in zip(decodes, decoders.decode_all(joined, decodes)):
-        name = decoded_name(method, decode)
-        predicted[name][rows] = out.path
-        likelihood[name][rows] = _log_likelihoods(out.probabilities, labels[rows])
-        forbidden[name] += out.forbidden
+    """Decode every method's held-out chains of every fold at once (the decoders' passes shared), and fill in their
+    classes, log-likelihoods of the true labels and forbidden transitions per decoding."""
+    methods = list(held_out)
+    joined = [ChainFactors.joined([chained for _, chained in held_out[m]]) for m in methods]
+    for method, outs in zip(methods, decoders.decode_each(joined, decodes)):
+        rows = np.concatenate([part_rows for part_rows, _ in held_out[method]])
+        for decode, out in zip(decodes, outs):
+            name = decoded_name(method, decode)
+            predicted[name][rows] = out.path
+            likelihood[name][rows] = _log_likelihoods(out.probabilities, labels[rows])
+            forbidden[name] += out.forbidden
 
 
 def _log_likelihoods(probabilities: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -43,13 +43,29 @@ def decode(factors: chain.ChainFactors, decoding: str | Decoding) -> Decoded:
 def decode_all(factors: chain.ChainFactors, decodings: Sequence[str | Decoding]) -> list[Decoded]:
     """``decode`` with each of ``decodings``; the lagged, posterior and legal ones share their passes
     (``lag.decode_all``)."""
+    return decode_each([factors], decodings)[0]
+
+
+def decode_each(parts: Sequence[chain.ChainFactors], decodings: Sequence[str | Decoding]) -> list[list[Decoded]]:
+    """``decode_all`` of each of ``parts``. The lagged, posterior and legal decoders run every part at once, as one
+    chain of the parts one after another (lag.py's passes are row by row, so each part gets the classes it gets
+    alone); filter and Viterbi, whose scan spans its whole input, run each part alone."""
     wanted = [decoding_of(d) for d in decodings]
     lagged = [d for d in wanted if d.decoder not in (Decoder.FILTER, Decoder.VITERBI)]
-    shared = dict(zip(lagged, lag.decode_all(factors, lagged)))
+    together = lag.decode_all(chain.ChainFactors.joined(parts), lagged) if lagged and parts else []
+    ends = np.cumsum([len(part.link) for part in parts])
     out = []
-    for decoding in wanted:
-        got = shared[decoding] if decoding in shared else chain.decode(factors, decoding.decoder.value)
-        out.append(Decoded(got.path, got.probabilities, got.restarts, lag.forbidden_transitions(factors, got.path)))
+    for part, stop in zip(parts, ends):
+        start = stop - len(part.link)
+        shared = {d: lag.LagDecoded(got.path[start:stop], got.probabilities[start:stop],
+                                    got.restarts[(got.restarts >= start) & (got.restarts < stop)] - start)
+                  for d, got in zip(lagged, together)}
+        decoded = []
+        for decoding in wanted:
+            got = shared[decoding] if decoding in shared else chain.decode(part, decoding.decoder.value)
+            forbidden = lag.forbidden_transitions(part, got.path)
+            decoded.append(Decoded(got.path, got.probabilities, got.restarts, forbidden))
+        out.append(decoded)
     return out
 
 

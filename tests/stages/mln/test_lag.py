@@ -100,6 +100,25 @@ def test_chains_joined_one_after_another_decode_as_each_alone(desk_order):
         np.testing.assert_array_equal(together[len(test.link):], lag.decode(training, decoding).path)
 
 
+def test_chains_decoded_at_once_get_each_chains_own_decoding(desk_order):
+    """conflate decodes every method's chain at once (decoding.decode_each): chains with other frame factors and
+    other transitions, side by side, get each its own classes, probabilities, dead ends and forbidden transitions."""
+    from mlnseq.recognition import decoding as decoders
+
+    factors = head(desk_order[0], 1405 + 1600)
+    noise = np.random.default_rng(0).normal(0.0, 1.0, factors.unary.shape)
+    other = ChainFactors(factors.unary + noise, factors.pairwise * 0.5, factors.link)  # -inf stays -inf
+    parts = [factors, other, head(other, 700)]
+    wanted = [*EVERY, Decoding(Decoder.VITERBI)]
+    for part, together in zip(parts, decoders.decode_each(parts, wanted)):
+        for decoding, got in zip(wanted, together):
+            alone = decoders.decode_each([part], [decoding])[0][0]
+            np.testing.assert_array_equal(got.path, alone.path, err_msg=decoding.name)
+            np.testing.assert_array_equal(got.probabilities, alone.probabilities, err_msg=decoding.name)
+            np.testing.assert_array_equal(got.restarts, alone.restarts, err_msg=decoding.name)
+            assert got.forbidden == alone.forbidden, decoding.name
+
+
 @pytest.mark.mujoco
 @pytest.mark.parametrize("decoding", [Decoding(Decoder.SMOOTH_LEGAL, 5), Decoding(Decoder.LAGVITERBI, 1),
                                       Decoding(Decoder.FILTER_LEGAL)], ids=lambda d: d.name)
