@@ -28,6 +28,7 @@ from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.mln.chain_factors import CLIP, ChainFactors
 
 _GROUPED = 64  # frames per transition matrix from which a backward step moves each matrix's frames together
+_FEW = 32  # transition matrices up to which a backward step moves each one's frames together
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
 
@@ -116,9 +117,20 @@ def max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
     return best, dead
 
 
+def _row_max(values: np.ndarray) -> np.ndarray:
+    """[N, 1] each row's max, one column at a time where rows are many (numpy's max along a short last axis is slow
+    on many rows; a max is exact in any order)."""
+    if len(values) < _GROUPED:
+        return values.max(axis=1, keepdims=True)
+    top = values[:, :1].copy()
+    for j in range(1, values.shape[1]):
+        np.maximum(top, values[:, j:j + 1], out=top)
+    return top
+
+
 def _sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
     moved = (transition * (linear * vectors)[:, None, :]).sum(axis=2)
-    top = moved.max(axis=1, keepdims=True)
+    top = _row_max(moved)
     return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
 
 
@@ -127,7 +139,8 @@ def _max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray
     moved = log_transition[:, :, 0] + shifted[:, 0, None]  # the max over the next class, one class at a time
     for j in range(1, shifted.shape[1]):
         np.maximum(moved, log_transition[:, :, j] + shifted[:, j, None], out=moved)
-    return np.where(np.isfinite(moved.max(axis=1, keepdims=True)), moved - _top(moved), 0.0)
+    top = _row_max(moved)
+    return np.where(np.isfinite(top), moved - np.where(np.isfinite(top), top, 0.0), 0.0)
 
 
 def decision_scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
@@ -219,9 +232,11 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     rows = tables.link[frames]
     back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
         (_max_back, tables.log_transition, tables.unary)
-    kinds = np.unique(rows) if len(rows) >= _GROUPED else rows
-    if len(kinds) * _GROUPED > len(rows):
+    kinds = np.flatnonzero(np.bincount(rows, minlength=len(matrices))) if len(rows) >= _GROUPED else rows
+    if len(kinds) * _GROUPED > len(rows) or len(kinds) > _FEW:
         return back(vectors, matrices[rows], frame_values[frames])
+    if len(kinds) == 1:
+        return back(vectors, matrices[kinds[0]][None], frame_values[frames])
     out = np.empty_like(vectors)
     for kind in kinds:
         mine = rows == kind
