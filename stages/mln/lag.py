@@ -27,7 +27,7 @@ import numpy as np
 from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.mln.chain_factors import CLIP, ChainFactors
 
-_GROUPED = 64  # frames per transition matrix from which a backward step moves each matrix's frames together
+_MANY = 64  # rows from which a backward step groups its frames by transition matrix and takes maxima column-wise
 _FEW = 32  # transition matrices up to which a backward step moves each one's frames together
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
@@ -120,7 +120,7 @@ def max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
 def _row_max(values: np.ndarray) -> np.ndarray:
     """[N, 1] each row's max, one column at a time where rows are many (numpy's max along a short last axis is slow
     on many rows; a max is exact in any order)."""
-    if len(values) < _GROUPED:
+    if len(values) < _MANY:
         return values.max(axis=1, keepdims=True)
     top = values[:, :1].copy()
     for j in range(1, values.shape[1]):
@@ -232,8 +232,8 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     rows = tables.link[frames]
     back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
         (_max_back, tables.log_transition, tables.unary)
-    kinds = np.flatnonzero(np.bincount(rows, minlength=len(matrices))) if len(rows) >= _GROUPED else rows
-    if len(kinds) * _GROUPED > len(rows) or len(kinds) > _FEW:
+    kinds = np.flatnonzero(np.bincount(rows, minlength=len(matrices))) if len(rows) >= _MANY else rows
+    if len(kinds) * _MANY > len(rows) or len(kinds) > _FEW:
         return back(vectors, matrices[rows], frame_values[frames])
     if len(kinds) == 1:
         return back(vectors, matrices[kinds[0]][None], frame_values[frames])
