@@ -19,17 +19,17 @@ from typing import Any
 from mlnseq.catalog.decoders import Decoder, Decoding, parse_decoding
 from mlnseq.catalog.errors import BadInput
 
-RATES_HZ = {"fetch": 25.0}  # sources whose frame rate the frames do not record: FetchPickAndPlace-v4 steps 0.04 s
 CRITERION = ("segment_accuracy", "frame_accuracy", "edit")
 
 
 def rate_of(frames_meta: dict[str, Any]) -> float | None:
-    """Frames per second of a workdir's recordings: the reading's rate (bags), the source's known rate, or None."""
+    """Frames per second of a workdir's recordings, as collect recorded it: the reading's rate (bags), the source's
+    own rate (the Fetch simulation's steps), or None."""
     reading = frames_meta.get("reading") or {}
-    rate = reading.get("rate") if isinstance(reading, dict) else None
-    if isinstance(rate, (int, float)) and rate > 0:
-        return float(rate)
-    return RATES_HZ.get(frames_meta.get("source", ""))
+    for rate in (reading.get("rate") if isinstance(reading, dict) else None, frames_meta.get("rate_hz")):
+        if isinstance(rate, (int, float)) and not isinstance(rate, bool) and rate > 0:
+            return float(rate)
+    return None
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import Collected, split_by_position
 
 ENV_ID = "FetchPickAndPlace-v4"
-EPISODE_STEPS = 50  # the environment's time limit; 25 steps per second
+EPISODE_STEPS = 50  # the environment's time limit
+RATE_HZ = 25.0  # steps per second: each step is 0.04 s of simulated time
 DEFAULT_TRAIN_FRAMES = 126  # the paper's Fetch training set: its first 126 frames
 
 CLASSES = ("reach", "grasp", "transport", "place")
@@ -233,6 +234,7 @@ def collect(options: Any, progress: Callable[[int, int], None] | None = None) ->
         "features": features,
         "train_frames": train_frames,
         "episode_steps": steps,
+        "rate_hz": RATE_HZ,
         "controller": asdict(controller),
         "success_rate": float(np.mean(successes)),
         "episode_success": successes,

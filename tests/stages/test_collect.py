@@ -124,6 +124,17 @@ def test_fetch_frames_schema_and_metadata(fetch_frames, fetch_frames_workdir):
 
 
 @pytest.mark.mujoco
+def test_fetch_frames_record_the_simulations_rate_which_turns_a_latency_into_frames(fetch_frames):
+    from mlnseq.recognition import latency
+
+    _, meta = fetch_frames
+    assert meta["rate_hz"] == pytest.approx(1 / fetch_demos.make_env().unwrapped.dt)  # 0.04 s a step
+    assert latency.rate_of(meta) == meta["rate_hz"]
+    assert latency.budget_frames(None, 1.0, latency.rate_of(meta), "the workdir") == 25
+    assert latency.rate_of({**meta, "rate_hz": None}) is None  # the source's name alone gives no rate
+
+
+@pytest.mark.mujoco
 def test_fetch_labels_run_reach_grasp_transport_place_in_order(fetch_frames):
     frames, _ = fetch_frames
     for (episode,), rows in frames.group_by("episode"):
