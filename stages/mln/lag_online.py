@@ -5,6 +5,7 @@ over the whole recording."""
 from __future__ import annotations
 
 from collections import deque
+from itertools import islice
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,21 +14,25 @@ from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.mln.lag import allowed, choose, decision_scores, max_forward, probabilities_of, scaled, sum_forward
 
 
+_sum, _max, _times, _plus, _minus, _over = (np.add.reduce, np.maximum.reduce, np.multiply, np.add, np.subtract,
+                                            np.true_divide)  # the ufuncs themselves: no method call per step
+
+
 def _window(semiring: str, n_classes: int, later: list) -> np.ndarray:
     """[C] the backward vector of one frame over the frames held after it: the backward steps of stages/mln/lag.py on
     one row, the same numbers with fewer numpy calls (each row's sum runs over the same axis in the same order)."""
     if semiring == "sum":
         vector = np.ones(n_classes)
         for frame in reversed(later):  # (..., transition, log_transition, allowed, linear, unary, ...)
-            moved = (frame[3][0] * (frame[6][0] * vector)).sum(axis=1)
-            top = moved.max()
-            vector = moved / top if top > 0 else np.ones(n_classes)
+            moved = _sum(_times(frame[3], _times(frame[6], vector)), axis=1)
+            top = _max(moved)
+            vector = _over(moved, top) if top > 0 else np.ones(n_classes)
         return vector
     vector = np.zeros(n_classes)
     for frame in reversed(later):
-        moved = (frame[4][0] + (frame[7][0] + vector)).max(axis=1)
-        top = moved.max()
-        vector = moved - top if np.isfinite(top) else np.zeros(n_classes)
+        moved = _max(_plus(frame[4], _plus(frame[7], vector)), axis=1)
+        top = _max(moved)
+        vector = _minus(moved, top) if np.isfinite(top) else np.zeros(n_classes)
     return vector
 
 
@@ -53,7 +58,8 @@ class Online:
         self.n_classes, self.decoding = n_classes, decoding
         self.semiring = decoding.decoder.semiring
         self.lag = None if decoding.decoder.offline else decoding.lag
-        self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary)
+        self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary,
+        #                                starts, dead): the rows of this frame, the matrices joining it to the previous
         self._index = 0
         self._segment = 0
         self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
@@ -98,8 +104,10 @@ class Online:
         if dead[0]:
             self._segment += 1
         self._previous, self._dead = forward, bool(dead[0])
-        self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear,
-                             unary, transition is None, bool(dead[0])))
+        starts = transition is None  # the window reads a later frame's rows, never a chain start's
+        self._frames.append((self._index, forward, self._segment, None if starts else transition[0],
+                             None if starts else log_transition[0], allowed_, linear[0], unary[0], starts,
+                             bool(dead[0])))
         self._index += 1
         if self.lag is None or len(self._frames) <= self.lag:
             return []
@@ -114,7 +122,7 @@ class Online:
     def _decide(self) -> Final:
         """Decide the oldest pending frame from the frames of its chain held after it."""
         index, forward, segment, *_, starts, dead = self._frames[0]
-        later = [f for f in list(self._frames)[1:] if f[2] == segment]
+        later = [f for f in islice(self._frames, 1, None) if f[2] == segment]
         scores = decision_scores(self.semiring, forward, _window(self.semiring, self.n_classes, later)[None])
         mask = None
         if self.decoding.decoder.legal and not starts and self._emitted is not None:
