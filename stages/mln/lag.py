@@ -75,6 +75,8 @@ def scaled(values: np.ndarray, axes: tuple[int, ...] = (-1,)) -> np.ndarray:
     """exp(values - max over ``axes``) (each row, or each matrix), finite entries clipped at e^-CLIP, -inf as 0."""
     top = values.max(axis=axes, keepdims=True)
     finite = np.isfinite(values)
+    if finite.all():  # the same numbers as below, without its masks (a live step's row is most often all finite)
+        return np.exp(np.maximum(values - top, -CLIP))
     with np.errstate(invalid="ignore"):
         shifted = np.where(finite, values - np.where(np.isfinite(top), top, 0.0), 0.0)
     return np.where(finite, np.exp(np.maximum(shifted, -CLIP)), 0.0)
