@@ -39,6 +39,12 @@ def dataset(folder: Path) -> Path:
     """DESK's frames, predicates, examples/temporal.mln and its weights with 3 folds."""
     workdir = folder / "desk"
     collect.run(workdir, collect.CollectOptions(env="desk", source=DESK_SOURCE))
+    return with_weights(workdir)
+
+
+def with_weights(workdir: Path) -> Path:
+    """A workdir's frames made a sweep's dataset: their predicates, examples/temporal.mln and its weights with 3
+    folds."""
     binarize.run(workdir, binarize.BinarizeOptions())
     formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
     learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))

@@ -13,13 +13,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.bench_sweep import sweep_file, timed
-from mlnseq import binarize, collect, formulas, learn_weights
+from benchmarks.bench_sweep import DESK_SOURCE, sweep_file, timed, with_weights
+from mlnseq import collect
 from mlnseq import sweep as stage
 from mlnseq.sweeps import workflow
 
-REPO = Path(__file__).resolve().parents[1]
-DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
 TEST_FRAMES = 1500
 
 
@@ -34,12 +32,8 @@ def small_dataset(folder: Path) -> Path:
     frames, meta = artifacts.read_table(full / artifacts.FRAMES, "frames")
     small = pl.concat([frames.filter(pl.col("split") == "train"),
                        frames.filter(pl.col("split") == "test").head(TEST_FRAMES)])
-    kept = {k: v for k, v in meta.items() if k not in ("schema_version", "kind", "mlnseq_version", "created", "inputs")}
-    artifacts.write_table(small, workdir / artifacts.FRAMES, "frames", kept)
-    binarize.run(workdir, binarize.BinarizeOptions())
-    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
-    return workdir
+    artifacts.write_table(small, workdir / artifacts.FRAMES, "frames", artifacts.own_metadata(meta))
+    return with_weights(workdir)
 
 
 def timing_wrapper(folder: Path, mlnseq: str, logs: Path) -> str:

@@ -224,6 +224,14 @@ def created_time() -> str:
     return now.isoformat(timespec="seconds")
 
 
+ENVELOPE = ("schema_version", "kind", "mlnseq_version", "created", "inputs")  # what build_metadata adds to each
+
+
+def own_metadata(meta: dict[str, Any]) -> dict[str, Any]:
+    """An artifact's metadata without the envelope ``build_metadata`` adds: what a copy written anew keeps."""
+    return {k: v for k, v in meta.items() if k not in ENVELOPE}
+
+
 def build_metadata(path: Path, kind: str, meta: dict[str, Any], inputs: Iterable[Path] = ()) -> dict[str, Any]:
     """The metadata entry every artifact carries: version, kind, creation time, input digests, then ``meta``."""
     return {

@@ -23,8 +23,7 @@ def tiny_desk_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     frames, meta = artifacts.read_table(desk_frames_workdir / artifacts.FRAMES, "frames")
     test_rows = frames.filter(pl.col("split") == "test").head(TEST_FRAMES)
     tiny = pl.concat([frames.filter(pl.col("split") == "train"), test_rows])
-    kept = {k: v for k, v in meta.items() if k not in ("schema_version", "kind", "mlnseq_version", "created", "inputs")}
-    artifacts.write_table(tiny, workdir / artifacts.FRAMES, "frames", kept)
+    artifacts.write_table(tiny, workdir / artifacts.FRAMES, "frames", artifacts.own_metadata(meta))
     binarize.run(workdir, binarize.BinarizeOptions())
     formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
     learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))

@@ -46,3 +46,10 @@ def test_the_temporary_file_is_named_after_the_artifact_and_the_writer(tmp_path)
         assert tmp.name.endswith(".tmp")
         tmp.write_text("x")
     assert [p.name for p in tmp_path.iterdir()] == ["weights.parquet"]
+
+
+def test_own_metadata_drops_exactly_the_envelope_a_write_adds(tmp_path):
+    path = artifacts.write_table(pl.DataFrame({"a": [1]}), tmp_path / "t.parquet", "frames", {"classes": ["x"]})
+    meta = artifacts.read_metadata(path, "frames")
+    assert set(meta) == {*artifacts.ENVELOPE, "classes"}
+    assert artifacts.own_metadata(meta) == {"classes": ["x"]}
