@@ -117,8 +117,7 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
             held_out.setdefault(method, []).append((rows, chain_of(method, factors, fold_mln.evidence[rows], starts,
                                                                    None if log_p is None else log_p[rows], weight,
                                                                    start)))
-    if held_out:
-        _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
+    _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
