@@ -29,6 +29,7 @@ from mlnseq.mln.chain_factors import CLIP, ChainFactors
 
 _MANY = 64  # rows from which a backward step groups its frames by transition matrix and takes maxima column-wise
 _FEW = 32  # transition matrices up to which a backward step moves each one's frames together
+_IN_ORDER = 7  # terms up to which numpy's sum along an axis adds them one after another, first to last
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
 
@@ -131,7 +132,13 @@ def _row_max(values: np.ndarray) -> np.ndarray:
 
 
 def _sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
-    moved = (transition * (linear * vectors)[:, None, :]).sum(axis=2)
+    weighted = linear * vectors
+    if weighted.shape[1] > _IN_ORDER:
+        moved = (transition * weighted[:, None, :]).sum(axis=2)
+    else:  # the sum over the next class one class at a time: numpy's sum of so few terms adds them in this order
+        moved = transition[:, :, 0] * weighted[:, :1]
+        for k in range(1, weighted.shape[1]):
+            moved += transition[:, :, k] * weighted[:, k:k + 1]
     top = _row_max(moved)
     return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
 
@@ -246,6 +253,23 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     return out
 
 
+def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, first: int) -> np.ndarray:
+    """The backward vectors moved from the frames ``first``, ``first`` + 1, ... into the frames before them; each
+    run of frames sharing a transition matrix moves at once (broadcast) where the runs are long."""
+    n = len(vectors)
+    rows = tables.link[first:first + n]
+    back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
+        (_max_back, tables.log_transition, tables.unary)
+    values = frame_values[first:first + n]
+    cuts = np.flatnonzero(rows[1:] != rows[:-1]) + 1
+    if (len(cuts) + 1) * _MANY > n:
+        return back(vectors, matrices[rows], values)
+    out = np.empty_like(vectors)
+    for start, stop in zip(np.r_[0, cuts], np.r_[cuts, n]):
+        out[start:stop] = back(vectors[start:stop], matrices[rows[start]][None], values[start:stop])
+    return out
+
+
 def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: int | None) -> np.ndarray:
     """[T, C] each frame's backward vector over its window: frames up to t + lag (None: to its chain's end)."""
     n_frames, n_classes = tables.unary.shape
@@ -258,13 +282,11 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
             frames = ends[length > p] - p + 1  # frame r moves into r - 1
             vectors[frames - 1] = _back(tables, semiring, vectors[frames], frames)
         return vectors
-    frames = np.arange(n_frames)
-    for step in range(lag, 0, -1):
-        reach = frames + step
-        ok = reach < n_frames
-        ok[ok] = segment[reach[ok]] == segment[ok.nonzero()[0]]
-        rows = np.flatnonzero(ok)
-        vectors[rows] = _back(tables, semiring, vectors[rows], reach[rows])
+    for step in range(min(lag, n_frames - 1), 0, -1):  # every frame t's window from t + step into t + step - 1
+        kept = n_frames - step
+        # a window reaching past its chain's end or a dead end keeps its vector (the frames moved there are dropped)
+        np.copyto(vectors[:kept], _back_from(tables, semiring, vectors[:kept], step),
+                  where=(segment[step:] == segment[:kept])[:, None])
     return vectors
 
 

@@ -82,6 +82,23 @@ def test_online_gives_the_batch_classes_on_desk_with_bounded_state(desk_order, d
         assert held <= decoding.lag + 1
 
 
+@pytest.mark.parametrize("n_classes", [3, 7, 8, 12])
+def test_batch_gives_the_online_probabilities_bit_for_bit_at_any_class_count(n_classes):
+    """The batch backward step sums over the next class column by column where numpy's own sum of a row adds in that
+    order (up to 7 classes) and with numpy's sum beyond: either way the numbers of the online decoder's row sums."""
+    rng = np.random.default_rng(n_classes)
+    link = np.where(np.arange(300) % 100 == 0, -1, np.arange(300) % 2)
+    factors = ChainFactors(rng.normal(0.0, 3.0, (300, n_classes)), rng.normal(0.0, 2.0, (2, n_classes, n_classes)), link)
+    for decoding in (Decoding(Decoder.SMOOTH, 4), Decoding(Decoder.LAGVITERBI, 3)):
+        decoder, finals = lag_online.Online(n_classes, decoding), []
+        for t, row in enumerate(link):
+            finals += (decoder.finish() if row < 0 else []) + decoder.step(factors.unary[t],
+                                                                           None if row < 0 else factors.pairwise[row])
+        finals += decoder.finish()
+        np.testing.assert_array_equal(np.array([final.probabilities for final in finals]),
+                                      lag.decode(factors, decoding).probabilities, err_msg=decoding.name)
+
+
 def test_decoding_with_every_decoder_at_once_gives_each_decoders_own_classes(desk_order):
     factors = desk_order[0]
     for decoding, shared in zip(EVERY, lag.decode_all(factors, EVERY)):
