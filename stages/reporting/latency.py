@@ -11,12 +11,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.recognition import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
-from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, lookup, sequence_stats
+from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, sequence_stats
 
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
 FOLDERS = (*DEPLOY_VARIANTS, TCN)
@@ -56,29 +57,43 @@ def _forbidden_and_rules(run: Run, folder: str) -> tuple[dict[str, float], bool]
     return {name: float(np.mean(values)) for name, values in counts.items()}, rules
 
 
+def _means(stats: pl.DataFrame) -> dict[tuple[str, str], float | None]:
+    """(dataset, method) -> mean: ``tables.lookup``'s answer for every pair at once (the first row of each)."""
+    out: dict[tuple[str, str], float | None] = {}
+    for key, mean in zip(zip(stats["dataset"].to_list(), stats["method"].to_list()), stats["mean"].to_list()):
+        out.setdefault(key, mean)
+    return out
+
+
+def _value_means(table: pl.DataFrame) -> dict[tuple[str, str], float]:
+    """(dataset, method) -> the mean of its rows' values."""
+    grouped: dict[tuple[str, str], list[float]] = {}
+    for key, value in zip(zip(table["dataset"].to_list(), table["method"].to_list()), table["value"].to_list()):
+        grouped.setdefault(key, []).append(value)
+    return {key: float(pl.Series(values).mean()) for key, values in grouped.items()}
+
+
 def scored(run: Run, dataset: str) -> list[Scored]:
     """Every cross-validated method of the dataset's deployable folders (stream mode)."""
-    stats, cv = sequence_stats(run), cv_stats(run)
-    extra = {k: run.cv.filter((run.cv["mode"] == "stream") & (run.cv["metric"] == k))
+    cv = {CV_METRICS[m]: _means(table) for m, table in cv_stats(run).items()}
+    test = {CV_METRICS[m]: _means(table) for m, table in sequence_stats(run).items()}
+    extra = {k: _value_means(run.cv.filter((run.cv["mode"] == "stream") & (run.cv["metric"] == k)))
              for k in ("log_likelihood", "forbidden_transitions")}
     out = []
     for suffix in FOLDERS:
         folder = dataset + suffix
-        names = cv["segment_accuracy"].filter(cv["segment_accuracy"]["dataset"] == folder)["method"].to_list()
+        names = [name for (where, name) in cv["segment_accuracy"] if where == folder]
         if not names:
             continue
         forbidden, rules = _forbidden_and_rules(run, folder)
         for name in names:
-            figures = {CV_METRICS[m]: lookup(cv[m], dataset=folder, method=name)[0] for m in CV_METRICS}
-            for key, table in extra.items():
-                values = table.filter((table["dataset"] == folder) & (table["method"] == name))["value"]
-                if len(values):
-                    figures[key] = float(values.mean())
-            test = {CV_METRICS[m]: lookup(stats[m], dataset=folder, method=name)[0] for m in CV_METRICS}
-            if test["segment_accuracy"] is None:
+            figures = {metric: means.get((folder, name)) for metric, means in cv.items()}
+            figures.update({key: means[folder, name] for key, means in extra.items() if (folder, name) in means})
+            tested = {metric: means.get((folder, name)) for metric, means in test.items()}
+            if tested["segment_accuracy"] is None:
                 continue
             (candidate,) = latency.candidates({name: figures})
-            out.append(Scored(folder, candidate, test, forbidden.get(name), rules))
+            out.append(Scored(folder, candidate, tested, forbidden.get(name), rules))
     return out
 
 

@@ -179,6 +179,28 @@ def test_the_method_to_deploy_is_chosen_by_cross_validation_never_on_test():
                                           "f1_50": None}
 
 
+def test_the_live_choice_keeps_the_budget_and_breaks_ties_by_the_cross_validated_log_likelihood():
+    from dataclasses import replace
+
+    from mlnseq.reporting import latency
+
+    cv = {("desk-temporal", "conflation+smooth@25"): 80.0, ("desk-temporal", "mln+smooth@10"): 80.0,
+          ("desk-temporal", "lstm+smooth@50"): 95.0, ("desk-temporal", "conflation+posterior"): 85.0,
+          ("desk", "lstm"): 70.0, ("desk", "lstm+filter"): 60.0}
+    run = sequence_run(test={key: value - 10.0 for key, value in cv.items()}, cv=cv)
+    likelihoods = [("desk-temporal", "stream", seed, method, "log_likelihood", value)
+                   for method, values in (("conflation+smooth@25", (-0.4, -0.6)), ("mln+smooth@10", (-0.8, -1.0)))
+                   for seed, value in zip((0, 1), values)]
+    run = replace(run, cv=pl.concat([run.cv, pl.DataFrame(likelihoods, schema=loading.CV_SCHEMA, orient="row")]))
+    summary = latency.live_summary(run, "desk", {})
+    live = summary["live"]
+    assert (live["folder"], live["method"], live["lag_frames"]) == ("desk-temporal", "conflation+smooth@25", 25)
+    assert live["cv"]["log_likelihood"] == pytest.approx(-0.5) and live["cv"]["segment_accuracy"] == 80.0
+    assert live["test"]["segment_accuracy"] == 70.0
+    assert (summary["online"]["method"], summary["online"]["decoder"]) == ("lstm", "none")
+    assert summary["offline"]["method"] == "conflation+posterior"
+
+
 def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
     result = report.run(report.ReportOptions(runs=desk_run, out=tmp_path))
     text = result.path.read_text()
