@@ -253,11 +253,12 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     return out
 
 
-def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, first: int) -> np.ndarray:
-    """The backward vectors moved from the frames ``first``, ``first`` + 1, ... into the frames before them; each
-    run of frames sharing a transition matrix moves at once (broadcast) where the runs are long."""
+def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, first: int, link: np.ndarray) -> np.ndarray:
+    """The backward vectors moved from the frames ``first``, ``first`` + 1, ... into the frames before them, by the
+    transition rows ``link`` [T]; each run of frames sharing a transition matrix moves at once (broadcast) where the
+    runs are long."""
     n = len(vectors)
-    rows = tables.link[first:first + n]
+    rows = link[first:first + n]
     back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
         (_max_back, tables.log_transition, tables.unary)
     values = frame_values[first:first + n]
@@ -282,10 +283,13 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
             frames = ends[length > p] - p + 1  # frame r moves into r - 1
             vectors[frames - 1] = _back(tables, semiring, vectors[frames], frames)
         return vectors
+    # A window reaching past its chain's end or a dead end keeps its vector: what moves from a chain's first frame is
+    # dropped, so that frame takes the previous frame's transition row and runs of one row stay unbroken.
+    joined = np.where(tables.link >= 0, np.arange(n_frames), 0)
+    carried = tables.link[np.maximum.accumulate(joined)]
     for step in range(min(lag, n_frames - 1), 0, -1):  # every frame t's window from t + step into t + step - 1
         kept = n_frames - step
-        # a window reaching past its chain's end or a dead end keeps its vector (the frames moved there are dropped)
-        np.copyto(vectors[:kept], _back_from(tables, semiring, vectors[:kept], step),
+        np.copyto(vectors[:kept], _back_from(tables, semiring, vectors[:kept], step, carried),
                   where=(segment[step:] == segment[:kept])[:, None])
     return vectors
 

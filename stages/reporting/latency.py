@@ -17,7 +17,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.recognition import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
-from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, cv_stats, sequence_stats
+from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, sequence_stats
 
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
 FOLDERS = (*DEPLOY_VARIANTS, TCN)
@@ -57,14 +57,6 @@ def _forbidden_and_rules(run: Run, folder: str) -> tuple[dict[str, float], bool]
     return {name: float(np.mean(values)) for name, values in counts.items()}, rules
 
 
-def _means(stats: pl.DataFrame) -> dict[tuple[str, str], float | None]:
-    """(dataset, method) -> mean: ``tables.lookup``'s answer for every pair at once (the first row of each)."""
-    out: dict[tuple[str, str], float | None] = {}
-    for key, mean in zip(zip(stats["dataset"].to_list(), stats["method"].to_list()), stats["mean"].to_list()):
-        out.setdefault(key, mean)
-    return out
-
-
 def _value_means(table: pl.DataFrame) -> dict[tuple[str, str], float]:
     """(dataset, method) -> the mean of its rows' values."""
     grouped: dict[tuple[str, str], list[float]] = {}
@@ -75,8 +67,8 @@ def _value_means(table: pl.DataFrame) -> dict[tuple[str, str], float]:
 
 def scored(run: Run, dataset: str) -> list[Scored]:
     """Every cross-validated method of the dataset's deployable folders (stream mode)."""
-    cv = {CV_METRICS[m]: _means(table) for m, table in cv_stats(run).items()}
-    test = {CV_METRICS[m]: _means(table) for m, table in sequence_stats(run).items()}
+    cv = {CV_METRICS[m]: by_pair(table) for m, table in cv_stats(run).items()}
+    test = {CV_METRICS[m]: by_pair(table) for m, table in sequence_stats(run).items()}
     extra = {k: _value_means(run.cv.filter((run.cv["mode"] == "stream") & (run.cv["metric"] == k)))
              for k in ("log_likelihood", "forbidden_transitions")}
     out = []
@@ -87,9 +79,9 @@ def scored(run: Run, dataset: str) -> list[Scored]:
             continue
         forbidden, rules = _forbidden_and_rules(run, folder)
         for name in names:
-            figures = {metric: means.get((folder, name)) for metric, means in cv.items()}
+            figures = {metric: means.get((folder, name), (None,))[0] for metric, means in cv.items()}
             figures.update({key: means[folder, name] for key, means in extra.items() if (folder, name) in means})
-            tested = {metric: means.get((folder, name)) for metric, means in test.items()}
+            tested = {metric: means.get((folder, name), (None,))[0] for metric, means in test.items()}
             if tested["segment_accuracy"] is None:
                 continue
             (candidate,) = latency.candidates({name: figures})

@@ -70,6 +70,15 @@ def lookup(stats: pl.DataFrame, **keys: Any) -> tuple[float | None, float | None
     return (row["mean"][0], row["std"][0]) if row.height else (None, None)
 
 
+def by_pair(stats: pl.DataFrame) -> dict[tuple[str, str], tuple[float | None, float | None]]:
+    """:func:`lookup`'s answer for every (dataset, method) of ``stats`` at once: the first row's mean and std."""
+    out: dict[tuple[str, str], tuple[float | None, float | None]] = {}
+    for dataset, method, mean, std in zip(stats["dataset"].to_list(), stats["method"].to_list(),
+                                          stats["mean"].to_list(), stats["std"].to_list()):
+        out.setdefault((dataset, method), (mean, std))
+    return out
+
+
 def log_epoch_stats(logs: pl.DataFrame) -> pl.DataFrame:
     """Per dataset, mode, method, split and epoch: accuracy (%) mean and std over seeds."""
     return (
@@ -208,20 +217,21 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     is shown beside it, marked optimistic."""
     from mlnseq.recognition.cross_validation import choice_score
 
-    stats, cv = sequence_stats(run), cv_stats(run)
+    stats = {m: by_pair(table) for m, table in sequence_stats(run).items()}
+    cv = {m: by_pair(table) for m, table in cv_stats(run).items()}
+    absent = (None, None)
     candidates = []
     for suffix in DEPLOY_VARIANTS:
         for decode in DECODES[1:]:
             for method in METHODS:
-                name, folder = decoded_name(method, decode), dataset + suffix
-                figures = {m: lookup(cv[m], dataset=folder, method=name) for m in SEQUENCE_METRICS}
-                if figures["segment_accuracy"][0] is None or lookup(stats["segment_accuracy"], dataset=folder,
-                                                                     method=name)[0] is None:
+                pair = (dataset + suffix, decoded_name(method, decode))
+                figures = {m: cv[m].get(pair, absent) for m in SEQUENCE_METRICS}
+                if figures["segment_accuracy"][0] is None or stats["segment_accuracy"].get(pair, absent)[0] is None:
                     continue
                 score = choice_score({CV_METRICS[m]: v[0] for m, v in figures.items()}, decode)
-                candidates.append({"folder": folder, "variant": VARIANTS[suffix], "method": name, "decode": decode,
+                candidates.append({"folder": pair[0], "variant": VARIANTS[suffix], "method": pair[1], "decode": decode,
                                    "score": score, "cv": figures,
-                                   **{m: lookup(stats[m], dataset=folder, method=name) for m in SEQUENCE_METRICS}})
+                                   **{m: stats[m].get(pair, absent) for m in SEQUENCE_METRICS}})
     choices: dict[str, Any] = {"candidates": candidates}
     for decode in DECODES[1:]:
         kind = [c for c in candidates if c["decode"] == decode]
