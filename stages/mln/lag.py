@@ -133,9 +133,9 @@ def _row_max(values: np.ndarray) -> np.ndarray:
 
 def _sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
     weighted = linear * vectors
-    if weighted.shape[1] > _IN_ORDER:
+    if weighted.shape[1] > _IN_ORDER or len(weighted) < _MANY:
         moved = (transition * weighted[:, None, :]).sum(axis=2)
-    else:  # the sum over the next class one class at a time: numpy's sum of so few terms adds them in this order
+    else:  # many rows: the sum over the next class one class at a time (numpy sums so few terms in this order)
         moved = transition[:, :, 0] * weighted[:, :1]
         for k in range(1, weighted.shape[1]):
             moved += transition[:, :, k] * weighted[:, k:k + 1]
