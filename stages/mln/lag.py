@@ -162,15 +162,17 @@ def decision_scores(semiring: str, forward: np.ndarray, backward: np.ndarray) ->
     return np.where(total > 0, joint / np.where(total > 0, total, 1.0), forward)
 
 
-def choose(scores: np.ndarray, semiring: str, mask: np.ndarray | None) -> np.ndarray:
-    """The argmax of each row, among the ``mask``ed classes where any of them is possible."""
-    free = scores.argmax(axis=1)
-    if mask is None:
-        return free
-    possible = mask & (scores > (0.0 if semiring == "sum" else -np.inf))
-    kept = np.where(possible, scores, -np.inf).argmax(axis=1)
-    # no allowed class possible given the frames (a dead end for the output): the first allowed class all the same
-    return np.where(possible.any(axis=1), kept, np.where(mask.any(axis=1), mask.argmax(axis=1), free))
+def legal_label(scores: list[float], allowed_after: list[bool], semiring: str, free: int) -> int:
+    """One frame's argmax among the classes allowed after the previous choice (``allowed_after``) that are possible
+    given the frames; none possible: the first allowed class; none allowed: ``free``. In plain Python: a legal pass
+    decides frame by frame, and a handful of classes costs less than a numpy call."""
+    best, top = -1, 0.0 if semiring == "sum" else -np.inf
+    for label, (ok, value) in enumerate(zip(allowed_after, scores)):
+        if ok and value > top:  # strictly greater: the first of equals, as argmax
+            best, top = label, value
+    if best >= 0:
+        return best
+    return allowed_after.index(True) if True in allowed_after else free
 
 
 def probabilities_of(scores: np.ndarray, semiring: str) -> np.ndarray:
@@ -297,9 +299,9 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
 def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarray:
     """Each frame's argmax among the classes allowed after the previous frame's choice (a chain's first frame: the
     free argmax). The free argmax stands wherever it is possible and allowed after the previous choice; only the
-    other frames run ``choose`` with their mask, one at a time."""
+    other frames run ``legal_label``, one at a time."""
     link = tables.link
-    free = choose(scores, semiring, None)
+    free = scores.argmax(axis=1)
     floor = 0.0 if semiring == "sum" else -np.inf
     possible = scores[np.arange(len(scores)), free] > floor
     joined = link >= 0
@@ -311,8 +313,8 @@ def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarra
     while k < len(disagreeing):
         t = int(disagreeing[k])
         while t < n_frames and joined[t]:  # off the free path: decide frame by frame until it is rejoined
-            mask = tables.allowed[link[t], path[t - 1]][None]
-            path[t] = choose(scores[t:t + 1], semiring, mask)[0]
+            path[t] = legal_label(scores[t].tolist(), tables.allowed[link[t], path[t - 1]].tolist(), semiring,
+                                  int(free[t]))
             if path[t] == free[t]:  # back on the free path: the next frame follows ``agrees``
                 break
             t += 1
@@ -361,6 +363,6 @@ def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Lag
                 np.full_like(vectors, 1.0 if semiring == "sum" else 0.0)
             scored[semiring, lag] = decision_scores(semiring, vectors, backward)
         scores = scored[semiring, lag]
-        path = _legal_pass(tables, scores, semiring) if decoding.decoder.legal else choose(scores, semiring, None)
+        path = _legal_pass(tables, scores, semiring) if decoding.decoder.legal else scores.argmax(axis=1)
         out.append(LagDecoded(path, probabilities_of(scores, semiring), np.flatnonzero(dead)))
     return out

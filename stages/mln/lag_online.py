@@ -11,7 +11,8 @@ from itertools import islice
 import numpy as np
 
 from mlnseq.catalog.decoders import Decoder, Decoding
-from mlnseq.mln.lag import allowed, choose, decision_scores, max_forward, probabilities_of, scaled, sum_forward
+from mlnseq.mln.lag import (allowed, decision_scores, legal_label, max_forward, probabilities_of, scaled,
+                            sum_forward)
 
 
 _sum, _max, _times, _plus, _minus, _over = (np.add.reduce, np.maximum.reduce, np.multiply, np.add, np.subtract,
@@ -124,10 +125,9 @@ class Online:
         index, forward, segment, *_, starts, dead = self._frames[0]
         later = [f for f in islice(self._frames, 1, None) if f[2] == segment]
         scores = decision_scores(self.semiring, forward, _window(self.semiring, self.n_classes, later)[None])
-        mask = None
+        label = int(scores[0].argmax())
         if self.decoding.decoder.legal and not starts and self._emitted is not None:
-            mask = self._frames[0][5][self._emitted][None]
-        label = int(choose(scores, self.semiring, mask)[0])
+            label = legal_label(scores[0].tolist(), self._frames[0][5][self._emitted].tolist(), self.semiring, label)
         self._frames.popleft()
         self._emitted = label
         return Final(index, label, probabilities_of(scores, self.semiring)[0], dead)
