@@ -110,14 +110,20 @@ def _top(values: np.ndarray) -> np.ndarray:
 
 def max_forward(previous: np.ndarray | None, log_transition: np.ndarray,
                  unary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """delta rows after one step [B, C] (max 0) and the rows that were dead ends."""
-    fresh = np.where(np.isfinite(unary.max(axis=1, keepdims=True)), unary - _top(unary), 0.0)
+    """delta rows after one step [B, C] (max 0) and the rows that were dead ends (restarted from the unary alone)."""
     if previous is None:
-        return fresh, np.zeros(len(unary), dtype=bool)
+        return _restart(unary), np.zeros(len(unary), dtype=bool)
     best = (previous[:, :, None] + log_transition).max(axis=1) + unary
-    dead = ~np.isfinite(best.max(axis=1))
-    best = np.where(dead[:, None], fresh, best - _top(best))
-    return best, dead
+    top = best.max(axis=1, keepdims=True)
+    dead = ~np.isfinite(top[:, 0])
+    if dead.any():
+        return np.where(dead[:, None], _restart(unary), best - np.where(dead[:, None], 0.0, top)), dead
+    return best - top, dead
+
+
+def _restart(unary: np.ndarray) -> np.ndarray:
+    """delta rows of chains starting at ``unary``: each row less its max (a row with no finite entry: 0)."""
+    return np.where(np.isfinite(unary.max(axis=1, keepdims=True)), unary - _top(unary), 0.0)
 
 
 def _row_max(values: np.ndarray) -> np.ndarray:
