@@ -5,7 +5,8 @@ Online: ``Filter.step`` on precomputed factors (the filter's own cost per frame;
 the whole live path per frame (the MLN factors of one frame from their cache, then the step). Also
 ``Filter.step`` with 10 classes. Batch: the three decoders over the 20,924 test frames (one chain), the
 median of a few runs, and per frame. Lagged and legal decoders (issue 24): per frame online, and batch, with
-the check that both give the same classes. Data: the authors' published DESK motion codes (paper predicates).
+the check that both give the same classes; and every decoding ``conflate --decode all`` scores, at once. Data:
+the authors' published DESK motion codes (paper predicates).
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ def main() -> None:
 def lagged(factors: chain.ChainFactors) -> None:
     """Issue 24: the lagged and legal decoders one frame at a time (lag_online.Online, per frame) and over the whole
     recording at once (lag.decode), on the same DESK test chain; the two give the same classes."""
-    from mlnseq.catalog.decoders import parse_decoding
+    from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder, decodings, parse_decoding
     from mlnseq.mln import lag, lag_online
 
     for name in ("filter-legal", "smooth@10", "smooth-legal@25", "lagviterbi@1", "lagviterbi-legal@25"):
@@ -113,6 +114,15 @@ def lagged(factors: chain.ChainFactors) -> None:
         print(f"decode: {name:20s} online median {statistics.median(times) * 1e6:6.1f} us, p99 "
               f"{np.percentile(times, 99) * 1e6:6.1f} us per frame; batch {batch_s * 1000:6.1f} ms over "
               f"{len(times):,} frames; same classes: {same}", flush=True)
+    every = [d for d in decodings(tuple(Decoder), DEFAULT_LAGS) if d.decoder not in (Decoder.FILTER, Decoder.VITERBI)]
+    times = []
+    for _ in range(REPEATS):
+        started = time.perf_counter()
+        lag.decode_all(factors, every)
+        times.append(time.perf_counter() - started)
+    print(f"decode: the {len(every)} lagged, posterior and legal decodings `conflate --decode all` scores (lags "
+          f"{', '.join(map(str, DEFAULT_LAGS))}), at once over the {len(factors.link):,} frames: "
+          f"{statistics.median(times) * 1000:.0f} ms (median of {REPEATS})", flush=True)
 
 
 def stepped_last(factors: chain.ChainFactors) -> np.ndarray:
