@@ -88,7 +88,8 @@ def test_batch_gives_the_online_probabilities_bit_for_bit_at_any_class_count(n_c
     order (up to 7 classes) and with numpy's sum beyond: either way the numbers of the online decoder's row sums."""
     rng = np.random.default_rng(n_classes)
     link = np.where(np.arange(300) % 100 == 0, -1, np.arange(300) % 2)
-    factors = ChainFactors(rng.normal(0.0, 3.0, (300, n_classes)), rng.normal(0.0, 2.0, (2, n_classes, n_classes)), link)
+    pairwise = rng.normal(0.0, 2.0, (2, n_classes, n_classes))
+    factors = ChainFactors(rng.normal(0.0, 3.0, (300, n_classes)), pairwise, link)
     for decoding in (Decoding(Decoder.SMOOTH, 4), Decoding(Decoder.LAGVITERBI, 3)):
         decoder, finals = lag_online.Online(n_classes, decoding), []
         for t, row in enumerate(link):
