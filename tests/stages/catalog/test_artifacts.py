@@ -53,3 +53,24 @@ def test_own_metadata_drops_exactly_the_envelope_a_write_adds(tmp_path):
     meta = artifacts.read_metadata(path, "frames")
     assert set(meta) == {*artifacts.ENVELOPE, "classes"}
     assert artifacts.own_metadata(meta) == {"classes": ["x"]}
+
+
+def test_a_file_changed_in_place_is_digested_anew(tmp_path, shared_data):
+    """The digests a process keeps serve a file only while it is the same file: rewritten in place with the same
+    size (a new modification time) or replaced by another file (a new inode), its digest is read again."""
+    path = tmp_path / "motion.txt"
+    original = (shared_data / "desk-taurus" / "taurus_motion_train.txt").read_bytes()
+    path.write_bytes(original)
+    first = artifacts.file_digest(path)
+    assert artifacts.file_digest(path) == first
+    changed = bytes([original[0] ^ 1]) + original[1:]
+    with open(path, "r+b") as handle:
+        handle.write(changed[:1])
+    status = os.stat(path)
+    os.utime(path, ns=(status.st_atime_ns, status.st_mtime_ns + 1_000_000))
+    second = artifacts.file_digest(path)
+    assert second != first
+    replacement = tmp_path / "replacement.txt"
+    replacement.write_bytes(original)
+    os.replace(replacement, path)
+    assert artifacts.file_digest(path) == first
