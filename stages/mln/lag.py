@@ -158,6 +158,44 @@ def _max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray
     return np.where(np.isfinite(top), moved - np.where(np.isfinite(top), top, 0.0), 0.0)
 
 
+# The same steps on class-major rows ([C, N]: each class's entries side by side) with one transition matrix [C, C],
+# every operation over a contiguous row: a window step moves many frames by the same few matrices.
+
+
+def _rows_of(*by_class: np.ndarray) -> list[np.ndarray]:
+    """Class-major arrays as the row-major (C-contiguous) rows the row-wise steps take."""
+    return [np.ascontiguousarray(values.T) for values in by_class]
+
+
+def _class_max(values: np.ndarray) -> np.ndarray:
+    top = values[0].copy()
+    for row in values[1:]:
+        np.maximum(top, row, out=top)
+    return top
+
+
+def _sum_back_by_class(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
+    if len(vectors) > _IN_ORDER:  # numpy's own order of a row's sum, which depends on the rows' layout
+        moving, frame_values = _rows_of(vectors, linear)
+        return _sum_back(moving, transition[None], frame_values).T
+    weighted = linear * vectors
+    moved = transition[:, :1] * weighted[0]
+    for k in range(1, len(weighted)):
+        moved += transition[:, k:k + 1] * weighted[k]
+    top = _class_max(moved)
+    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+
+
+def _max_back_by_class(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray) -> np.ndarray:
+    shifted = unary + vectors
+    moved = log_transition[:, :1] + shifted[0]
+    for j in range(1, len(shifted)):
+        np.maximum(moved, log_transition[:, j:j + 1] + shifted[j], out=moved)
+    top = _class_max(moved)
+    finite = np.isfinite(top)
+    return np.where(finite, moved - np.where(finite, top, 0.0), 0.0)
+
+
 def decision_scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     """Each frame's decision scores: the normalised marginal (sum) or the max-marginal minus its max (max)."""
     if semiring == "max":
@@ -261,21 +299,24 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     return out
 
 
-def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, first: int, link: np.ndarray) -> np.ndarray:
-    """The backward vectors moved from the frames ``first``, ``first`` + 1, ... into the frames before them, by the
-    transition rows ``link`` [T]; each run of frames sharing a transition matrix moves at once (broadcast) where the
-    runs are long."""
-    n = len(vectors)
+def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.ndarray, first: int,
+               link: np.ndarray) -> np.ndarray:
+    """The class-major backward vectors [C, N] moved from the frames ``first``, ``first`` + 1, ... into the frames
+    before them, by the transition rows ``link`` [T] and the frames' class-major ``values`` [C, T] (linear or
+    unary); each run of frames sharing a transition matrix moves at once where the runs are long."""
+    n = vectors.shape[1]
     rows = link[first:first + n]
-    back, matrices, frame_values = (_sum_back, tables.transition, tables.linear) if semiring == "sum" else \
-        (_max_back, tables.log_transition, tables.unary)
-    values = frame_values[first:first + n]
     cuts = np.flatnonzero(rows[1:] != rows[:-1]) + 1
-    if (len(cuts) + 1) * _MANY > n:
-        return back(vectors, matrices[rows], values)
+    if (len(cuts) + 1) * _MANY > n:  # many short runs: frame by frame, each with its matrix
+        back, matrices = (_sum_back, tables.transition) if semiring == "sum" else (_max_back, tables.log_transition)
+        moving, frame_values = _rows_of(vectors, values[:, first:first + n])
+        return back(moving, matrices[rows], frame_values).T
+    back, matrices = (_sum_back_by_class, tables.transition) if semiring == "sum" else \
+        (_max_back_by_class, tables.log_transition)
     out = np.empty_like(vectors)
     for start, stop in zip(np.r_[0, cuts], np.r_[cuts, n]):
-        out[start:stop] = back(vectors[start:stop], matrices[rows[start]][None], values[start:stop])
+        out[:, start:stop] = back(vectors[:, start:stop], matrices[rows[start]],
+                                  values[:, first + start:first + stop])
     return out
 
 
@@ -283,8 +324,8 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
     """[T, C] each frame's backward vector over its window: frames up to t + lag (None: to its chain's end)."""
     n_frames, n_classes = tables.unary.shape
     fill = 1.0 if semiring == "sum" else 0.0
-    vectors = np.full((n_frames, n_classes), fill)
     if lag is None:  # the whole chain: one backward pass, every chain side by side from its end
+        vectors = np.full((n_frames, n_classes), fill)
         ends = np.r_[np.flatnonzero(np.diff(segment)), n_frames - 1]
         length = np.diff(np.r_[-1, ends])
         for p in range(1, int(length.max(initial=1))):
@@ -295,11 +336,13 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
     # dropped, so that frame takes the previous frame's transition row and runs of one row stay unbroken.
     joined = np.where(tables.link >= 0, np.arange(n_frames), 0)
     carried = tables.link[np.maximum.accumulate(joined)]
+    by_class = np.full((n_classes, n_frames), fill)  # class-major: see _back_from
+    values = np.ascontiguousarray((tables.linear if semiring == "sum" else tables.unary).T)
     for step in range(min(lag, n_frames - 1), 0, -1):  # every frame t's window from t + step into t + step - 1
         kept = n_frames - step
-        np.copyto(vectors[:kept], _back_from(tables, semiring, vectors[:kept], step, carried),
-                  where=(segment[step:] == segment[:kept])[:, None])
-    return vectors
+        np.copyto(by_class[:, :kept], _back_from(tables, semiring, by_class[:, :kept], values, step, carried),
+                  where=(segment[step:] == segment[:kept])[None, :])
+    return np.ascontiguousarray(by_class.T)
 
 
 def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarray:

@@ -83,13 +83,17 @@ def test_online_gives_the_batch_classes_on_desk_with_bounded_state(desk_order, d
 
 
 @pytest.mark.parametrize("n_classes", [3, 7, 8, 12])
-def test_batch_gives_the_online_probabilities_bit_for_bit_at_any_class_count(n_classes):
+@pytest.mark.parametrize("layout", ["runs", "alternating"])
+def test_batch_gives_the_online_probabilities_bit_for_bit_at_any_class_count(n_classes, layout):
     """The batch backward step sums over the next class column by column where numpy's own sum of a row adds in that
-    order (up to 7 classes) and with numpy's sum beyond: either way the numbers of the online decoder's row sums."""
+    order (up to 7 classes) and with numpy's sum beyond; over long runs of one transition matrix class-major, over
+    frames whose matrices alternate frame by frame: every way the numbers of the online decoder's row sums."""
     rng = np.random.default_rng(n_classes)
-    link = np.where(np.arange(300) % 100 == 0, -1, np.arange(300) % 2)
+    frames = np.arange(2000)
+    rows = (frames // 500) % 2 if layout == "runs" else frames % 2
+    link = np.where(frames % 400 == 0, -1, rows)
     pairwise = rng.normal(0.0, 2.0, (2, n_classes, n_classes))
-    factors = ChainFactors(rng.normal(0.0, 3.0, (300, n_classes)), pairwise, link)
+    factors = ChainFactors(rng.normal(0.0, 3.0, (2000, n_classes)), pairwise, link)
     for decoding in (Decoding(Decoder.SMOOTH, 4), Decoding(Decoder.LAGVITERBI, 3)):
         decoder, finals = lag_online.Online(n_classes, decoding), []
         for t, row in enumerate(link):
