@@ -27,7 +27,7 @@ import numpy as np
 from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.mln.chain_factors import CLIP, ChainFactors
 
-_MANY = 64  # rows from which a backward step groups its frames by transition matrix and takes maxima column-wise
+_MANY = 64  # rows from which a backward step moves its frames by transition matrix and goes class by class
 _FEW = 32  # transition matrices up to which a backward step moves each one's frames together
 _IN_ORDER = 7  # terms up to which numpy's sum along an axis adds them one after another, first to last
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
