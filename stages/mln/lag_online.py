@@ -1,5 +1,5 @@
 """Lagged decoding one frame at a time: ``Online`` holds at most lag + 1 frames and decides frame t once t + lag
-has arrived, with the row-wise steps of stages/mln/lag.py, so that it gives the same classes as ``lag.decode``
+has arrived, with the row-wise steps of stages/mln/lag_steps.py, so that it gives the same classes as ``lag.decode``
 over the whole recording."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from itertools import islice
 import numpy as np
 
 from mlnseq.catalog.decoders import Decoder, Decoding
-from mlnseq.mln.lag import (allowed, decision_scores, legal_label, max_forward, probabilities_of, scaled,
-                            sum_forward)
+from mlnseq.mln.lag import allowed
+from mlnseq.mln.lag_steps import decision_scores, legal_label, max_forward, probabilities_of, scaled, sum_forward
 
 
 _sum, _max, _times, _plus, _minus, _over = (np.add.reduce, np.maximum.reduce, np.multiply, np.add, np.subtract,
@@ -20,8 +20,9 @@ _sum, _max, _times, _plus, _minus, _over = (np.add.reduce, np.maximum.reduce, np
 
 
 def _window(semiring: str, n_classes: int, later: list) -> np.ndarray:
-    """[C] the backward vector of one frame over the frames held after it: the backward steps of stages/mln/lag.py on
-    one row, the same numbers with fewer numpy calls (each row's sum runs over the same axis in the same order)."""
+    """[C] the backward vector of one frame over the frames held after it: the backward steps of
+    stages/mln/lag_steps.py on one row, the same numbers with fewer numpy calls (each row's sum runs over the same
+    axis in the same order)."""
     if semiring == "sum":
         vector = np.ones(n_classes)
         for frame in reversed(later):  # (..., transition, log_transition, allowed, linear, unary, ...)
