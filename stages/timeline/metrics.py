@@ -22,15 +22,16 @@ EARLY_FRACTIONS = tuple(round(0.1 * i, 1) for i in range(1, 10))
 OVERLAPS = (0.10, 0.25, 0.50)
 
 
-def segment_frame(length: int, fraction: float) -> int:
-    """The frame of a segment whose prediction recognises it: max(int(length·fraction) − 1, 0)."""
-    return max(int(length * fraction) - 1, 0)
+def segment_frame(length: int | np.ndarray, fraction: float) -> int | np.ndarray:
+    """The frame of a segment (or of each of an array of segments) whose prediction recognises it:
+    max(int(length·fraction) − 1, 0)."""
+    return np.maximum((np.asarray(length) * fraction).astype(np.int64) - 1, 0)
 
 
 def segment_predictions(starts: np.ndarray, lengths: np.ndarray, predictions: np.ndarray,
                         fraction: float) -> np.ndarray:
     """The prediction recognising each segment (``starts``, ``lengths``): :func:`segment_frame` of every one at once."""
-    return predictions[starts + np.maximum((lengths * fraction).astype(np.int64) - 1, 0)]
+    return predictions[starts + segment_frame(lengths, fraction)]
 
 
 def label_runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
