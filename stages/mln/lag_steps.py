@@ -79,13 +79,7 @@ def _row_max(values: np.ndarray) -> np.ndarray:
 
 
 def sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
-    weighted = linear * vectors
-    if weighted.shape[1] > _IN_ORDER or len(weighted) < MANY:
-        moved = (transition * weighted[:, None, :]).sum(axis=2)
-    else:  # many rows: the sum over the next class one class at a time (numpy sums so few terms in this order)
-        moved = transition[:, :, 0] * weighted[:, :1]
-        for k in range(1, weighted.shape[1]):
-            moved += transition[:, :, k] * weighted[:, k:k + 1]
+    moved = (transition * (linear * vectors)[:, None, :]).sum(axis=2)
     top = _row_max(moved)
     return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
 
