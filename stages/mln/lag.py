@@ -20,7 +20,7 @@ chains).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,6 +91,12 @@ class _Tables:
         return cls(factors.link, scaled(pairwise, (-2, -1)), pairwise, allowed(pairwise), scaled(factors.unary),
                    factors.unary)
 
+    def backward(self, semiring: str) -> tuple[Callable, Callable, np.ndarray, np.ndarray]:
+        """A semiring's backward step (row-major, class-major), its transition matrices and its frame values."""
+        if semiring == "sum":
+            return sum_back, sum_back_by_class, self.transition, self.linear
+        return max_back, max_back_by_class, self.log_transition, self.unary
+
 
 def _positions(link: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per position within a chain: the chains that reach it and their frames at it (every chain side by side)."""
@@ -128,8 +134,7 @@ def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarra
     """The backward vectors moved from ``frames`` into the frames before them. Where few transition matrices serve
     many frames, each matrix moves its frames at once (broadcast, not copied per frame: the same numbers)."""
     rows = tables.link[frames]
-    back, matrices, frame_values = (sum_back, tables.transition, tables.linear) if semiring == "sum" else \
-        (max_back, tables.log_transition, tables.unary)
+    back, _, matrices, frame_values = tables.backward(semiring)
     kinds = np.flatnonzero(np.bincount(rows, minlength=len(matrices))) if len(rows) >= MANY else rows
     if len(kinds) * MANY > len(rows) or len(kinds) > _FEW:
         return back(vectors, matrices[rows], frame_values[frames])
@@ -150,16 +155,14 @@ def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.n
     n = vectors.shape[1]
     rows = link[first:first + n]
     cuts = np.flatnonzero(rows[1:] != rows[:-1]) + 1
+    back, back_by_class, matrices, _ = tables.backward(semiring)
     if (len(cuts) + 1) * MANY > n:  # many short runs: frame by frame, each with its matrix
-        back, matrices = (sum_back, tables.transition) if semiring == "sum" else (max_back, tables.log_transition)
         moving, frame_values = rows_of(vectors, values[:, first:first + n])
         return back(moving, matrices[rows], frame_values).T
-    back, matrices = (sum_back_by_class, tables.transition) if semiring == "sum" else \
-        (max_back_by_class, tables.log_transition)
     out = np.empty_like(vectors)
     for start, stop in zip(np.r_[0, cuts], np.r_[cuts, n]):
-        out[:, start:stop] = back(vectors[:, start:stop], matrices[rows[start]],
-                                  values[:, first + start:first + stop])
+        out[:, start:stop] = back_by_class(vectors[:, start:stop], matrices[rows[start]],
+                                           values[:, first + start:first + stop])
     return out
 
 
@@ -180,7 +183,7 @@ def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: i
     joined = np.where(tables.link >= 0, np.arange(n_frames), 0)
     carried = tables.link[np.maximum.accumulate(joined)]
     by_class = np.full((n_classes, n_frames), fill)  # class-major: see _back_from
-    values = np.ascontiguousarray((tables.linear if semiring == "sum" else tables.unary).T)
+    values = np.ascontiguousarray(tables.backward(semiring)[3].T)
     for step in range(min(lag, n_frames - 1), 0, -1):  # every frame t's window from t + step into t + step - 1
         kept = n_frames - step
         np.copyto(by_class[:, :kept], _back_from(tables, semiring, by_class[:, :kept], values, step, carried),
