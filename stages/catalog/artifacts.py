@@ -132,6 +132,9 @@ def package_version() -> str:
         return "0+unknown"
 
 
+_DIGESTS: dict[tuple[int, int, int, int], str] = {}  # file identity -> digest, kept for the process
+
+
 def file_digest(path: Path) -> str:
     """Content digest of a file (sha256, first 16 hex digits). A process reads a file once while it stays the same
     file (device, inode, size and modification time): the report checks the same inputs of hundreds of artifacts."""
@@ -144,9 +147,6 @@ def file_digest(path: Path) -> str:
                 digest.update(block)
         _DIGESTS[identity] = digest.hexdigest()[:16]
     return _DIGESTS[identity]
-
-
-_DIGESTS: dict[tuple[int, int, int, int], str] = {}
 
 
 def _input_key(artifact: Path, source: Path) -> str:
