@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -23,19 +24,29 @@ def snapshot(folder: Path) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-@pytest.fixture
-def server(tmp_path, repo_root):
-    """A stage server listening on a socket in ``tmp_path``; stopped after the test."""
-    socket_path = tmp_path / "stages.sock"
-    process = subprocess.Popen([sys.executable, repo_root / "scripts" / "stage_server.py", "serve", socket_path])
+def start_server(repo_root: Path, socket_path: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    process = subprocess.Popen([sys.executable, repo_root / "scripts" / "stage_server.py", "serve", socket_path],
+                               env=env)
     deadline = time.monotonic() + 30
     while not socket_path.exists():
         assert process.poll() is None and time.monotonic() < deadline, "the server did not start"
         time.sleep(0.05)
-    yield socket_path
+    return process
+
+
+def stop_server(process: subprocess.Popen, socket_path: Path) -> None:
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=30) == 0
     assert not socket_path.exists()
+
+
+@pytest.fixture
+def server(tmp_path, repo_root):
+    """A stage server listening on a socket in ``tmp_path``; stopped after the test."""
+    socket_path = tmp_path / "stages.sock"
+    process = start_server(repo_root, socket_path)
+    yield socket_path
+    stop_server(process, socket_path)
 
 
 def stage(repo_root: Path, runs: Path, *args, server: Path | None = None) -> subprocess.CompletedProcess:
@@ -78,3 +89,19 @@ def test_a_refused_stage_keeps_its_status_and_error_line(tmp_path, repo_root, se
 def test_without_a_server_the_stage_runs_as_its_own_process(tmp_path, repo_root):
     done = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=tmp_path / "absent.sock")
     assert done.returncode == 2 and "predictions.parquet not found" in done.stdout
+
+
+def test_a_stage_edited_while_the_server_runs_runs_as_edited(tmp_path, repo_root):
+    package = tmp_path / "package" / "mlnseq"  # a copy of the stages, imported by the server ahead of the install
+    shutil.copytree(repo_root / "stages", package)
+    socket_path = tmp_path / "stages.sock"
+    process = start_server(repo_root, socket_path, env={**os.environ, "PYTHONPATH": str(package.parent)})
+    try:
+        before = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
+        artifacts = package / "catalog" / "artifacts.py"
+        artifacts.write_text(artifacts.read_text().replace("} not found: run", "} not found (edited): run"))
+        after = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
+    finally:
+        stop_server(process, socket_path)
+    assert "predictions.parquet not found: run" in before.stdout
+    assert "predictions.parquet not found (edited): run" in after.stdout
