@@ -55,7 +55,8 @@ def serve(path: Path) -> None:
         with contextlib.suppress(ModuleNotFoundError):
             importlib.import_module(name)
     for name in OWN_PRELOAD:
-        importlib.import_module(name)
+        with contextlib.suppress(Exception):  # a stage that fails to import fails in its own run, with its error
+            importlib.import_module(name)
     preloaded = own_sources()
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # the kernel reaps the children; each reports to its client
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))

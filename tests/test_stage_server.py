@@ -94,14 +94,18 @@ def test_without_a_server_the_stage_runs_as_its_own_process(tmp_path, repo_root)
 def test_a_stage_edited_while_the_server_runs_runs_as_edited(tmp_path, repo_root):
     package = tmp_path / "package" / "mlnseq"  # a copy of the stages, imported by the server ahead of the install
     shutil.copytree(repo_root / "stages", package)
+    stage_file, artifacts = package / "eval.py", package / "catalog" / "artifacts.py"
+    source = stage_file.read_text()
+    stage_file.write_text(source + "\nraise RuntimeError('a broken stage')\n")  # while the server imports the stages
     socket_path = tmp_path / "stages.sock"
     process = start_server(repo_root, socket_path, env={**os.environ, "PYTHONPATH": str(package.parent)})
     try:
-        before = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
-        artifacts = package / "catalog" / "artifacts.py"
+        broken = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
+        stage_file.write_text(source)
         artifacts.write_text(artifacts.read_text().replace("} not found: run", "} not found (edited): run"))
-        after = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
+        edited = stage(repo_root, tmp_path / "runs", "eval", "-w", tmp_path / "empty", server=socket_path)
     finally:
         stop_server(process, socket_path)
-    assert "predictions.parquet not found: run" in before.stdout
-    assert "predictions.parquet not found (edited): run" in after.stdout
+    assert broken.returncode == 1 and "RuntimeError: a broken stage" in broken.stdout
+    assert edited.returncode == 2
+    assert "predictions.parquet not found (edited): run" in edited.stdout
