@@ -51,11 +51,8 @@ def serve(path: Path) -> None:
 
     for name in PRELOAD:
         importlib.import_module(name)
-    for name in OPTIONAL_PRELOAD:
-        with contextlib.suppress(ModuleNotFoundError):
-            importlib.import_module(name)
-    for name in OWN_PRELOAD:
-        with contextlib.suppress(Exception):  # a stage that fails to import fails in its own run, with its error
+    for name in (*OPTIONAL_PRELOAD, *OWN_PRELOAD):  # a stage that fails to import fails in its own run, with its error
+        with contextlib.suppress(Exception):
             importlib.import_module(name)
     preloaded = own_sources()
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # the kernel reaps the children; each reports to its client
