@@ -17,7 +17,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.recognition import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
-from mlnseq.reporting.tables import CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, sequence_stats
+from mlnseq.reporting.tables import ABSENT, CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, sequence_stats
 
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
 FOLDERS = (*DEPLOY_VARIANTS, TCN)
@@ -79,9 +79,9 @@ def scored(run: Run, dataset: str) -> list[Scored]:
             continue
         forbidden, rules = _forbidden_and_rules(run, folder)
         for name in names:
-            figures = {metric: means.get((folder, name), (None,))[0] for metric, means in cv.items()}
+            figures = {metric: means.get((folder, name), ABSENT)[0] for metric, means in cv.items()}
             figures.update({key: means[folder, name] for key, means in extra.items() if (folder, name) in means})
-            tested = {metric: means.get((folder, name), (None,))[0] for metric, means in test.items()}
+            tested = {metric: means.get((folder, name), ABSENT)[0] for metric, means in test.items()}
             if tested["segment_accuracy"] is None:
                 continue
             (candidate,) = latency.candidates({name: figures})

@@ -65,9 +65,12 @@ def fmt(mean: float | None, std: float | None = None) -> str:
     return f"{mean:.1f} ± {std:.1f}"
 
 
+ABSENT = (None, None)  # lookup's answer, and by_pair's, where there are no figures
+
+
 def lookup(stats: pl.DataFrame, **keys: Any) -> tuple[float | None, float | None]:
     row = stats.filter(pl.all_horizontal(pl.col(k) == v for k, v in keys.items()))
-    return (row["mean"][0], row["std"][0]) if row.height else (None, None)
+    return (row["mean"][0], row["std"][0]) if row.height else ABSENT
 
 
 def by_pair(stats: pl.DataFrame) -> dict[tuple[str, str], tuple[float | None, float | None]]:
@@ -219,19 +222,18 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
 
     stats = {m: by_pair(table) for m, table in sequence_stats(run).items()}
     cv = {m: by_pair(table) for m, table in cv_stats(run).items()}
-    absent = (None, None)
     candidates = []
     for suffix in DEPLOY_VARIANTS:
         for decode in DECODES[1:]:
             for method in METHODS:
                 pair = (dataset + suffix, decoded_name(method, decode))
-                figures = {m: cv[m].get(pair, absent) for m in SEQUENCE_METRICS}
-                if figures["segment_accuracy"][0] is None or stats["segment_accuracy"].get(pair, absent)[0] is None:
+                figures = {m: cv[m].get(pair, ABSENT) for m in SEQUENCE_METRICS}
+                if figures["segment_accuracy"][0] is None or stats["segment_accuracy"].get(pair, ABSENT)[0] is None:
                     continue
                 score = choice_score({CV_METRICS[m]: v[0] for m, v in figures.items()}, decode)
                 candidates.append({"folder": pair[0], "variant": VARIANTS[suffix], "method": pair[1], "decode": decode,
                                    "score": score, "cv": figures,
-                                   **{m: stats[m].get(pair, absent) for m in SEQUENCE_METRICS}})
+                                   **{m: stats[m].get(pair, ABSENT) for m in SEQUENCE_METRICS}})
     choices: dict[str, Any] = {"candidates": candidates}
     for decode in DECODES[1:]:
         kind = [c for c in candidates if c["decode"] == decode]
