@@ -31,7 +31,8 @@ from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor, Prior, member
 from mlnseq.catalog.parts import Part
 from mlnseq.model.checkpoints import write_checkpoint
-from mlnseq.networks.fitting import Fitting, accuracy_and_loss, predict_log_probs, resolve_device, set_threads
+from mlnseq.networks.fitting import (Fitting, accuracy_and_loss, fit_side_by_side, predict_log_probs, resolve_device,
+                                    set_threads)
 from mlnseq.recognition import folds as folding
 from mlnseq.recognition.recognizer import prior_input
 from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
@@ -266,14 +267,20 @@ def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.devic
                    rows.warnings(data))
 
 
-def fit_fold(data: FrameData, config: Any, options: TrainOptions, device: torch.device) -> tuple[Fitting, Rows]:
-    """A fold network: trained as :func:`fit` trains without a validation part, the last epoch kept, nothing
-    measured (its log would not be kept)."""
-    rows = Rows.of(data, replace(options, select=Select.NONE))
-    fitting = rows.start(data, config, options, device)
-    for _ in range(options.epochs):
-        fitting.epoch(options.batch_size, options.learning_rate)
-    return fitting, rows
+def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions,
+              device: torch.device) -> list[tuple[Fitting, Rows]]:
+    """The fold networks, each trained as :func:`fit` trains without a validation part, the last epoch kept, nothing
+    measured (their logs would not be kept); side by side where the network type can (fit_side_by_side)."""
+    options = replace(options, select=Select.NONE)
+    rows = [Rows.of(data, options) for data in fold_data]
+    fittings = [part.start(data, config, options, device) for part, data in zip(rows, fold_data)]
+    if fittings[0].model.fits_side_by_side:
+        fit_side_by_side(fittings, options.epochs, options.batch_size, options.learning_rate)
+    else:
+        for fitting in fittings:
+            for _ in range(options.epochs):
+                fitting.epoch(options.batch_size, options.learning_rate)
+    return list(zip(fittings, rows))
 
 
 # --- the stage ----------------------------------------------------------------------------------------
@@ -386,15 +393,14 @@ def fold_networks(workdir: Path, data: FrameData, config: Any, options: TrainOpt
         fold_scores, inputs = folding.fold_mln_scores(workdir, folds, list(meta["classes"]))
     out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
     warnings = folding.missing_classes(folds, data.labels, list(meta["classes"]))
-    for k in range(folds.k):
-        prior = None if fold_scores is None else prior_input(fold_scores[k], options.prior, options.paper_floor)
-        fold_data = replace(data, splits=folds.splits(k), prior=prior)
-        fitting, rows = fit_fold(fold_data, config, options, device)
-        parts = fold_data.splits
+    fold_data = [replace(data, splits=folds.splits(k), prior=None if fold_scores is None else
+                         prior_input(fold_scores[k], options.prior, options.paper_floor)) for k in range(folds.k)]
+    for k, (fitting, rows) in enumerate(fit_folds(fold_data, config, options, device)):
+        parts = fold_data[k].splits
         spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
                  if parts[s.start] == Part.HELDOUT]
         features = ((data.features - rows.mean) / rows.std).astype(np.float32)
-        log_probs = predict_log_probs(fitting.model.to(device), spans, features, prior, device)
+        log_probs = predict_log_probs(fitting.model.to(device), spans, features, fold_data[k].prior, device)
         held = folds.fold == k
         out[held] = log_probs[held]
     return OutOfFold(out, warnings, inputs)

@@ -41,7 +41,32 @@ class SequenceClassifier(nn.Module):
             scores = self.prior(torch.cat([scores, prior], dim=-1))
         return torch.log_softmax(scores, dim=-1), state
 
-    def auxiliary_loss(self, log_probs: torch.Tensor, valid: torch.Tensor) -> torch.Tensor | None:
-        """A type's training loss beside the NLL (the TCN's smoothing), or None; ``valid`` [B, T] marks real frames."""
+    def auxiliary_loss(self, log_probs: torch.Tensor, valid: torch.Tensor,
+                       weight: torch.Tensor | None = None) -> torch.Tensor | None:
+        """A type's training loss beside the NLL (the TCN's smoothing), or None; ``valid`` [..., B, T] marks real
+        frames; the sequences' mean, or with ``weight`` [..., B] their weighted sum."""
         extra = getattr(self.kind, "auxiliary_loss", None)
-        return None if extra is None else extra(self.config, log_probs, valid)
+        return None if extra is None else extra(self.config, log_probs, valid, weight)
+
+    @property
+    def fits_side_by_side(self) -> bool:
+        """Whether networks of this type can be fitted side by side (:meth:`side_by_side`)."""
+        return hasattr(self.kind, "torch_bodies_side_by_side")
+
+    def side_by_side(self, params: dict[str, torch.Tensor], features: torch.Tensor,
+                     prior: torch.Tensor | None) -> torch.Tensor:
+        """G networks of this one's shape at once, their parameters stacked in ``params`` ([G, ...] under the state
+        dict's names): each network's features [G, B, T, F] (and prior [G, B, T, C]) -> log-probabilities
+        [G, B, T, C]."""
+        hidden = self.kind.torch_bodies_side_by_side(self.config, params, features)
+        g, b, t, _ = hidden.shape
+        scores = affine(hidden.reshape(g, b * t, -1), params["h2c.weight"], params["h2c.bias"])
+        if self.prior is not None:
+            scores = affine(torch.cat([scores, prior.reshape(g, b * t, -1)], dim=-1), params["prior.weight"],
+                            params["prior.bias"])
+        return torch.log_softmax(scores, dim=-1).view(g, b, t, -1)
+
+
+def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """G linear layers at once: inputs [G, N, in], weights [G, out, in], biases [G, out] -> [G, N, out]."""
+    return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))

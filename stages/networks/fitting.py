@@ -126,3 +126,78 @@ class Fitting:
                 parameter.grad = None
             loss.backward()
             sgd_step(parameters, learning_rate)
+
+
+def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
+    """Fit networks of one shape (``fits_side_by_side``) for ``epochs`` as one batched network. Each keeps its
+    rows, batch order and plain SGD, so its updates are those :meth:`Fitting.epoch` makes (up to rounding); a
+    network whose epoch has ended waits, its batch all padding and its gradient zero."""
+    import torch
+
+    model, device = fittings[0].model, fittings[0].device
+    names = [name for name, _ in model.named_parameters()]
+    params = {name: torch.stack([f.model.get_parameter(name).detach() for f in fittings]).requires_grad_()
+              for name in names}
+    x_all, p_all, y_all, n_all = _stacked(fittings)
+    blank = x_all.shape[1] - 1  # the padding unit, after every network's own
+    groups = torch.arange(len(fittings), device=device).unsqueeze(1)
+    model.train()
+    for _ in range(epochs):
+        orders = [f.rng.permutation(len(f.tensors[3])) for f in fittings]
+        for start in range(0, max(map(len, orders)), batch_size):
+            index = torch.as_tensor(_side_by_side_batch(orders, start, batch_size, blank), device=device)
+            count = (index != blank).sum(1, keepdim=True).clamp(min=1)
+            longest = int(n_all[groups, index].max())
+            y = y_all[groups, index, :longest]
+            log_probs = model.side_by_side(params, x_all[groups, index, :longest],
+                                           None if p_all is None else p_all[groups, index, :longest])
+            frame_loss = torch.nn.functional.nll_loss(
+                log_probs.reshape(-1, log_probs.shape[-1]), y.reshape(-1), reduction="none", ignore_index=-100
+            ).view(y.shape)
+            # each network's mean over its batch; padding has no labels, so no loss
+            loss = ((frame_loss.sum(-1) / n_all[groups, index]).sum(1, keepdim=True) / count).sum()
+            extra = model.auxiliary_loss(log_probs, y != -100, (index != blank) / count)
+            if extra is not None:
+                loss = loss + extra
+            for parameter in params.values():
+                parameter.grad = None
+            loss.backward()
+            sgd_step(list(params.values()), learning_rate)
+    with torch.no_grad():
+        for g, fitting in enumerate(fittings):
+            for name in names:
+                fitting.model.get_parameter(name).copy_(params[name][g])
+
+
+def _stacked(fittings: list[Fitting]) -> tuple[Any, Any, Any, Any]:
+    """Every network's fit units (features, prior, labels, lengths) stacked [G, U + 1, ...], padded at the end;
+    unit U is padding in all."""
+    import torch
+
+    units = max(len(f.tensors[3]) for f in fittings) + 1
+    longest = max(f.tensors[0].shape[1] for f in fittings)
+
+    def stack(i: int, fill: float) -> Any:
+        first = fittings[0].tensors[i]
+        if first is None:
+            return None
+        out = torch.full((len(fittings), units, longest, *first.shape[2:]), fill, dtype=first.dtype,
+                         device=first.device)
+        for g, fitting in enumerate(fittings):
+            tensor = fitting.tensors[i]
+            out[g, : tensor.shape[0], : tensor.shape[1]] = tensor
+        return out
+
+    lengths = torch.ones((len(fittings), units), dtype=fittings[0].tensors[3].dtype, device=fittings[0].device)
+    for g, fitting in enumerate(fittings):
+        lengths[g, : len(fitting.tensors[3])] = fitting.tensors[3]
+    return stack(0, 0.0), stack(1, 0.0), stack(2, -100), lengths
+
+
+def _side_by_side_batch(orders: list[np.ndarray], start: int, batch_size: int, blank: int) -> np.ndarray:
+    """Each network's units of the step at ``start`` of its order [G, batch_size], filled up with the padding unit."""
+    index = np.full((len(orders), batch_size), blank, dtype=np.int64)
+    for g, order in enumerate(orders):
+        units = order[start : start + batch_size]
+        index[g, : len(units)] = units
+    return index
