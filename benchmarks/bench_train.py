@@ -4,7 +4,8 @@ segment, torch's default threads), on the DESK training split and on a Fetch col
 reported, not judged (the earlier 20x target is retired: a small LSTM's batch-1 step is already cheap on a
 CPU). Beside it, cross-validation's cost: `train --mode stream` of one network against the same with
 ``--folds 5`` (the network refit on the whole training split plus 5 fold networks, in one process), on
-DESK. Per-frame streaming recognition: bench_recognize.
+DESK; and the TCN's 5 fold networks fitted side by side (one batched network, as `train --cell tcn` fits them)
+against one after another. Per-frame streaming recognition: bench_recognize.
 
 ``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
 """
@@ -112,12 +113,47 @@ def fold_training(frames_path: Path, epochs: int = 20) -> None:
           f"networks (--folds 5) {seconds[5]:.1f} s ({seconds[5] / seconds[0]:.1f}x one network's time)")
 
 
+def tcn_folds_side_by_side(data: train.FrameData, epochs: int = 20) -> None:
+    """The TCN's 5 fold networks of `train --cell tcn --mode stream --folds 5`: one after another against side by side
+    (fitting.fit_side_by_side), the same networks from the same start, timed alternately."""
+    from dataclasses import replace
+
+    from mlnseq import networks
+    from mlnseq.recognition import folds as folding
+
+    options = train.TrainOptions(mode="stream", cell="tcn", epochs=epochs)
+    config = networks.make_config("tcn", n_features=data.features.shape[1], n_classes=int(data.labels.max()) + 1)
+    folds = folding.assign(data.episodes, data.splits, 5)
+    fold_data = [replace(data, splits=folds.splits(k)) for k in range(folds.k)]
+
+    def started() -> list[fitting.Fitting]:
+        return [train.Rows.of(d, options).start(d, config, options, torch.device("cpu")) for d in fold_data]
+
+    seconds: dict[str, list[float]] = {"one after another": [], "side by side": []}
+    for _ in range(REPEATS):
+        fittings = started()
+        begun = time.perf_counter()
+        for one in fittings:
+            for _ in range(epochs):
+                one.epoch(options.batch_size, options.learning_rate)
+        seconds["one after another"].append(time.perf_counter() - begun)
+        fittings = started()
+        begun = time.perf_counter()
+        fitting.fit_side_by_side(fittings, epochs, options.batch_size, options.learning_rate)
+        seconds["side by side"].append(time.perf_counter() - begun)
+    alone, together = (min(values) for values in seconds.values())
+    print(f"desk: the TCN's 5 fold networks, {epochs} epochs (best of {REPEATS}): one after another {alone:.2f} s, "
+          f"side by side {together:.2f} s ({alone / together:.1f}x)")
+
+
 def main() -> None:
     import tempfile
 
     desk = collect.collect(collect.CollectOptions(env="desk", source=DESK_SOURCE)).frames
     desk_data = train.FrameData.from_frames(desk)
     compare("desk", desk_data)
+    fitting.set_threads()
+    tcn_folds_side_by_side(desk_data)
     with tempfile.TemporaryDirectory() as folder:
         collect.run(Path(folder), collect.CollectOptions(env="desk", source=DESK_SOURCE))
         fold_training(Path(folder) / "frames.parquet")

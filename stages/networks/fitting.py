@@ -156,7 +156,7 @@ def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, lear
             ).view(y.shape)
             # each network's mean over its batch; padding has no labels, so no loss
             loss = ((frame_loss.sum(-1) / n_all[groups, index]).sum(1, keepdim=True) / count).sum()
-            extra = model.auxiliary_loss(log_probs, y != -100, (index != blank) / count)
+            extra = model.auxiliary_loss(log_probs, y != -100, (index != blank).to(log_probs.dtype) / count)
             if extra is not None:
                 loss = loss + extra
             for parameter in params.values():
