@@ -31,8 +31,7 @@ from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor, Prior, member
 from mlnseq.catalog.parts import Part
 from mlnseq.model.checkpoints import write_checkpoint
-from mlnseq.networks.fitting import (Fitting, accuracy_and_loss, fit_side_by_side, predict_log_probs, resolve_device,
-                                    set_threads)
+from mlnseq.networks.fitting import Fitting, accuracy_and_loss, fit_each, predict_log_probs, resolve_device, set_threads
 from mlnseq.recognition import folds as folding
 from mlnseq.recognition.recognizer import prior_input
 from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
@@ -270,16 +269,11 @@ def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.devic
 def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions,
               device: torch.device) -> list[tuple[Fitting, Rows]]:
     """The fold networks, each trained as :func:`fit` trains without a validation part, the last epoch kept, nothing
-    measured (their logs would not be kept); side by side where the network type can (fit_side_by_side)."""
+    measured (their logs would not be kept)."""
     options = replace(options, select=Select.NONE)
     rows = [Rows.of(data, options) for data in fold_data]
     fittings = [part.start(data, config, options, device) for part, data in zip(rows, fold_data)]
-    if fittings[0].model.fits_side_by_side:
-        fit_side_by_side(fittings, options.epochs, options.batch_size, options.learning_rate)
-    else:
-        for fitting in fittings:
-            for _ in range(options.epochs):
-                fitting.epoch(options.batch_size, options.learning_rate)
+    fit_each(fittings, options.epochs, options.batch_size, options.learning_rate)
     return list(zip(fittings, rows))
 
 

@@ -128,6 +128,17 @@ class Fitting:
             sgd_step(parameters, learning_rate)
 
 
+def fit_each(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
+    """Fit each network for ``epochs``: side by side where its type can (:func:`fit_side_by_side`), else one after
+    another."""
+    if fittings[0].model.fits_side_by_side:
+        fit_side_by_side(fittings, epochs, batch_size, learning_rate)
+        return
+    for fitting in fittings:
+        for _ in range(epochs):
+            fitting.epoch(batch_size, learning_rate)
+
+
 def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
     """Fit networks of one shape (``fits_side_by_side``) for ``epochs`` as one batched network. Each keeps its
     rows, batch order and plain SGD, so its updates are those :meth:`Fitting.epoch` makes (up to rounding); a

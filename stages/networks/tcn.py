@@ -113,14 +113,15 @@ def torch_bodies_side_by_side(config: Config, params: dict[str, Any], features: 
 
     g, b, t, _ = features.shape
     h, k = config.hidden_size, config.kernel_size
-    x = affine(features.reshape(g, b * t, -1), params[f"{BODY}.conv_in.weight"][..., 0], params[f"{BODY}.conv_in.bias"])
+    x = affine(features.reshape(g, b * t, -1), params[f"{BODY}.conv_in.weight"][..., 0],
+               params[f"{BODY}.conv_in.bias"])
     for level in range(config.levels):
-        d = 2**level
+        d, dilated, pointwise = 2**level, f"{BODY}.dilated.{level}", f"{BODY}.pointwise.{level}"
         padded = torch.nn.functional.pad(x.view(g, b, t, h), (0, 0, (k - 1) * d, 0))  # causal: zeros before frame 0
         taps = torch.cat([padded[:, :, m * d : m * d + t] for m in range(k)], -1).view(g, b * t, k * h)
-        kernel = params[f"{BODY}.dilated.{level}.weight"].permute(0, 3, 2, 1).reshape(g, k * h, h)
-        inner = torch.relu(torch.baddbmm(params[f"{BODY}.dilated.{level}.bias"].unsqueeze(1), taps, kernel))
-        x = x + affine(inner, params[f"{BODY}.pointwise.{level}.weight"][..., 0], params[f"{BODY}.pointwise.{level}.bias"])
+        kernel = params[f"{dilated}.weight"].permute(0, 1, 3, 2).reshape(g, h, k * h)  # [G, out, tap-major in]
+        inner = torch.relu(affine(taps, kernel, params[f"{dilated}.bias"]))
+        x = x + affine(inner, params[f"{pointwise}.weight"][..., 0], params[f"{pointwise}.bias"])
     return x.view(g, b, t, h)
 
 
