@@ -51,8 +51,8 @@ def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
     model = SequenceClassifier(ModelConfig(features.shape[1], int(data.labels.max()) + 1))
     parameters = list(model.parameters())
     started = time.perf_counter()
-    x_all = sequences.pad(fit_units, features)
-    y_all = sequences.pad(fit_units, data.labels, fill=-100)
+    x_all = torch.from_numpy(sequences.pad(fit_units, features))
+    y_all = torch.from_numpy(sequences.pad(fit_units, data.labels, fill=-100))
     n_all = torch.as_tensor(sequences.lengths(fit_units))
     order = np.random.default_rng(0).permutation(len(fit_units))
     for start in range(0, len(order), options.batch_size):
