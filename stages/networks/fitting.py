@@ -64,6 +64,14 @@ def accuracy_and_loss(log_probs: np.ndarray, labels: np.ndarray, rows: np.ndarra
     return float((lp.argmax(1) == y).mean()), float(-lp[np.arange(len(y)), y].mean())
 
 
+def frame_losses(log_probs: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """Each frame's NLL [..., T] of its label; 0 on padding (label -100)."""
+    import torch
+
+    return torch.nn.functional.nll_loss(log_probs.reshape(-1, log_probs.shape[-1]), labels.reshape(-1),
+                                        reduction="none", ignore_index=-100).view(labels.shape)
+
+
 def sgd_step(parameters: list[torch.Tensor], learning_rate: float) -> None:
     """Plain SGD, the update torch.optim.SGD makes without momentum (whose first use imports torch._dynamo,
     a second or two of every training run's start-up)."""
@@ -105,7 +113,6 @@ class Fitting:
         import torch
 
         x_all, p_all, y_all, n_all = self.tensors
-        n_classes = self.model.config.n_classes
         parameters = list(self.model.parameters())
         self.model.train()
         order = self.rng.permutation(len(n_all))
@@ -114,9 +121,7 @@ class Fitting:
             longest = int(n_all[index].max())
             y = y_all[index, :longest]
             log_probs = self.model(x_all[index, :longest], None if p_all is None else p_all[index, :longest])[0]
-            frame_loss = torch.nn.functional.nll_loss(
-                log_probs.reshape(-1, n_classes), y.reshape(-1), reduction="none", ignore_index=-100
-            ).view(y.shape)
+            frame_loss = frame_losses(log_probs, y)
             # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
             loss = (frame_loss.sum(1) / n_all[index]).mean()
             extra = self.model.auxiliary_loss(log_probs, y != -100)
@@ -162,9 +167,7 @@ def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, lear
             y = y_all[groups, index, :longest]
             log_probs = model.side_by_side(params, x_all[groups, index, :longest],
                                            None if p_all is None else p_all[groups, index, :longest])
-            frame_loss = torch.nn.functional.nll_loss(
-                log_probs.reshape(-1, log_probs.shape[-1]), y.reshape(-1), reduction="none", ignore_index=-100
-            ).view(y.shape)
+            frame_loss = frame_losses(log_probs, y)
             # each network's mean over its batch; padding has no labels, so no loss
             loss = ((frame_loss.sum(-1) / n_all[groups, index]).sum(1, keepdim=True) / count).sum()
             extra = model.auxiliary_loss(log_probs, y != -100, (index != blank).to(log_probs.dtype) / count)
