@@ -162,15 +162,16 @@ def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, lear
         orders = [f.rng.permutation(len(f.tensors[3])) for f in fittings]
         for start in range(0, max(map(len, orders)), batch_size):
             index = torch.as_tensor(_side_by_side_batch(orders, start, batch_size, blank), device=device)
-            count = (index != blank).sum(1, keepdim=True).clamp(min=1)
-            longest = int(n_all[groups, index].max())
+            real, lengths = index != blank, n_all[groups, index]
+            count = real.sum(1, keepdim=True).clamp(min=1)
+            longest = int(lengths.max())
             y = y_all[groups, index, :longest]
             log_probs = model.side_by_side(params, x_all[groups, index, :longest],
                                            None if p_all is None else p_all[groups, index, :longest])
             frame_loss = frame_losses(log_probs, y)
             # each network's mean over its batch; padding has no labels, so no loss
-            loss = ((frame_loss.sum(-1) / n_all[groups, index]).sum(1, keepdim=True) / count).sum()
-            extra = model.auxiliary_loss(log_probs, y != -100, (index != blank).to(log_probs.dtype) / count)
+            loss = ((frame_loss.sum(-1) / lengths).sum(1, keepdim=True) / count).sum()
+            extra = model.auxiliary_loss(log_probs, y != -100, real.to(log_probs.dtype) / count)
             if extra is not None:
                 loss = loss + extra
             for parameter in params.values():
