@@ -78,10 +78,20 @@ def _row_max(values: np.ndarray) -> np.ndarray:
     return top
 
 
+def _over_top(moved: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """A backward step's vectors over their top (a row's, or a class-major column's): 1 where the top is 0."""
+    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+
+
+def _less_top(moved: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """A max backward step's vectors less their top: 0 where the top is not finite."""
+    finite = np.isfinite(top)
+    return np.where(finite, moved - np.where(finite, top, 0.0), 0.0)
+
+
 def sum_back(vectors: np.ndarray, transition: np.ndarray, linear: np.ndarray) -> np.ndarray:
     moved = (transition * (linear * vectors)[:, None, :]).sum(axis=2)
-    top = _row_max(moved)
-    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+    return _over_top(moved, _row_max(moved))
 
 
 def max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray) -> np.ndarray:
@@ -89,8 +99,7 @@ def max_back(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray)
     moved = log_transition[:, :, 0] + shifted[:, 0, None]  # the max over the next class, one class at a time
     for j in range(1, shifted.shape[1]):
         np.maximum(moved, log_transition[:, :, j] + shifted[:, j, None], out=moved)
-    top = _row_max(moved)
-    return np.where(np.isfinite(top), moved - np.where(np.isfinite(top), top, 0.0), 0.0)
+    return _less_top(moved, _row_max(moved))
 
 
 # The same steps on class-major rows ([C, N]: each class's entries side by side) with one transition matrix [C, C],
@@ -117,8 +126,7 @@ def sum_back_by_class(vectors: np.ndarray, transition: np.ndarray, linear: np.nd
     moved = transition[:, :1] * weighted[0]
     for k in range(1, len(weighted)):
         moved += transition[:, k:k + 1] * weighted[k]
-    top = _class_max(moved)
-    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+    return _over_top(moved, _class_max(moved))
 
 
 def max_back_by_class(vectors: np.ndarray, log_transition: np.ndarray, unary: np.ndarray) -> np.ndarray:
@@ -126,9 +134,7 @@ def max_back_by_class(vectors: np.ndarray, log_transition: np.ndarray, unary: np
     moved = log_transition[:, :1] + shifted[0]
     for j in range(1, len(shifted)):
         np.maximum(moved, log_transition[:, j:j + 1] + shifted[j], out=moved)
-    top = _class_max(moved)
-    finite = np.isfinite(top)
-    return np.where(finite, moved - np.where(finite, top, 0.0), 0.0)
+    return _less_top(moved, _class_max(moved))
 
 
 def decision_scores(semiring: str, forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
