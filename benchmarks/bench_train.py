@@ -4,8 +4,8 @@ segment, torch's default threads), on the DESK training split and on a Fetch col
 reported, not judged (the earlier 20x target is retired: a small LSTM's batch-1 step is already cheap on a
 CPU). Beside it, cross-validation's cost: `train --mode stream` of one network against the same with
 ``--folds 5`` (the network refit on the whole training split plus 5 fold networks, in one process), on
-DESK; and the TCN's 5 fold networks fitted side by side (one batched network, as `train --cell tcn` fits them)
-against one after another. Per-frame streaming recognition: bench_recognize.
+DESK; and networks fitted side by side (one batched network, as `train` fits fold networks and several seeds)
+against one after another: the 5 fold networks of a TCN and of an LSTM, and 5 LSTM seeds in segment mode. Per-frame streaming recognition: bench_recognize.
 
 ``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
 """
@@ -22,6 +22,7 @@ import torch
 from mlnseq import collect, train
 from mlnseq.timeline import sequences
 from mlnseq.networks import fitting
+from mlnseq.recognition import training_rows as rows
 from mlnseq.networks.classifier import SequenceClassifier
 from mlnseq.networks.recurrent import Config as ModelConfig
 
@@ -46,7 +47,7 @@ def baseline_epoch(model: SequenceClassifier, segments: list[tuple[list, list]])
 
 def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
     """One epoch of :func:`train.fit` without its per-epoch evaluation (timed from the log-free path)."""
-    parts, fit_units, _ = train.assign_parts(data, options)
+    parts, fit_units, _ = rows.assign_parts(data, options)
     features = ((data.features - data.features.mean(0)) / (data.features.std(0) + 1e-8)).astype(np.float32)
     model = SequenceClassifier(ModelConfig(features.shape[1], int(data.labels.max()) + 1))
     parameters = list(model.parameters())
@@ -113,37 +114,44 @@ def fold_training(frames_path: Path, epochs: int = 20) -> None:
           f"networks (--folds 5) {seconds[5]:.1f} s ({seconds[5] / seconds[0]:.1f}x one network's time)")
 
 
-def tcn_folds_side_by_side(data: train.FrameData, epochs: int = 20) -> None:
-    """The TCN's 5 fold networks of `train --cell tcn --mode stream --folds 5`: one after another against side by side
-    (fitting.fit_side_by_side), the same networks from the same start, timed alternately."""
+def side_by_side(data: train.FrameData, epochs: int = 20) -> None:
+    """Networks fitted one after another against side by side (fitting.fit_together), the same networks from the same
+    start, timed alternately: the 5 fold networks of `train --mode stream --folds 5` (TCN and LSTM), and 5 seeds of
+    `train --mode segment --seed 0 ... --seed 4`."""
     from dataclasses import replace
 
     from mlnseq import networks
     from mlnseq.recognition import folds as folding
 
-    options = train.TrainOptions(mode="stream", cell="tcn", epochs=epochs)
-    config = networks.make_config("tcn", n_features=data.features.shape[1], n_classes=int(data.labels.max()) + 1)
     folds = folding.assign(data.episodes, data.splits, 5)
-    fold_data = [replace(data, splits=folds.splits(k)) for k in range(folds.k)]
+    for cell, mode in (("tcn", "stream"), ("lstm", "stream"), ("lstm", "segment")):
+        options = train.TrainOptions(mode=mode, cell=cell, epochs=epochs)
+        config = networks.make_config(cell, n_features=data.features.shape[1], n_classes=int(data.labels.max()) + 1)
+        if mode == "stream":
+            what = "5 fold networks"
+            runs = [(replace(data, splits=folds.splits(k)), options) for k in range(folds.k)]
+        else:
+            what = "5 seeds"
+            runs = [(data, replace(options, seed=seed)) for seed in range(5)]
 
-    def started() -> list[fitting.Fitting]:
-        return [train.Rows.of(d, options).start(d, config, options, torch.device("cpu")) for d in fold_data]
+        def started() -> list[fitting.Fitting]:
+            return [rows.Rows.of(d, o).start(d, config, o, torch.device("cpu")) for d, o in runs]
 
-    seconds: dict[str, list[float]] = {"one after another": [], "side by side": []}
-    for _ in range(REPEATS):
-        fittings = started()
-        begun = time.perf_counter()
-        for one in fittings:
-            for _ in range(epochs):
-                one.epoch(options.batch_size, options.learning_rate)
-        seconds["one after another"].append(time.perf_counter() - begun)
-        fittings = started()
-        begun = time.perf_counter()
-        fitting.fit_side_by_side(fittings, epochs, options.batch_size, options.learning_rate)
-        seconds["side by side"].append(time.perf_counter() - begun)
-    alone, together = (min(values) for values in seconds.values())
-    print(f"desk: the TCN's 5 fold networks, {epochs} epochs (best of {REPEATS}): one after another {alone:.2f} s, "
-          f"side by side {together:.2f} s ({alone / together:.1f}x)")
+        seconds: dict[str, list[float]] = {"one after another": [], "side by side": []}
+        for _ in range(REPEATS):
+            fittings = started()
+            begun = time.perf_counter()
+            for one in fittings:
+                for _ in range(epochs):
+                    one.epoch(options.batch_size, options.learning_rate)
+            seconds["one after another"].append(time.perf_counter() - begun)
+            fittings = started()
+            begun = time.perf_counter()
+            fitting.fit_together(fittings, epochs, options.batch_size, options.learning_rate)
+            seconds["side by side"].append(time.perf_counter() - begun)
+        alone, together = (min(values) for values in seconds.values())
+        print(f"desk: {cell} {mode} mode, {what}, {epochs} epochs (best of {REPEATS}): one after another "
+              f"{alone:.2f} s, side by side {together:.2f} s ({alone / together:.1f}x)")
 
 
 def main() -> None:
@@ -153,7 +161,7 @@ def main() -> None:
     desk_data = train.FrameData.from_frames(desk)
     compare("desk", desk_data)
     fitting.set_threads()
-    tcn_folds_side_by_side(desk_data)
+    side_by_side(desk_data)
     with tempfile.TemporaryDirectory() as folder:
         collect.run(Path(folder), collect.CollectOptions(env="desk", source=DESK_SOURCE))
         fold_training(Path(folder) / "frames.parquet")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Annotated, Optional
 
 import polars as pl
@@ -12,12 +13,16 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
+from mlnseq_cli.console import DEFAULT, console, counted, reported_errors
 from mlnseq import networks
 from mlnseq import train as stage
 
 Defaults = stage.TrainOptions
 HELP = {
+    "seed": "Seed of initial weights and batch order; one per --workdir when several are given.",
+    "workdir": "Folder holding this dataset's artifacts. Several (each with its --seed, in order): the seed workdirs "
+               "of one dataset, whose networks are fitted side by side (about twice as fast for 5 LSTMs); their "
+               "inputs must be the same files.",
     "method": "network: the network alone, of any --cell (also written lstm, its name in the workdir: "
               "models/lstm.pt); or priorlayer: the network with the MLN's PriorLayer input (needs predicates.parquet "
               "and weights.parquet).",
@@ -46,7 +51,7 @@ HELP = {
 
 def train(
     method: Annotated[str, typer.Option(help=HELP["method"])] = "network",
-    seed: Annotated[int, typer.Option(help="Seed of initial weights and batch order.")] = Defaults.seed,
+    seed: Annotated[list[int], typer.Option(help=HELP["seed"])] = [Defaults.seed],
     epochs: Annotated[int, typer.Option(help="Passes over the training sequences.")] = Defaults.epochs,
     mode: Annotated[str, typer.Option(help=HELP["mode"])] = Defaults.mode,
     cell: Annotated[str, typer.Option(help=HELP["cell"])] = Defaults.cell,
@@ -61,31 +66,33 @@ def train(
     window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
     smoothing: Annotated[float, typer.Option(help=HELP["smoothing"])] = Defaults.smoothing,
     paper_floor: Annotated[Optional[str], typer.Option(help=HELP["paper_floor"], show_default=False)] = None,
-    workdir: WorkdirOption = DEFAULT,
+    workdir: Annotated[list[Path], typer.Option("--workdir", "-w", help=HELP["workdir"], file_okay=False)] = [DEFAULT],
 ) -> None:
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write
     WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch,
     split, accuracy, loss: after the last epoch, or every epoch with --measure every-epoch)."""
     options = stage.TrainOptions(
-        method=method, seed=seed, epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
+        method=method, seed=seed[0], epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
         folds=folds, device=device, train_fraction=train_fraction, batch_size=batch_size, window=window,
         smoothing=smoothing, paper_floor=paper_floor,
     )
     with reported_errors():
         options.validate()
         what = options.cell if options.method == "lstm" else str(options.method)  # the network alone: its cell
-        with epoch_progress(f"{what} ({mode} mode)" + _then_folds(workdir, options), epochs) as progress:
-            result = stage.run(workdir, options, progress)
-    trained = result.trained
-    for warning in trained.warnings:
-        console.print(f"[yellow]warning[/]: {escape(warning)}")  # a warning may hold [..]: not markup
-    last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
-    shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
-    console.print(
-        f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
-        f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
-        + _folds_said(result.checkpoint, folds)
-    )
+        seeds = f", seeds {', '.join(map(str, seed))} side by side" if len(seed) > 1 else ""
+        with epoch_progress(f"{what} ({mode} mode{seeds})" + _then_folds(workdir[0], options), epochs) as progress:
+            results = stage.run_seeds(workdir, tuple(seed), options, progress)
+    for result in results:
+        trained = result.trained
+        for warning in trained.warnings:
+            console.print(f"[yellow]warning[/]: {escape(warning)}")  # a warning may hold [..]: not markup
+        last = trained.log.filter(pl.col("epoch") == trained.kept_epoch)
+        shown = ", ".join(f"{row['split']} {row['accuracy']:.1%}" for row in last.iter_rows(named=True))
+        console.print(
+            f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
+            f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
+            + _folds_said(result.checkpoint, folds)
+        )
 
 
 FOLD_NETWORKS = "fold networks"  # named in the bar's label when they train after its epochs

@@ -15,7 +15,6 @@ The parts' accuracy and loss are measured (a pass over every frame) and logged a
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from enum import Enum, StrEnum
@@ -31,7 +30,8 @@ from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor, Prior, member
 from mlnseq.catalog.parts import Part
 from mlnseq.model.checkpoints import write_checkpoint
-from mlnseq.networks.fitting import Fitting, accuracy_and_loss, fit_each, predict_log_probs, resolve_device, set_threads
+from mlnseq.networks.fitting import Fitting, Together, fit_together, predict_log_probs, resolve_device, set_threads
+from mlnseq.recognition.training_rows import Rows, Select
 from mlnseq.recognition import folds as folding
 from mlnseq.recognition.recognizer import prior_input
 from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
@@ -41,14 +41,6 @@ if TYPE_CHECKING:  # torch loads only when a network is built or run
     import torch
 
     from mlnseq.networks.classifier import SequenceClassifier
-
-
-class Select(StrEnum):
-    """Which epoch is kept, and whether a validation part is held out for it."""
-
-    NONE = "none"  # no validation part; the last epoch
-    LAST = "last"  # a validation part; the last epoch
-    VAL_ACCURACY = "val_accuracy"  # a validation part; the epoch of best frame accuracy on it
 
 
 class Measure(StrEnum):
@@ -153,29 +145,6 @@ class Trained:
     warnings: list[str] = field(default_factory=list)
 
 
-def assign_parts(data: FrameData, options: TrainOptions) -> tuple[np.ndarray, list[slice], list[slice]]:
-    """Mark every row fit / val / test / unused; return the parts and the fit and val training units."""
-    parts = np.where(data.splits == Part.TRAIN, Part.TRAIN, Part.TEST).astype(object)
-    units = sequences.training_units(options.mode, data.episodes, parts, data.labels, options.window)
-    units = [u for u in units if parts[u.start] == Part.TRAIN]
-    if not units:
-        raise BadInput("frames.parquet has no training frames: rerun `mlnseq collect` with a training split")
-    val_units: list[slice] = []
-    if options.select != Select.NONE:
-        if len(units) < 2:
-            raise BadInput(f"--select {options.select} needs at least 2 training sequences; use --select none")
-        n_val = max(1, round(options.val_fraction * len(units)))
-        units, val_units = units[:-n_val], units[-n_val:]
-    fit_units = units[: max(1, math.ceil(options.train_fraction * len(units)))]
-    for unit in units[len(fit_units):]:
-        parts[unit] = Part.UNUSED
-    for unit in val_units:
-        parts[unit] = Part.VAL
-    for unit in fit_units:
-        parts[unit] = Part.FIT
-    return parts.astype(str), fit_units, val_units
-
-
 @dataclass(frozen=True)
 class EpochDone:
     """What :func:`fit` tells its progress callback after each epoch (frame accuracy and NLL of the parts)."""
@@ -188,82 +157,44 @@ class EpochDone:
 
 
 Progress = Callable[[EpochDone], None]
-LOGGED = ((Part.TRAIN, Part.FIT), (Part.VAL, Part.VAL), (Part.TEST, Part.TEST))  # the log's split -> rows' part
 LOG_SCHEMA = {"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "loss": pl.Float64}
 
 
-@dataclass(frozen=True)
-class Rows:
-    """The rows of a network's fitting: their parts, the fit and val units, and the inputs standardised with the
-    fit rows' mean and std."""
-
-    parts: np.ndarray
-    fit_units: list[slice]
-    val_units: list[slice]
-    mean: np.ndarray
-    std: np.ndarray
-    features: np.ndarray
-    prior: np.ndarray | None
-
-    @classmethod
-    def of(cls, data: FrameData, options: TrainOptions) -> Rows:
-        parts, fit_units, val_units = assign_parts(data, options)
-        fit_rows = parts == Part.FIT
-        mean = data.features[fit_rows].mean(0)
-        std = data.features[fit_rows].std(0)
-        std = np.where(std > 1e-8, std, 1.0).astype(np.float32)
-        features = ((data.features - mean) / std).astype(np.float32)
-        prior = None if data.prior is None else data.prior.astype(np.float32)
-        return cls(parts, fit_units, val_units, mean.astype(np.float32), std, features, prior)
-
-    def start(self, data: FrameData, config: Any, options: TrainOptions, device: torch.device) -> Fitting:
-        return Fitting.start(config, self.features, self.prior, data.labels, self.fit_units, options.seed, device)
-
-    def warnings(self, data: FrameData) -> list[str]:
-        """A class of the test split that no fit row has."""
-        test = data.labels[data.splits == Part.TEST]
-        missing = sorted(int(k) for k in set(test) - set(data.labels[self.parts == Part.FIT]))
-        if not missing:
-            return []
-        return [f"classes {missing} occur in the test split but not in the training frames used; "
-                "the model cannot predict them well"]
-
-    def measure(self, fitting: Fitting, data: FrameData, mode: str) -> dict[Part, tuple[float, float]]:
-        """Frame accuracy and NLL of each logged part that has rows (train: the fit rows), each sequence run from
-        a fresh state."""
-        every = sequences.sequences(mode, data.episodes, self.parts, data.labels)
-        spans = [s for _, part in LOGGED for s in every if self.parts[s.start] == part]
-        log_probs = predict_log_probs(fitting.model, spans, self.features, self.prior, fitting.device)
-        return {name: accuracy_and_loss(log_probs, data.labels, self.parts == part)
-                for name, part in LOGGED if (self.parts == part).any()}
-
-
-def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.device,
-        progress: Progress | None = None) -> Trained:
-    """Train a network on the training split of ``data``; log train/val/test accuracy after every epoch (measure
-    every-epoch) or the last; keep the last epoch, or with ``select`` val_accuracy the one of best frame accuracy on
-    the validation part."""
+def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.device, progress: Progress | None = None,
+        seeds: tuple[int, ...] | None = None) -> list[Trained]:
+    """Train a network on the training split of ``data`` per seed (``options.seed``, or each of ``seeds``, side by
+    side: fitting.Together); log train/val/test accuracy after every epoch (measure every-epoch) or the last; keep the
+    last epoch, or with ``select`` val_accuracy the one of best frame accuracy on the validation part. ``progress``
+    hears the first seed's."""
     rows = Rows.of(data, options)
-    fitting = rows.start(data, config, options, device)
-    log_rows: list[dict[str, Any]] = []
-    best_state, best_accuracy, kept_epoch = None, -1.0, options.epochs
+    seeds = seeds or (options.seed,)
+    fittings = [rows.start(data, config, replace(options, seed=seed), device) for seed in seeds]
+    together = Together(fittings)
+    logs: list[list[dict[str, Any]]] = [[] for _ in seeds]
+    best = [(None, -1.0, options.epochs)] * len(seeds)  # (state, val accuracy, epoch) of each seed's kept epoch
     every_epoch = options.measured == Measure.EVERY_EPOCH
     for epoch in range(1, options.epochs + 1):
-        fitting.epoch(options.batch_size, options.learning_rate)
-        measured = rows.measure(fitting, data, options.mode) if every_epoch or epoch == options.epochs else {}
-        log_rows += [{"epoch": epoch, "split": str(name), "accuracy": accuracy, "loss": nll}
-                     for name, (accuracy, nll) in measured.items()]
-        if progress is not None:
-            train, val = measured.get(Part.TRAIN, (None, None)), measured.get(Part.VAL)
-            progress(EpochDone(epoch, options.epochs, train[1], train[0], None if val is None else val[0]))
-        if options.select == Select.VAL_ACCURACY and measured[Part.VAL][0] > best_accuracy:
-            best_accuracy, kept_epoch = measured[Part.VAL][0], epoch
-            best_state = {k: v.detach().clone() for k, v in fitting.model.state_dict().items()}
-    if best_state is not None:
-        fitting.model.load_state_dict(best_state)
-    return Trained(fitting.model.cpu(), rows.mean, rows.std, pl.DataFrame(log_rows, schema=LOG_SCHEMA), kept_epoch,
-                   len(rows.fit_units), len(rows.val_units), [(u.start, u.stop) for u in rows.val_units],
-                   rows.warnings(data))
+        together.epoch(options.batch_size, options.learning_rate)
+        if every_epoch or epoch == options.epochs:
+            together.write_back()
+        for i, fitting in enumerate(fittings):
+            measured = rows.measure(fitting, data, options.mode) if every_epoch or epoch == options.epochs else {}
+            logs[i] += [{"epoch": epoch, "split": str(name), "accuracy": accuracy, "loss": nll}
+                        for name, (accuracy, nll) in measured.items()]
+            if progress is not None and i == 0:
+                train, val = measured.get(Part.TRAIN, (None, None)), measured.get(Part.VAL)
+                progress(EpochDone(epoch, options.epochs, train[1], train[0], None if val is None else val[0]))
+            if options.select == Select.VAL_ACCURACY and measured[Part.VAL][0] > best[i][1]:
+                state = {k: v.detach().clone() for k, v in fitting.model.state_dict().items()}
+                best[i] = (state, measured[Part.VAL][0], epoch)
+    trained = []
+    for fitting, log, (state, _, kept_epoch) in zip(fittings, logs, best):
+        if state is not None:
+            fitting.model.load_state_dict(state)
+        trained.append(Trained(fitting.model.cpu(), rows.mean, rows.std, pl.DataFrame(log, schema=LOG_SCHEMA),
+                               kept_epoch, len(rows.fit_units), len(rows.val_units),
+                               [(u.start, u.stop) for u in rows.val_units], rows.warnings(data)))
+    return trained
 
 
 def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions,
@@ -273,7 +204,7 @@ def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions,
     options = replace(options, select=Select.NONE)
     rows = [Rows.of(data, options) for data in fold_data]
     fittings = [part.start(data, config, options, device) for part, data in zip(rows, fold_data)]
-    fit_each(fittings, options.epochs, options.batch_size, options.learning_rate)
+    fit_together(fittings, options.epochs, options.batch_size, options.learning_rate)
     return list(zip(fittings, rows))
 
 
@@ -301,9 +232,48 @@ class OutOfFold:
 
 def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) -> TrainResult:
     """Train on ``workdir/frames.parquet``; write ``models/<method>.pt`` and ``models/<method>.log.parquet``."""
+    return run_seeds([Path(workdir)], (options.seed,), options, progress)[0]
+
+
+def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOptions,
+              progress: Progress | None = None) -> list[TrainResult]:
+    """:func:`run` for each workdir with its seed, the networks fitted side by side; the workdirs hold the same
+    inputs (the seed workdirs of one dataset)."""
     options.validate()
-    workdir = Path(workdir)
+    if len(workdirs) != len(seeds) or len(set(seeds)) != len(seeds):
+        raise BadInput(f"train: {len(seeds)} --seed and {len(workdirs)} --workdir: give one distinct seed per workdir")
     set_threads()
+    loaded = [_read_inputs(Path(workdir), options) for workdir in workdirs]
+    frames, meta, data, inputs, options = loaded[0]
+    digests = [[artifacts.file_digest(path) for path in other[3]] for other in loaded]
+    for workdir, digest in zip(workdirs[1:], digests[1:]):
+        if digest != digests[0]:
+            raise BadInput(f"{workdir}: its inputs differ from {workdirs[0]}'s; networks trained side by side share "
+                           "their rows: train it in a run of its own")
+    config = networks.make_config(
+        options.cell, n_features=data.features.shape[1], n_classes=len(meta["classes"]),
+        hidden_size=options.hidden_size, prior_layer=options.method == Method.PRIORLAYER, smoothing=options.smoothing,
+    )
+    device = resolve_device(options.device)
+    results = []
+    for workdir, seed, trained in zip(workdirs, seeds, fit(data, config, options, device, progress, seeds)):
+        workdir, seeded = Path(workdir), replace(options, seed=seed)
+        folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, workdir)
+        checkpoint_config = _checkpoint_config(seeded, config, meta, trained, inputs)
+        out_of_fold = None
+        if folds is not None:
+            checkpoint_config["folds"] = folds.record()
+            out_of_fold = fold_networks(workdir, data, config, seeded, folds, device, meta)
+            trained.warnings.extend(out_of_fold.warnings)
+        paths = _write(workdir, seeded, trained, checkpoint_config, inputs, frames, meta, folds, out_of_fold)
+        results.append(TrainResult(paths[0], paths[1], trained, str(device)))
+    return results
+
+
+def _read_inputs(workdir: Path, options: TrainOptions) -> tuple[pl.DataFrame, dict, FrameData, list[Path],
+                                                                 TrainOptions]:
+    """A workdir's frames, their metadata, the rows a network fits (with PriorLayer's MLN input), the files read,
+    and the options with the recordings' paper floor."""
     frames_path = workdir / artifacts.FRAMES
     frames, meta = artifacts.read_table(frames_path, "frames")
     options = replace(options, paper_floor=options.paper_floor or PaperFloor.for_recordings(meta.get("source", "")))
@@ -313,22 +283,7 @@ def run(workdir: Path, options: TrainOptions, progress: Progress | None = None) 
         scores, mln_inputs = mln_class_scores(workdir, frames, meta["classes"])
         prior = prior_input(scores, options.prior, options.paper_floor)
         inputs += mln_inputs
-    data = FrameData.from_frames(frames, prior)
-    config = networks.make_config(
-        options.cell, n_features=data.features.shape[1], n_classes=len(meta["classes"]),
-        hidden_size=options.hidden_size, prior_layer=options.method == Method.PRIORLAYER, smoothing=options.smoothing,
-    )
-    device = resolve_device(options.device)
-    folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, workdir)
-    trained = fit(data, config, options, device, progress)
-    checkpoint_config = _checkpoint_config(options, config, meta, trained, inputs)
-    out_of_fold = None
-    if folds is not None:
-        checkpoint_config["folds"] = folds.record()
-        out_of_fold = fold_networks(workdir, data, config, options, folds, device, meta)
-        trained.warnings.extend(out_of_fold.warnings)
-    paths = _write(workdir, options, trained, checkpoint_config, inputs, frames, meta, folds, out_of_fold)
-    return TrainResult(paths[0], paths[1], trained, str(device))
+    return frames, meta, FrameData.from_frames(frames, prior), inputs, options
 
 
 def _checkpoint_config(options: TrainOptions, config: Any, meta: dict[str, Any], trained: Trained,

@@ -7,6 +7,7 @@ numpy by stages/networks/prior_layer.py. Imported by training only: recognition 
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import torch
@@ -49,9 +50,13 @@ class SequenceClassifier(nn.Module):
         return None if extra is None else extra(self.config, log_probs, valid, weight)
 
     @property
-    def fits_side_by_side(self) -> bool:
-        """Whether networks of this type can be fitted side by side (:meth:`side_by_side`)."""
-        return hasattr(self.kind, "torch_bodies_side_by_side")
+    def side_by_side_at_most(self) -> int:
+        """How many networks of this one's type and shape are fitted side by side at once (:meth:`side_by_side`);
+        1: one at a time."""
+        if not hasattr(self.kind, "torch_bodies_side_by_side"):
+            return 1
+        at_most = getattr(self.kind, "side_by_side_at_most", None)
+        return sys.maxsize if at_most is None else at_most(self.config)
 
     def side_by_side(self, params: dict[str, torch.Tensor], features: torch.Tensor,
                      prior: torch.Tensor | None) -> torch.Tensor:

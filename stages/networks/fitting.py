@@ -133,55 +133,84 @@ class Fitting:
             sgd_step(parameters, learning_rate)
 
 
-def fit_each(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
-    """Fit each network for ``epochs``: side by side where its type can (:func:`fit_side_by_side`), else one after
-    another."""
-    if fittings[0].model.fits_side_by_side:
-        fit_side_by_side(fittings, epochs, batch_size, learning_rate)
-        return
-    for fitting in fittings:
-        for _ in range(epochs):
-            fitting.epoch(batch_size, learning_rate)
+class SideBySide:
+    """Networks of one shape fitted as one batched network (``SequenceClassifier.side_by_side``), an epoch at a time.
+    Each keeps its rows, batch order and plain SGD, so its updates are those :meth:`Fitting.epoch` makes (up to
+    rounding); a network whose epoch has ended waits, its batch all padding and its gradient zero. Their models hold
+    the fitted weights after :meth:`write_back`."""
 
+    def __init__(self, fittings: list[Fitting]):
+        import torch
 
-def fit_side_by_side(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
-    """Fit networks of one shape (``fits_side_by_side``) for ``epochs`` as one batched network. Each keeps its
-    rows, batch order and plain SGD, so its updates are those :meth:`Fitting.epoch` makes (up to rounding); a
-    network whose epoch has ended waits, its batch all padding and its gradient zero."""
-    import torch
+        self.fittings, self.model, self.device = fittings, fittings[0].model, fittings[0].device
+        self.names = [name for name, _ in self.model.named_parameters()]
+        self.params = {name: torch.stack([f.model.get_parameter(name).detach() for f in fittings]).requires_grad_()
+                       for name in self.names}
+        self.tensors = _stacked(fittings)
+        self.groups = torch.arange(len(fittings), device=self.device).unsqueeze(1)
 
-    model, device = fittings[0].model, fittings[0].device
-    names = [name for name, _ in model.named_parameters()]
-    params = {name: torch.stack([f.model.get_parameter(name).detach() for f in fittings]).requires_grad_()
-              for name in names}
-    x_all, p_all, y_all, n_all = _stacked(fittings)
-    blank = x_all.shape[1] - 1  # the padding unit, after every network's own
-    groups = torch.arange(len(fittings), device=device).unsqueeze(1)
-    model.train()
-    for _ in range(epochs):
-        orders = [f.rng.permutation(len(f.tensors[3])) for f in fittings]
+    def epoch(self, batch_size: int, learning_rate: float) -> None:
+        import torch
+
+        x_all, p_all, y_all, n_all = self.tensors
+        blank = x_all.shape[1] - 1  # the padding unit, after every network's own
+        groups, parameters = self.groups, list(self.params.values())
+        self.model.train()
+        orders = [f.rng.permutation(len(f.tensors[3])) for f in self.fittings]
         for start in range(0, max(map(len, orders)), batch_size):
-            index = torch.as_tensor(_side_by_side_batch(orders, start, batch_size, blank), device=device)
+            index = torch.as_tensor(_side_by_side_batch(orders, start, batch_size, blank), device=self.device)
             real, lengths = index != blank, n_all[groups, index]
             count = real.sum(1, keepdim=True).clamp(min=1)
             longest = int(lengths.max())
             y = y_all[groups, index, :longest]
-            log_probs = model.side_by_side(params, x_all[groups, index, :longest],
-                                           None if p_all is None else p_all[groups, index, :longest])
+            log_probs = self.model.side_by_side(self.params, x_all[groups, index, :longest],
+                                                None if p_all is None else p_all[groups, index, :longest])
             frame_loss = frame_losses(log_probs, y)
             # each network's mean over its batch; padding has no labels, so no loss
             loss = ((frame_loss.sum(-1) / lengths).sum(1, keepdim=True) / count).sum()
-            extra = model.auxiliary_loss(log_probs, y != -100, real.to(log_probs.dtype) / count)
+            extra = self.model.auxiliary_loss(log_probs, y != -100, real.to(log_probs.dtype) / count)
             if extra is not None:
                 loss = loss + extra
-            for parameter in params.values():
+            for parameter in parameters:
                 parameter.grad = None
             loss.backward()
-            sgd_step(list(params.values()), learning_rate)
-    with torch.no_grad():
-        for g, fitting in enumerate(fittings):
-            for name in names:
-                fitting.model.get_parameter(name).copy_(params[name][g])
+            sgd_step(parameters, learning_rate)
+
+    def write_back(self) -> None:
+        import torch
+
+        with torch.no_grad():
+            for g, fitting in enumerate(self.fittings):
+                for name in self.names:
+                    fitting.model.get_parameter(name).copy_(self.params[name][g])
+
+
+class Together:
+    """Networks of one shape fitted an epoch at a time: side by side (:class:`SideBySide`) in groups of as many as
+    their type fits at once, else one after another. Each ends where it would alone (up to rounding)."""
+
+    def __init__(self, fittings: list[Fitting]):
+        most = fittings[0].model.side_by_side_at_most
+        groups = [fittings[i : i + most] for i in range(0, len(fittings), most)]
+        self.groups = [SideBySide(group) if len(group) > 1 else group[0] for group in groups]
+
+    def epoch(self, batch_size: int, learning_rate: float) -> None:
+        for group in self.groups:
+            group.epoch(batch_size, learning_rate)
+
+    def write_back(self) -> None:
+        """Each network's model holds its weights so far."""
+        for group in self.groups:
+            if isinstance(group, SideBySide):
+                group.write_back()
+
+
+def fit_together(fittings: list[Fitting], epochs: int, batch_size: int, learning_rate: float) -> None:
+    """Fit the networks for ``epochs`` (:class:`Together`)."""
+    together = Together(fittings)
+    for _ in range(epochs):
+        together.epoch(batch_size, learning_rate)
+    together.write_back()
 
 
 def _stacked(fittings: list[Fitting]) -> tuple[Any, Any, Any, Any]:

@@ -134,3 +134,30 @@ def test_method_network_is_the_network_alone_stored_as_lstm(workdir, tmp_path):
     assert json.loads(shown.output)["method"] == "lstm" and json.loads(shown.output)["paper_floor"] == "clamp"
     refused = invoke("train", "--method", "transformer", "-w", workdir)
     assert refused.exit_code == 2 and "choose one of network, lstm, priorlayer" in refused.stderr
+
+
+def test_seeds_side_by_side_write_each_workdir_what_its_seed_trains_alone(workdir, tmp_path_factory):
+    """`train --seed 0 -w A --seed 1 -w B` (segment mode's seeds in `make reproduce`): each workdir its own checkpoint
+    and log, its seed recorded, the network its seed trains alone up to float32 rounding; different inputs refused."""
+    import torch
+
+    other, alone = tmp_path_factory.mktemp("seed-1"), tmp_path_factory.mktemp("seed-1-alone")
+    for folder in (other, alone):
+        shutil.copy(workdir / artifacts.FRAMES, folder / artifacts.FRAMES)
+    together = invoke("train", "--epochs", 2, "--seed", 0, "-w", workdir, "--seed", 1, "-w", other)
+    assert together.exit_code == 0, together.output
+    assert together.output.count("train: wrote") == 2 and "seeds 0, 1 side by side" in together.output
+    assert invoke("train", "--epochs", 2, "--seed", 1, "-w", alone).exit_code == 0
+    checkpoints = [torch.load(artifacts.checkpoint_path(w, "lstm"), weights_only=True) for w in (workdir, other, alone)]
+    assert [c["config"]["seed"] for c in checkpoints] == [0, 1, 1]
+    for name, value in checkpoints[2]["state_dict"].items():
+        torch.testing.assert_close(checkpoints[1]["state_dict"][name], value, rtol=0, atol=1e-5, msg=name)
+    assert (checkpoints[0]["state_dict"]["h2c.weight"] - checkpoints[1]["state_dict"]["h2c.weight"]).abs().max() > 0.01
+    assert artifacts.train_log_path(other, "lstm").exists()
+
+    frames, meta = artifacts.read_table(other / artifacts.FRAMES, "frames")
+    artifacts.write_table(frames.head(frames.height - 1), other / artifacts.FRAMES, "frames", meta)
+    refused = invoke("train", "--epochs", 1, "--seed", 0, "-w", workdir, "--seed", 1, "-w", other)
+    assert refused.exit_code == 2 and "its inputs differ" in refused.stderr, refused.output
+    unpaired = invoke("train", "--epochs", 1, "--seed", 0, "--seed", 1, "-w", workdir)
+    assert unpaired.exit_code == 2 and "one distinct seed per workdir" in unpaired.stderr

@@ -9,6 +9,7 @@ import torch
 
 from mlnseq.catalog import artifacts
 from mlnseq.model import checkpoints
+from mlnseq.recognition import training_rows as rows
 from mlnseq.timeline import sequences
 from mlnseq import train
 from mlnseq.catalog.errors import BadInput, MissingArtifact
@@ -38,11 +39,11 @@ def test_segment_and_stream_modes_cut_different_sequences(desk_data):
 
 def test_validation_part_is_the_last_fifth_of_training_segments(desk_data):
     options = train.TrainOptions(select="val_accuracy")
-    parts, fit_units, val_units = train.assign_parts(desk_data, options)
+    parts, fit_units, val_units = rows.assign_parts(desk_data, options)
     assert (len(fit_units), len(val_units)) == (40, 10)
     assert val_units[0].start == fit_units[-1].stop
     assert set(parts[desk_data.splits == "test"]) == {"test"}
-    half = train.assign_parts(desk_data, train.TrainOptions(train_fraction=0.5))[1]
+    half = rows.assign_parts(desk_data, train.TrainOptions(train_fraction=0.5))[1]
     assert len(half) == 25
 
 
