@@ -195,49 +195,45 @@ $(RUNS)/%/weights.folds.parquet: $(RUNS)/%/weights.parquet
 stem_word = $(word $(1),$(subst /, ,$*))
 dataset_dir = $(RUNS)/$(call stem_word,1)
 mode_of = $(call stem_word,2)
-# The runs the report draws per-epoch curves of (Fig. 7, 8, Table III's best epoch: the paper datasets' segment mode)
-# measure every epoch; every other run measures its last (train --measure).
-CURVES := fetch desk
-train_flags = --mode $(mode_of) --seed $(patsubst seed-%,%,$(call stem_word,3)) \
-  --epochs $(if $(filter desk desk-%,$(call stem_word,1)),$(DESK_EPOCHS),$(EPOCHS)) \
-  $(if $(filter %-tcn,$(call stem_word,1)),--cell tcn) $(if $(filter stream,$(mode_of)),--folds $(FOLDS),--folds 0) \
-  $(if $(and $(filter $(CURVES),$(call stem_word,1)),$(filter segment,$(mode_of))),--measure every-epoch)
-# The networks a workdir's conflate runs. PriorLayer is trained again on D-temporal's weights in stream mode
-# only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
-networks_of = lstm $(if $(filter %-temporal,$(call stem_word,1)),$(if $(filter stream,$(mode_of)),priorlayer),\
-  $(if $(filter %-order %-conjunctive %-fixed-weight,$(call stem_word,1)),,priorlayer))
+# The networks a workdir of DATASET and MODE runs in conflate. PriorLayer is trained again on D-temporal's weights in
+# stream mode only; D-temporal in segment mode, D-order and D-fixed-weight run the LSTM alone (the ablation's methods).
+networks_in = lstm $(if $(filter %-temporal,$(1)),$(if $(filter stream,$(2)),priorlayer),\
+  $(if $(filter %-order %-conjunctive %-fixed-weight,$(1)),,priorlayer))
+networks_of = $(call networks_in,$(call stem_word,1),$(mode_of))
 # Decoded: the sequential folders, and the paper datasets' stream workdirs (their ablation row).
 decoded = $(filter $(SEQUENTIAL:%=%-temporal) $(SEQUENTIAL:%=%-order) $(SEQUENTIAL:%=%-conjunctive) $(SEQUENTIAL:%=%-fixed-weight) \
   $(if $(filter stream,$(mode_of)),$(SEQUENTIAL) $(TCN_DATASETS)),$(call stem_word,1))
 conflate_flags = $(if $(decoded),--decode all) $(if $(filter %-fixed-weight,$(call stem_word,1)),--network-weight 1)
 
-# Segment mode's seeds are trained side by side, one run for all seeds of a dataset and network (train --seed A
-# --workdir .../seed-A --seed B ...: about twice as fast for 5 LSTMs; each ends where it would alone, up to rounding).
-SEGMENT_TRAINED := $(if $(filter segment,$(MODES)),fetch $(if $(HAVE_DESK),desk)) fetch-rich
-define seeds_side_by_side
-$(foreach s,$(3),$(RUNS)/$(1)/segment/seed-$(s)/models/$(2).pt) &: $(RUNS)/$(1)/frames.parquet \
-  $(if $(filter priorlayer,$(2)),$(RUNS)/$(1)/predicates.parquet $(RUNS)/$(1)/weights.parquet) $(TRAIN_SOURCES) \
-  | $(foreach s,$(3),$(RUNS)/$(1)/segment/seed-$(s)/.inputs-linked)
-	$$(STAGE) $(strip train --method $(2) --mode segment --epochs $(if $(filter desk,$(1)),$(DESK_EPOCHS),$(EPOCHS)) \
-	  --folds 0 $(if $(filter $(CURVES),$(1)),--measure every-epoch) \
-	  $(foreach s,$(3),--seed $(s) --workdir $(RUNS)/$(1)/segment/seed-$(s)))
-endef
-$(foreach n,lstm priorlayer,$(foreach d,$(SEGMENT_TRAINED),$(eval $(call seeds_side_by_side,$(d),$(n),$(SEEDS)))) \
-  $(foreach d,$(FRACTION_DATASETS),$(eval $(call seeds_side_by_side,$(d),$(n),$(FRACTION_SEEDS)))))
-
 $(RUNS)/%/.inputs-linked:
 	@mkdir -p $(@D) && for name in frames predicates weights weights.folds; do ln -sfn ../../$$name.parquet $(@D)/$$name.parquet; done
 	@touch $@
 
-$(RUNS)/%/models/lstm.pt: $$(dataset_dir)/frames.parquet $(TRAIN_SOURCES) | $(RUNS)/%/.inputs-linked
-	$(STAGE) $(strip train --method lstm $(train_flags) --workdir $(RUNS)/$*)
-
+# Training: one run per dataset, mode and network trains every seed's network side by side (train --seed A --workdir
+# .../seed-A --seed B ...: each ends where it would alone, up to rounding; 5 LSTMs about twice as fast as one after
+# another). The folders whose LSTM is another's (linked_network above) train only their PriorLayer.
+# The runs the report draws per-epoch curves of (Fig. 7, 8, Table III's best epoch: the paper datasets' segment mode)
+# measure every epoch; every other run measures its last (train --measure).
+CURVES := fetch desk
+LINKED_LSTM := $(foreach d,$(SEQUENTIAL),$(d)-temporal $(d)-order $(d)-conjunctive $(d)-fixed-weight)
+DATASET_MODES := $(sort $(foreach dir,$(SEED_DIRS),$(patsubst $(RUNS)/%/,%,$(dir $(dir)))))
+part_of = $(word $(1),$(subst /, ,$(2)))
+trained_networks = $(filter-out $(if $(filter $(LINKED_LSTM),$(1)),lstm),$(call networks_in,$(1),$(2)))
+train_flags = --mode $(2) --epochs $(if $(filter desk desk-%,$(1)),$(DESK_EPOCHS),$(EPOCHS)) \
+  $(if $(filter %-tcn,$(1)),--cell tcn) $(if $(filter stream,$(2)),--folds $(FOLDS),--folds 0) \
+  $(if $(and $(filter $(CURVES),$(1)),$(filter segment,$(2))),--measure every-epoch)
 # In stream mode, PriorLayer's fold networks read each fold's MLN weights (a D-tcn folder links D-temporal's).
-$(RUNS)/%/models/priorlayer.pt: $$(dataset_dir)/frames.parquet $$(dataset_dir)/predicates.parquet \
-  $$(dataset_dir)/weights.parquet $(TRAIN_SOURCES) \
-  $$(if $$(and $$(filter stream,$$(mode_of)),$$(filter $(FOLDED) $(TCN_DATASETS),$$(call stem_word,1))),\
-    $$(dataset_dir)/weights.folds.parquet) | $(RUNS)/%/.inputs-linked
-	$(STAGE) $(strip train --method priorlayer $(train_flags) --workdir $(RUNS)/$*)
+train_inputs = $(RUNS)/$(1)/frames.parquet $(TRAIN_SOURCES) $(if $(filter priorlayer,$(3)),$(RUNS)/$(1)/predicates.parquet \
+  $(RUNS)/$(1)/weights.parquet $(if $(and $(filter stream,$(2)),$(filter $(FOLDED) $(TCN_DATASETS),$(1))),\
+  $(RUNS)/$(1)/weights.folds.parquet))
+define trained_side_by_side
+$(addsuffix /models/$(3).pt,$(4)) &: $(call train_inputs,$(1),$(2),$(3)) | $(addsuffix /.inputs-linked,$(4))
+	$$(STAGE) $(strip train --method $(3) $(call train_flags,$(1),$(2)) \
+	  $(foreach dir,$(4),--seed $(patsubst $(RUNS)/$(1)/$(2)/seed-%,%,$(dir)) --workdir $(dir)))
+endef
+$(foreach dm,$(DATASET_MODES),$(foreach n,$(call trained_networks,$(call part_of,1,$(dm)),$(call part_of,2,$(dm))),\
+  $(eval $(call trained_side_by_side,$(call part_of,1,$(dm)),$(call part_of,2,$(dm)),$(n),\
+    $(filter $(RUNS)/$(dm)/seed-%,$(SEED_DIRS))))))
 
 $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(n).pt) \
   $$(foreach name,frames predicates weights,$$(dataset_dir)/$$(name).parquet) $(RECOGNIZER_SOURCES) \
@@ -245,7 +241,7 @@ $(RUNS)/%/predictions.parquet: $$(foreach n,$$(networks_of),$(RUNS)/%/models/$$(
 	$(STAGE) $(strip conflate $(conflate_flags) --workdir $(@D))
 
 $(RUNS)/%/metrics.parquet: $(RUNS)/%/predictions.parquet $(EVAL_SOURCES)
-	$(STAGE) eval --method all --workdir $(@D)
+	$(STAGE) eval --method all --no-tables --workdir $(@D)
 
 clean: ## Remove generated workdirs and reports (keeps .venv)
 	rm -rf $(RUNS) $(REPORTS) mlnseq-work

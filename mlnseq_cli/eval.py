@@ -22,6 +22,9 @@ def evaluate(
                                                  "(the paper: 0.5).")] = stage.EvalOptions.fraction,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object keyed by method instead of "
                                                          "tables.")] = False,
+    tables: Annotated[bool, typer.Option(help="Print the summary, per-class and early-recognition tables; "
+                                              "--no-tables: only the line naming what was written (make reproduce: "
+                                              "the report reads metrics.parquet).")] = True,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/predictions.parquet; write WORKDIR/metrics.parquet (method, metric, item, value): segment accuracy
@@ -36,7 +39,8 @@ def evaluate(
                               "early": {str(f): v for f, v in r["early"].items()}, "mode": result.modes[m]}
                           for m, r in result.results.items()}))
         return
-    print_tables(result, fraction)
+    if tables:
+        print_tables(result, fraction)
     console.print(f"[green]eval[/]: wrote {result.path}")
 
 

@@ -197,15 +197,17 @@ def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.devic
     return trained
 
 
-def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions,
-              device: torch.device) -> list[tuple[Fitting, Rows]]:
-    """The fold networks, each trained as :func:`fit` trains without a validation part, the last epoch kept, nothing
-    measured (their logs would not be kept)."""
+def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions, device: torch.device,
+              seeds: tuple[int, ...]) -> list[list[tuple[Fitting, Rows]]]:
+    """Each seed's fold networks, all side by side, each trained as :func:`fit` trains without a validation part, the
+    last epoch kept, nothing measured (their logs would not be kept)."""
     options = replace(options, select=Select.NONE)
     rows = [Rows.of(data, options) for data in fold_data]
-    fittings = [part.start(data, config, options, device) for part, data in zip(rows, fold_data)]
-    fit_together(fittings, options.epochs, options.batch_size, options.learning_rate)
-    return list(zip(fittings, rows))
+    fittings = [[part.start(data, config, replace(options, seed=seed), device) for part, data in zip(rows, fold_data)]
+                for seed in seeds]
+    fit_together([one for per_seed in fittings for one in per_seed], options.epochs, options.batch_size,
+                 options.learning_rate)
+    return [list(zip(per_seed, rows)) for per_seed in fittings]
 
 
 # --- the stage ----------------------------------------------------------------------------------------
@@ -255,18 +257,24 @@ def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOption
         hidden_size=options.hidden_size, prior_layer=options.method == Method.PRIORLAYER, smoothing=options.smoothing,
     )
     device = resolve_device(options.device)
+    trained = fit(data, config, options, device, progress, seeds)
+    folds = [folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, Path(workdir))
+             for workdir in workdirs]
+    out_of_fold: list[OutOfFold | None] = [None] * len(workdirs)
+    if folds[0] is not None:
+        for workdir, other in zip(workdirs[1:], folds[1:]):
+            if other is None or other.record() != folds[0].record():
+                raise BadInput(f"{workdir}: its folds differ from {workdirs[0]}'s: train it in a run of its own")
+        out_of_fold = fold_networks(workdirs, data, config, options, folds[0], device, meta, seeds)
     results = []
-    for workdir, seed, trained in zip(workdirs, seeds, fit(data, config, options, device, progress, seeds)):
+    for workdir, seed, one, oof in zip(workdirs, seeds, trained, out_of_fold):
         workdir, seeded = Path(workdir), replace(options, seed=seed)
-        folds = folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, workdir)
-        checkpoint_config = _checkpoint_config(seeded, config, meta, trained, inputs)
-        out_of_fold = None
-        if folds is not None:
-            checkpoint_config["folds"] = folds.record()
-            out_of_fold = fold_networks(workdir, data, config, seeded, folds, device, meta)
-            trained.warnings.extend(out_of_fold.warnings)
-        paths = _write(workdir, seeded, trained, checkpoint_config, inputs, frames, meta, folds, out_of_fold)
-        results.append(TrainResult(paths[0], paths[1], trained, str(device)))
+        checkpoint_config = _checkpoint_config(seeded, config, meta, one, inputs)
+        if oof is not None:
+            checkpoint_config["folds"] = folds[0].record()
+            one.warnings.extend(oof.warnings)
+        paths = _write(workdir, seeded, one, checkpoint_config, inputs, frames, meta, folds[0], oof)
+        results.append(TrainResult(paths[0], paths[1], one, str(device)))
     return results
 
 
@@ -334,22 +342,30 @@ def _write(workdir: Path, options: TrainOptions, trained: Trained, checkpoint_co
     return checkpoint, log_path
 
 
-def fold_networks(workdir: Path, data: FrameData, config: Any, options: TrainOptions, folds: folding.Folds,
-                  device: torch.device, meta: dict[str, Any]) -> OutOfFold:
-    """Train one network per fold without it and predict that fold's rows."""
-    fold_scores, inputs = None, []
+def fold_networks(workdirs: list[Path], data: FrameData, config: Any, options: TrainOptions, folds: folding.Folds,
+                  device: torch.device, meta: dict[str, Any], seeds: tuple[int, ...]) -> list[OutOfFold]:
+    """Train one network per fold and seed without the fold, and predict that fold's rows: each workdir's out-of-fold
+    predictions by the networks of its seed."""
+    classes = list(meta["classes"])
+    fold_scores, inputs = None, [[] for _ in workdirs]
     if options.method == Method.PRIORLAYER:
-        fold_scores, inputs = folding.fold_mln_scores(workdir, folds, list(meta["classes"]))
-    out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
-    warnings = folding.missing_classes(folds, data.labels, list(meta["classes"]))
+        read = [folding.fold_mln_scores(workdir, folds, classes) for workdir in workdirs]
+        fold_scores, inputs = read[0][0], [paths for _, paths in read]
+        for workdir, (scores, _) in zip(workdirs[1:], read[1:]):
+            if any(not np.array_equal(a, b) for a, b in zip(scores, fold_scores)):
+                raise BadInput(f"{workdir}: its fold weights differ from {workdirs[0]}'s: train it in a run of its own")
+    warnings = folding.missing_classes(folds, data.labels, classes)
     fold_data = [replace(data, splits=folds.splits(k), prior=None if fold_scores is None else
                          prior_input(fold_scores[k], options.prior, options.paper_floor)) for k in range(folds.k)]
-    for k, (fitting, rows) in enumerate(fit_folds(fold_data, config, options, device)):
-        parts = fold_data[k].splits
-        spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
-                 if parts[s.start] == Part.HELDOUT]
-        features = ((data.features - rows.mean) / rows.std).astype(np.float32)
-        log_probs = predict_log_probs(fitting.model.to(device), spans, features, fold_data[k].prior, device)
-        held = folds.fold == k
-        out[held] = log_probs[held]
-    return OutOfFold(out, warnings, inputs)
+    out_of_fold = []
+    for per_fold, read_inputs in zip(fit_folds(fold_data, config, options, device, seeds), inputs):
+        out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
+        for k, (fitting, rows) in enumerate(per_fold):
+            parts = fold_data[k].splits
+            spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
+                     if parts[s.start] == Part.HELDOUT]
+            features = ((data.features - rows.mean) / rows.std).astype(np.float32)
+            log_probs = predict_log_probs(fitting.model.to(device), spans, features, fold_data[k].prior, device)
+            out[folds.fold == k] = log_probs[folds.fold == k]
+        out_of_fold.append(OutOfFold(out, list(warnings), read_inputs))
+    return out_of_fold

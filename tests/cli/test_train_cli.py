@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -52,6 +53,9 @@ def test_bare_pipeline_to_combined_json(workdir):
     assert table.exit_code == 0 and "conflation" in table.output
     metrics, _ = artifacts.read_table(workdir / artifacts.METRICS, "metrics")
     assert set(metrics["method"]) == {"lstm", "mln", "priorlayer", "conflation", "combined"}
+    quiet = invoke("eval", "--no-tables", "-w", workdir)
+    assert quiet.exit_code == 0 and quiet.output.splitlines() == [f"eval: wrote {workdir / artifacts.METRICS}"]
+    assert artifacts.read_table(workdir / artifacts.METRICS, "metrics")[0].equals(metrics)
 
 
 def test_bad_input_is_one_line_and_exit_2(workdir, tmp_path_factory):
@@ -137,23 +141,29 @@ def test_method_network_is_the_network_alone_stored_as_lstm(workdir, tmp_path):
 
 
 def test_seeds_side_by_side_write_each_workdir_what_its_seed_trains_alone(workdir, tmp_path_factory):
-    """`train --seed 0 -w A --seed 1 -w B` (segment mode's seeds in `make reproduce`): each workdir its own checkpoint
-    and log, its seed recorded, the network its seed trains alone up to float32 rounding; different inputs refused."""
+    """`train --seed 0 -w A --seed 1 -w B` (each dataset's seeds in `make reproduce`): each workdir its own checkpoint,
+    log and out-of-fold predictions, its seed recorded, the networks its seed trains alone up to float32 rounding;
+    different inputs refused."""
     import torch
 
     other, alone = tmp_path_factory.mktemp("seed-1"), tmp_path_factory.mktemp("seed-1-alone")
     for folder in (other, alone):
         shutil.copy(workdir / artifacts.FRAMES, folder / artifacts.FRAMES)
-    together = invoke("train", "--epochs", 2, "--seed", 0, "-w", workdir, "--seed", 1, "-w", other)
+    stream = ("--mode", "stream", "--folds", 2, "--epochs", 2)
+    together = invoke("train", *stream, "--seed", 0, "-w", workdir, "--seed", 1, "-w", other)
     assert together.exit_code == 0, together.output
     assert together.output.count("train: wrote") == 2 and "seeds 0, 1 side by side" in together.output
-    assert invoke("train", "--epochs", 2, "--seed", 1, "-w", alone).exit_code == 0
+    assert invoke("train", *stream, "--seed", 1, "-w", alone).exit_code == 0
     checkpoints = [torch.load(artifacts.checkpoint_path(w, "lstm"), weights_only=True) for w in (workdir, other, alone)]
     assert [c["config"]["seed"] for c in checkpoints] == [0, 1, 1]
     for name, value in checkpoints[2]["state_dict"].items():
         torch.testing.assert_close(checkpoints[1]["state_dict"][name], value, rtol=0, atol=1e-5, msg=name)
     assert (checkpoints[0]["state_dict"]["h2c.weight"] - checkpoints[1]["state_dict"]["h2c.weight"]).abs().max() > 0.01
     assert artifacts.train_log_path(other, "lstm").exists()
+    out_of_fold = [artifacts.read_table(artifacts.out_of_fold_path(w, "lstm"))[0] for w in (workdir, other, alone)]
+    lp = [c for c in out_of_fold[0].columns if c.startswith("lp")]
+    np.testing.assert_allclose(out_of_fold[1].select(lp).to_numpy(), out_of_fold[2].select(lp).to_numpy(), atol=1e-4)
+    assert not out_of_fold[0].select(lp).equals(out_of_fold[1].select(lp))
 
     frames, meta = artifacts.read_table(other / artifacts.FRAMES, "frames")
     artifacts.write_table(frames.head(frames.height - 1), other / artifacts.FRAMES, "frames", meta)
