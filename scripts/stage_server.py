@@ -1,5 +1,5 @@
 """Runs `make reproduce`'s stage commands in processes forked from one that has already imported torch and the
-data libraries, so that each of its ~250 stage runs skips that start-up (about 4 s of CPU for a command that
+data libraries, so that each of its ~300 stage runs skips that start-up (about 4 s of CPU for a command that
 runs a network, on this 2-core machine; the whole reproduction's start-up was more than its compute).
 
     python scripts/stage_server.py serve SOCKET          preload the libraries, then fork a child per request
