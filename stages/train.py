@@ -2,7 +2,8 @@
 training split.
 
 The core (:func:`fit`) works on arrays; :func:`run` reads ``frames.parquet`` (and, for PriorLayer,
-``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log.
+``predicates.parquet`` + ``weights.parquet``), writes ``models/<method>.pt`` and its per-epoch log;
+:func:`run_seeds` does so for the seed workdirs of one dataset, their networks fitted side by side.
 
 Validation part: with ``select="last"`` or ``"val_accuracy"`` the last ``val_fraction`` of the training
 units (segments in segment mode, windows in stream mode, in file order) is held out of training and scored
