@@ -5,7 +5,8 @@ reported, not judged (the earlier 20x target is retired: a small LSTM's batch-1 
 CPU). Beside it, cross-validation's cost: `train --mode stream` of one network against the same with
 ``--folds 5`` (the network refit on the whole training split plus 5 fold networks, in one process), on
 DESK; and networks fitted side by side (one batched network, as `train` fits fold networks and several seeds)
-against one after another: the 5 fold networks of a TCN and of an LSTM, and 5 LSTM seeds in segment mode. Per-frame streaming recognition: bench_recognize.
+against one after another: the 5 fold networks of a TCN and of an LSTM, and 5 LSTM seeds in segment mode.
+Per-frame streaming recognition: bench_recognize.
 
 ``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
 """
@@ -61,14 +62,8 @@ def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
         longest = int(n_all[index].max())
         log_probs = model(x_all[index, :longest])[0]
         y = y_all[index, :longest]
-        frame_loss = torch.nn.functional.nll_loss(
-            log_probs.reshape(-1, log_probs.shape[-1]), y.reshape(-1), reduction="none", ignore_index=-100
-        ).view(y.shape)
-        loss = (frame_loss.sum(1) / n_all[index]).mean()
-        for parameter in parameters:
-            parameter.grad = None
-        loss.backward()
-        fitting.sgd_step(parameters, options.learning_rate)
+        loss = (fitting.frame_losses(log_probs, y).sum(1) / n_all[index]).mean()
+        fitting.descend(parameters, loss, options.learning_rate)
     return time.perf_counter() - started
 
 

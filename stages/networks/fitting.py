@@ -72,11 +72,14 @@ def frame_losses(log_probs: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
                                         reduction="none", ignore_index=-100).view(labels.shape)
 
 
-def sgd_step(parameters: list[torch.Tensor], learning_rate: float) -> None:
-    """Plain SGD, the update torch.optim.SGD makes without momentum (whose first use imports torch._dynamo,
-    a second or two of every training run's start-up)."""
+def descend(parameters: list[torch.Tensor], loss: torch.Tensor, learning_rate: float) -> None:
+    """One step of plain SGD on ``loss``: the gradients anew, then the update torch.optim.SGD makes without momentum
+    (whose first use imports torch._dynamo, a second or two of every training run's start-up)."""
     import torch
 
+    for parameter in parameters:
+        parameter.grad = None
+    loss.backward()
     with torch.no_grad():
         for parameter in parameters:
             parameter.add_(parameter.grad, alpha=-learning_rate)
@@ -125,12 +128,7 @@ class Fitting:
             # NLLLoss averaged within each sequence, then over sequences, as batch-size-1 SGD weighs them
             loss = (frame_loss.sum(1) / n_all[index]).mean()
             extra = self.model.auxiliary_loss(log_probs, y != -100)
-            if extra is not None:
-                loss = loss + extra
-            for parameter in parameters:
-                parameter.grad = None
-            loss.backward()
-            sgd_step(parameters, learning_rate)
+            descend(parameters, loss if extra is None else loss + extra, learning_rate)
 
 
 class SideBySide:
@@ -169,12 +167,7 @@ class SideBySide:
             # each network's mean over its batch; padding has no labels, so no loss
             loss = ((frame_loss.sum(-1) / lengths).sum(1, keepdim=True) / count).sum()
             extra = self.model.auxiliary_loss(log_probs, y != -100, real.to(log_probs.dtype) / count)
-            if extra is not None:
-                loss = loss + extra
-            for parameter in parameters:
-                parameter.grad = None
-            loss.backward()
-            sgd_step(parameters, learning_rate)
+            descend(parameters, loss if extra is None else loss + extra, learning_rate)
 
     def write_back(self) -> None:
         import torch
