@@ -248,9 +248,9 @@ def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOption
     set_threads()
     loaded = [_read_inputs(Path(workdir), options) for workdir in workdirs]
     frames, meta, data, inputs, options = loaded[0]
-    digests = [[artifacts.file_digest(path) for path in other[3]] for other in loaded]
-    for workdir, digest in zip(workdirs[1:], digests[1:]):
-        if digest != digests[0]:
+    digests = [artifacts.file_digest(path) for path in inputs] if len(loaded) > 1 else []  # a lone run compares none
+    for workdir, other in zip(workdirs[1:], loaded[1:]):
+        if [artifacts.file_digest(path) for path in other[3]] != digests:
             raise BadInput(f"{workdir}: its inputs differ from {workdirs[0]}'s; networks trained side by side share "
                            "their rows: train it in a run of its own")
     config = networks.make_config(
@@ -358,15 +358,19 @@ def fold_networks(workdirs: list[Path], data: FrameData, config: Any, options: T
     warnings = folding.missing_classes(folds, data.labels, classes)
     fold_data = [replace(data, splits=folds.splits(k), prior=None if fold_scores is None else
                          prior_input(fold_scores[k], options.prior, options.paper_floor)) for k in range(folds.k)]
+    fitted = fit_folds(fold_data, config, options, device, seeds)
+    held_out = []  # each fold's held-out sequences and every frame standardised as its networks were (any seed's)
+    for k, (_, rows) in enumerate(fitted[0]):
+        parts = fold_data[k].splits
+        spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
+                 if parts[s.start] == Part.HELDOUT]
+        held_out.append((spans, ((data.features - rows.mean) / rows.std).astype(np.float32)))
     out_of_fold = []
-    for per_fold, read_inputs in zip(fit_folds(fold_data, config, options, device, seeds), inputs):
+    for per_fold, read_inputs in zip(fitted, inputs):
         out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
-        for k, (fitting, rows) in enumerate(per_fold):
-            parts = fold_data[k].splits
-            spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
-                     if parts[s.start] == Part.HELDOUT]
-            features = ((data.features - rows.mean) / rows.std).astype(np.float32)
+        for k, ((fitting, _), (spans, features)) in enumerate(zip(per_fold, held_out)):
             log_probs = predict_log_probs(fitting.model.to(device), spans, features, fold_data[k].prior, device)
-            out[folds.fold == k] = log_probs[folds.fold == k]
+            held = folds.fold == k
+            out[held] = log_probs[held]
         out_of_fold.append(OutOfFold(out, list(warnings), read_inputs))
     return out_of_fold
