@@ -58,11 +58,23 @@ class SequenceClassifier(nn.Module):
         at_most = getattr(self.kind, "side_by_side_at_most", None)
         return sys.maxsize if at_most is None else at_most(self.config)
 
+    def side_by_side_weights(self, stacked: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The weights G networks of this one's shape are fitted with side by side (leaves that require gradients),
+        from theirs stacked ([G, ...] under the state dict's names): stacked, unless the type lays them out its
+        own way (``side_by_side_weights``)."""
+        layout = getattr(self.kind, "side_by_side_weights", None)
+        weights = stacked if layout is None else layout(self.config, stacked)
+        return {name: weight.requires_grad_() for name, weight in weights.items()}
+
+    def side_by_side_stacked(self, weights: dict[str, torch.Tensor], g: int) -> dict[str, torch.Tensor]:
+        """The weights fitted side by side (:meth:`side_by_side_weights`) as the G networks' own, stacked."""
+        unstack = getattr(self.kind, "side_by_side_stacked", None)
+        return weights if unstack is None else unstack(self.config, weights, g)
+
     def side_by_side(self, params: dict[str, torch.Tensor], features: torch.Tensor,
                      prior: torch.Tensor | None) -> torch.Tensor:
-        """G networks of this one's shape at once, their parameters stacked in ``params`` ([G, ...] under the state
-        dict's names): each network's features [G, B, T, F] (and prior [G, B, T, C]) -> log-probabilities
-        [G, B, T, C]."""
+        """G networks of this one's shape at once, their weights in ``params`` (:meth:`side_by_side_weights`): each
+        network's features [G, B, T, F] (and prior [G, B, T, C]) -> log-probabilities [G, B, T, C]."""
         hidden = self.kind.torch_bodies_side_by_side(self.config, params, features)
         g, b, t, _ = hidden.shape
         scores = affine(hidden.reshape(g, b * t, -1), params["h2c.weight"], params["h2c.bias"])

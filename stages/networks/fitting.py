@@ -142,8 +142,8 @@ class SideBySide:
 
         self.fittings, self.model, self.device = fittings, fittings[0].model, fittings[0].device
         self.names = [name for name, _ in self.model.named_parameters()]
-        self.params = {name: torch.stack([f.model.get_parameter(name).detach() for f in fittings]).requires_grad_()
-                       for name in self.names}
+        self.params = self.model.side_by_side_weights(
+            {name: torch.stack([f.model.get_parameter(name).detach() for f in fittings]) for name in self.names})
         self.tensors = _stacked(fittings)
         self.groups = torch.arange(len(fittings), device=self.device).unsqueeze(1)
 
@@ -173,9 +173,10 @@ class SideBySide:
         import torch
 
         with torch.no_grad():
+            stacked = self.model.side_by_side_stacked(self.params, len(self.fittings))
             for g, fitting in enumerate(self.fittings):
                 for name in self.names:
-                    fitting.model.get_parameter(name).copy_(self.params[name][g])
+                    fitting.model.get_parameter(name).copy_(stacked[name][g])
 
 
 class Together:

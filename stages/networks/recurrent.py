@@ -58,30 +58,60 @@ def side_by_side_at_most(config: Config) -> int:
     return max(1, SIDE_BY_SIDE_UNITS // config.hidden_size)
 
 
-def torch_bodies_side_by_side(config: Config, params: dict[str, Any], features: Any) -> Any:
-    """G networks of ``config`` at once as one network of G·H units whose weights are block-diagonal, so each
-    network's gates read only its own features and units (torch has no batched recurrent layer with separate
-    weights): their weights stacked (``params``, [G, ...] under the state dict's names) and each network's features
-    [G, B, T, F] -> hidden [G, B, T, H], each network's what its own layer computes (up to rounding)."""
+def _layer_shape(config: Config, g: int) -> tuple[int, int, int]:
+    return g, 4 if config.cell == "lstm" else 3, config.hidden_size
+
+
+def side_by_side_weights(config: Config, stacked: dict[str, Any]) -> dict[str, Any]:
+    """G networks' weights (``stacked``: [G, ...] under the state dict's names) as the weights fitted side by side:
+    the bodies as one layer of G·H units whose weights are block-diagonal, so each network's gates read only its own
+    features and units (torch has no batched recurrent layer with separate weights), rows in the (gate, network,
+    unit) order of one layer's gates. A hook zeroes the gradient off the blocks, so they stay 0; each block's
+    gradient and update are those of its network's own weights. The head's weights stay stacked."""
+    import torch
+
+    g, gates, h = _layer_shape(config, len(next(iter(stacked.values()))))
+
+    def gate_major(per_network: Any) -> Any:  # rows (network, gate, unit) -> (gate, network, unit)
+        return per_network.view(g, gates, h, -1).transpose(0, 1).reshape(gates * g * h, -1)
+
+    out = dict(stacked)
+    for kind in ("ih", "hh"):
+        name = f"{BODY}.weight_{kind}_l0"
+        blocks = gate_major(torch.block_diag(*torch.ones_like(stacked[name])))
+        out[name] = gate_major(torch.block_diag(*stacked[name])).requires_grad_()
+        out[name].register_hook(lambda gradient, blocks=blocks: gradient * blocks)
+        bias = f"{BODY}.bias_{kind}_l0"
+        out[bias] = gate_major(stacked[bias].reshape(g, -1, 1)).view(-1).requires_grad_()
+    return out
+
+
+def side_by_side_stacked(config: Config, weights: dict[str, Any], g: int) -> dict[str, Any]:
+    """The weights fitted side by side (:func:`side_by_side_weights`) as each network's, stacked [G, ...]."""
+    g, gates, h = _layer_shape(config, g)
+    out = dict(weights)
+    for kind in ("ih", "hh"):
+        layer = weights[f"{BODY}.weight_{kind}_l0"].view(gates, g, h, g, -1)  # [gate, network, unit, network, in]
+        out[f"{BODY}.weight_{kind}_l0"] = layer.diagonal(dim1=1, dim2=3).permute(3, 0, 1, 2).reshape(g, gates * h, -1)
+        bias = weights[f"{BODY}.bias_{kind}_l0"].view(gates, g, h)
+        out[f"{BODY}.bias_{kind}_l0"] = bias.transpose(0, 1).reshape(g, -1)
+    return out
+
+
+def torch_bodies_side_by_side(config: Config, weights: dict[str, Any], features: Any) -> Any:
+    """G networks of ``config`` at once, their weights as :func:`side_by_side_weights` makes them: each network's
+    features [G, B, T, F] -> hidden [G, B, T, H], each network's what its own layer computes (up to rounding)."""
     import torch
 
     g, b, t, _ = features.shape
-    h, gates = config.hidden_size, 4 if config.cell == "lstm" else 3
-
-    def gate_major(stacked: Any) -> Any:
-        """Rows ordered (network, gate, unit) -> (gate, network, unit), the order of one layer's gates."""
-        return stacked.view(g, gates, h, -1).transpose(0, 1).reshape(gates * g * h, -1)
-
-    weights = [gate_major(torch.block_diag(*params[f"{BODY}.weight_{kind}_l0"])) for kind in ("ih", "hh")]
-    biases = [gate_major(params[f"{BODY}.bias_{kind}_l0"].reshape(g, -1, 1)).view(-1) for kind in ("ih", "hh")]
+    flat = tuple(weights[f"{BODY}.{name}_l0"] for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh"))
     x = features.permute(1, 2, 0, 3).reshape(b, t, -1)  # [B, T, G·F]: network-major features
-    zeros = x.new_zeros(1, b, g * h)
-    flat = (*weights, *biases)
+    zeros = x.new_zeros(1, b, g * config.hidden_size)
     if config.cell == "lstm":
         hidden = torch.lstm(x, (zeros, zeros), flat, True, 1, 0.0, True, False, True)[0]
     else:
         hidden = torch.gru(x, zeros, flat, True, 1, 0.0, True, False, True)[0]
-    return hidden.view(b, t, g, h).permute(2, 0, 1, 3)
+    return hidden.view(b, t, g, config.hidden_size).permute(2, 0, 1, 3)
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:

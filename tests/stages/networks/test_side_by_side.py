@@ -12,6 +12,7 @@ import torch
 from mlnseq import networks
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.methods import PaperFloor, Prior
+from mlnseq.networks import recurrent
 from mlnseq.networks.fitting import Fitting, SideBySide, Together, fit_together
 from mlnseq.recognition import folds as folding
 from mlnseq.recognition.recognizer import prior_input
@@ -86,3 +87,19 @@ def test_seeds_fitted_side_by_side_in_groups_end_where_each_fitted_alone_ends(de
     alone, together = seeds(), seeds()
     assert [type(group) for group in Together(together).groups] == [SideBySide, Fitting]
     assert_each_ends_where_alone(alone, together)
+
+
+@pytest.mark.parametrize("cell, gates", [("lstm", 4), ("gru", 3)])
+def test_recurrent_networks_side_by_side_are_one_block_diagonal_layer_whose_blocks_alone_learn(cell, gates):
+    config = recurrent.Config(n_features=3, n_classes=2, hidden_size=5, cell=cell)
+    stacked = {name: torch.randn(2, *shape, dtype=torch.float64)
+               for name, shape in recurrent.body_shapes(config).items()}
+    weights = recurrent.side_by_side_weights(config, stacked)
+    for name, back in recurrent.side_by_side_stacked(config, weights, 2).items():
+        assert torch.equal(back, stacked[name]), name
+    layer = weights["rnn.weight_hh_l0"]
+    blocks = layer.view(gates, 2, 5, 2, 5)  # gate, network, unit, network read, unit read
+    assert (blocks[:, 0, :, 1] == 0).all() and (blocks[:, 1, :, 0] == 0).all()
+    (layer * torch.randn_like(layer)).sum().backward()
+    gradient = layer.grad.view(gates, 2, 5, 2, 5)
+    assert (gradient[:, 0, :, 1] == 0).all() and (gradient[:, 1, :, 0] == 0).all() and (gradient[:, 0, :, 0] != 0).all()
