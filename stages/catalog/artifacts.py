@@ -260,8 +260,10 @@ def write_table(
     full_meta = build_metadata(path, kind, meta, inputs)
     table = frame.to_arrow()
     table = table.replace_schema_metadata({META_KEY: json.dumps(full_meta, sort_keys=True).encode()})
+    # floats (class probabilities) rarely repeat: dictionary-encoding them costs more time and bytes than it saves
+    encoded = [field.name for field in table.schema if not pa.types.is_floating(field.type)]
     with atomic_path(path) as tmp:
-        pq.write_table(table, tmp, compression="zstd")
+        pq.write_table(table, tmp, compression="zstd", use_dictionary=encoded)
     return path
 
 
