@@ -53,11 +53,15 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
     labels = test["label"].to_numpy().astype(np.int64)
     episodes = test["episode"].to_numpy()
     n_classes = len(meta["classes"])
-    return {
-        method: score_method(test[artifacts.pred_column(method)].to_numpy().astype(np.int64), labels, episodes,
-                             n_classes, options.fraction, meta["modes"][method] != "segment")
-        for method in chosen
-    }
+    results: dict[str, dict[str, Any]] = {}
+    scored: dict[tuple[bytes, bool], dict[str, Any]] = {}  # methods predicting alike (decoders often agree): once
+    for method in chosen:
+        predicted = test[artifacts.pred_column(method)].to_numpy().astype(np.int64)
+        key = (predicted.tobytes(), meta["modes"][method] != "segment")
+        if key not in scored:
+            scored[key] = score_method(predicted, labels, episodes, n_classes, options.fraction, segmental=key[1])
+        results[method] = scored[key]
+    return results
 
 
 def _remedy(method: str) -> str:

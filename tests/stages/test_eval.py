@@ -58,3 +58,17 @@ def test_a_method_the_predictions_lack_is_refused_with_its_remedy():
     with pytest.raises(BadInput, match=r"no 'combined\+filter' predictions .*train --method priorlayer` then "
                                        r"`mlnseq conflate --decode filter`"):
         stage.evaluate(table, meta, stage.EvalOptions(method="combined+filter"))
+
+
+def test_methods_predicting_alike_get_the_same_scores_each_as_its_mode_asks():
+    import polars as pl
+
+    table, meta = tiny_predictions()
+    table = table.with_columns(pl.col("lstm_pred").alias("mln_pred"), pl.col("lstm_pred").alias("conflation_pred"),
+                               pl.col("lstm_pred").alias("lstm+filter_pred"))
+    meta = {**meta, "methods": ["lstm", "mln", "conflation", "lstm+filter"],
+            "modes": {"lstm": "segment", "mln": "frame", "conflation": "segment", "lstm+filter": "segment"}}
+    results = stage.evaluate(table, meta, stage.EvalOptions())
+    assert results["conflation"] == results["lstm+filter"] == results["lstm"]
+    assert "edit" not in results["lstm"] and results["mln"]["edit"] == 50.0  # 1 0 1 0 | 1 0 vs 0 1 | 1
+    assert {k: v for k, v in results["mln"].items() if not k.startswith(("edit", "f1@"))} == results["lstm"]
