@@ -98,14 +98,16 @@ class _Tables:
         return max_back, max_back_by_class, self.log_transition, self.unary
 
 
-def _positions(link: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per position within a chain: the chains that reach it and their frames at it (every chain side by side)."""
+def _positions(link: np.ndarray) -> list[tuple[np.ndarray | None, np.ndarray]]:
+    """Per position within a chain, every chain side by side: which of the chains at the previous position reach it
+    (None: all of them) and their frames at it."""
     first = np.flatnonzero(link < 0)
     length = np.diff(np.r_[first, len(link)])
-    out = []
-    for p in range(int(length.max(initial=0))):
-        chains = np.flatnonzero(length > p)
-        out.append((chains, first[chains] + p))
+    out, position, going = [], 0, None
+    for stop in np.unique(length).tolist():  # the same chains go on from ``position`` up to ``stop``
+        out += [(going if p == position else None, first + p) for p in range(position, stop)]
+        going = length > stop
+        first, length, position = first[going], length[going], stop
     return out
 
 
@@ -113,20 +115,17 @@ def _forward_pass(tables: _Tables, semiring: str, positions: list) -> tuple[np.n
     """The forward vectors [T, C] (alpha or delta) and the dead ends [T] of every chain, side by side."""
     n_frames, n_classes = tables.unary.shape
     out, dead = np.empty((n_frames, n_classes)), np.zeros(n_frames, dtype=bool)
-    last = None  # [chains, C] each chain's last forward vector
-    for chains, frames in positions:
-        previous = None if last is None else last[chains]
-        rows = tables.link[frames]
-        if semiring == "sum":
-            step = sum_forward(previous, tables.transition[rows] if previous is not None else None,
-                                tables.linear[frames])
-        else:
-            step = max_forward(previous, tables.log_transition[rows] if previous is not None else None,
-                                tables.unary[frames])
-        out[frames], dead[frames] = step
+    step, matrices, values = ((sum_forward, tables.transition, tables.linear) if semiring == "sum"
+                              else (max_forward, tables.log_transition, tables.unary))
+    last = None  # [chains, C] the last forward vector of each chain still going
+    for going, frames in positions:
         if last is None:
-            last = np.empty((len(chains), n_classes))
-        last[chains] = step[0]
+            last, dead[frames] = step(None, None, values[frames])
+        else:
+            if going is not None:
+                last = last[going]
+            last, dead[frames] = step(last, matrices[tables.link[frames]], values[frames])
+        out[frames] = last
     return out, dead
 
 
