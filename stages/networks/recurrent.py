@@ -35,9 +35,13 @@ def describe(config: Config) -> str:
     return f"{config.cell} of {config.hidden_size}"
 
 
+def _gates(config: Config) -> int:
+    return 4 if config.cell == "lstm" else 3
+
+
 def body_shapes(config: Config) -> dict[str, tuple[int, ...]]:
     """The body's arrays in the state dict and their shapes."""
-    gates = (4 if config.cell == "lstm" else 3) * config.hidden_size
+    gates = _gates(config) * config.hidden_size
     return {f"{BODY}.weight_ih_l0": (gates, config.n_features), f"{BODY}.weight_hh_l0": (gates, config.hidden_size),
             f"{BODY}.bias_ih_l0": (gates,), f"{BODY}.bias_hh_l0": (gates,)}
 
@@ -58,10 +62,6 @@ def side_by_side_at_most(config: Config) -> int:
     return max(1, SIDE_BY_SIDE_UNITS // config.hidden_size)
 
 
-def _layer_shape(config: Config, g: int) -> tuple[int, int, int]:
-    return g, 4 if config.cell == "lstm" else 3, config.hidden_size
-
-
 def side_by_side_weights(config: Config, stacked: dict[str, Any]) -> dict[str, Any]:
     """G networks' weights (``stacked``: [G, ...] under the state dict's names) as the weights fitted side by side:
     the bodies as one layer of G·H units whose weights are block-diagonal, so each network's gates read only its own
@@ -70,7 +70,7 @@ def side_by_side_weights(config: Config, stacked: dict[str, Any]) -> dict[str, A
     gradient and update are those of its network's own weights. The head's weights stay stacked."""
     import torch
 
-    g, gates, h = _layer_shape(config, len(next(iter(stacked.values()))))
+    g, gates, h = len(next(iter(stacked.values()))), _gates(config), config.hidden_size
 
     def gate_major(per_network: Any) -> Any:  # rows (network, gate, unit) -> (gate, network, unit)
         return per_network.view(g, gates, h, -1).transpose(0, 1).reshape(gates * g * h, -1)
@@ -88,7 +88,7 @@ def side_by_side_weights(config: Config, stacked: dict[str, Any]) -> dict[str, A
 
 def side_by_side_stacked(config: Config, weights: dict[str, Any], g: int) -> dict[str, Any]:
     """The weights fitted side by side (:func:`side_by_side_weights`) as each network's, stacked [G, ...]."""
-    g, gates, h = _layer_shape(config, g)
+    gates, h = _gates(config), config.hidden_size
     out = dict(weights)
     for kind in ("ih", "hh"):
         layer = weights[f"{BODY}.weight_{kind}_l0"].view(gates, g, h, g, -1)  # [gate, network, unit, network, in]
