@@ -119,11 +119,13 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                                                                    start)))
     _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
+    scored: dict[tuple[bytes, bool], dict[str, float]] = {}  # methods predicting alike (decoders often agree): once
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
-        segmental = network is None or inputs.networks[network].checkpoint.mode != "segment"
-        result.figures[name] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental)
-        result.figures[name]["log_likelihood"] = float(likelihood[name][rows].mean())
+        key = (values[rows].tobytes(), network is None or inputs.networks[network].checkpoint.mode != "segment")
+        if key not in scored:
+            scored[key] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental=key[1])
+        result.figures[name] = {**scored[key], "log_likelihood": float(likelihood[name][rows].mean())}
         if name in forbidden:
             result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result
