@@ -91,6 +91,7 @@ def test_seeds_fitted_side_by_side_in_groups_end_where_each_fitted_alone_ends(de
 
 @pytest.mark.parametrize("cell, gates", [("lstm", 4), ("gru", 3)])
 def test_recurrent_networks_side_by_side_are_one_block_diagonal_layer_whose_blocks_alone_learn(cell, gates):
+    torch.manual_seed(0)
     config = recurrent.Config(n_features=3, n_classes=2, hidden_size=5, cell=cell)
     stacked = {name: torch.randn(2, *shape, dtype=torch.float64)
                for name, shape in recurrent.body_shapes(config).items()}
