@@ -176,10 +176,11 @@ def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.devic
     every_epoch = options.measured == Measure.EVERY_EPOCH
     for epoch in range(1, options.epochs + 1):
         together.epoch(options.batch_size, options.learning_rate)
-        if every_epoch or epoch == options.epochs:
+        measuring = every_epoch or epoch == options.epochs
+        if measuring:
             together.write_back()
         for i, fitting in enumerate(fittings):
-            measured = rows.measure(fitting, data, options.mode) if every_epoch or epoch == options.epochs else {}
+            measured = rows.measure(fitting, data, options.mode) if measuring else {}
             logs[i] += [{"epoch": epoch, "split": str(name), "accuracy": accuracy, "loss": nll}
                         for name, (accuracy, nll) in measured.items()]
             if progress is not None and i == 0:
@@ -188,13 +189,13 @@ def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.devic
             if options.select == Select.VAL_ACCURACY and measured[Part.VAL][0] > best[i][1]:
                 state = {k: v.detach().clone() for k, v in fitting.model.state_dict().items()}
                 best[i] = (state, measured[Part.VAL][0], epoch)
-    trained = []
+    trained, warnings = [], rows.warnings(data)
+    val_spans = [(u.start, u.stop) for u in rows.val_units]
     for fitting, log, (state, _, kept_epoch) in zip(fittings, logs, best):
         if state is not None:
             fitting.model.load_state_dict(state)
         trained.append(Trained(fitting.model.cpu(), rows.mean, rows.std, pl.DataFrame(log, schema=LOG_SCHEMA),
-                               kept_epoch, len(rows.fit_units), len(rows.val_units),
-                               [(u.start, u.stop) for u in rows.val_units], rows.warnings(data)))
+                               kept_epoch, len(rows.fit_units), len(rows.val_units), list(val_spans), list(warnings)))
     return trained
 
 
