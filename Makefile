@@ -192,7 +192,8 @@ $(RUNS)/%/weights.folds.parquet: $(RUNS)/%/weights.parquet
 # stream mode the networks train on the whole training split and FOLDS fold networks beside them (--folds):
 # conflate learns the decoded methods' network factor weight on their out-of-fold predictions and scores every
 # method there, which chooses the method to deploy. Segment mode keeps the paper's protocol (last epoch, no folds).
-stem_word = $(word $(1),$(subst /, ,$*))
+part_of = $(word $(1),$(subst /, ,$(2)))
+stem_word = $(call part_of,$(1),$*)
 dataset_dir = $(RUNS)/$(call stem_word,1)
 mode_of = $(call stem_word,2)
 # The networks a workdir of DATASET and MODE runs in conflate. PriorLayer is trained again on D-temporal's weights in
@@ -210,14 +211,13 @@ $(RUNS)/%/.inputs-linked:
 	@touch $@
 
 # Training: one run per dataset, mode and network trains every seed's network side by side (train --seed A --workdir
-# .../seed-A --seed B ...: each ends where it would alone, up to rounding; 5 LSTMs about twice as fast as one after
+# .../seed-A --seed B ...: each ends where it would alone, up to rounding; 5 LSTMs 1.4-1.9x as fast as one after
 # another). The folders whose LSTM is another's (linked_network above) train only their PriorLayer.
 # The runs the report draws per-epoch curves of (Fig. 7, 8, Table III's best epoch: the paper datasets' segment mode)
 # measure every epoch; every other run measures its last (train --measure).
 CURVES := fetch desk
 LINKED_LSTM := $(foreach d,$(SEQUENTIAL),$(d)-temporal $(d)-order $(d)-conjunctive $(d)-fixed-weight)
 DATASET_MODES := $(sort $(foreach dir,$(SEED_DIRS),$(patsubst $(RUNS)/%/,%,$(dir $(dir)))))
-part_of = $(word $(1),$(subst /, ,$(2)))
 trained_networks = $(filter-out $(if $(filter $(LINKED_LSTM),$(1)),lstm),$(call networks_in,$(1),$(2)))
 train_flags = --mode $(2) --epochs $(if $(filter desk desk-%,$(1)),$(DESK_EPOCHS),$(EPOCHS)) \
   $(if $(filter %-tcn,$(1)),--cell tcn) $(if $(filter stream,$(2)),--folds $(FOLDS),--folds 0) \

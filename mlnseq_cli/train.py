@@ -21,7 +21,7 @@ Defaults = stage.TrainOptions
 HELP = {
     "seed": "Seed of initial weights and batch order; one per --workdir when several are given.",
     "workdir": "Folder holding this dataset's artifacts. Several (each with its --seed, in order): the seed workdirs "
-               "of one dataset, whose networks are fitted side by side (about twice as fast for 5 LSTMs); their "
+               "of one dataset, whose networks are fitted side by side (1.4-1.9x as fast for 5 LSTMs); their "
                "inputs must be the same files.",
     "method": "network: the network alone, of any --cell (also written lstm, its name in the workdir: "
               "models/lstm.pt); or priorlayer: the network with the MLN's PriorLayer input (needs predicates.parquet "
