@@ -31,6 +31,7 @@ from mlnseq.catalog.methods import METHODS, MLN_MODES, NETWORKS, MLNMode, decode
 from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
 from mlnseq.catalog.parts import Part
 from mlnseq.mln import chain
+from mlnseq.mln.blas import one_thread
 from mlnseq.recognition import decoding as decoders
 from mlnseq.recognition.cross_validation import CrossValidated, cross_validate
 from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
@@ -145,12 +146,13 @@ def predict(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str] = ("non
     for trained in networks.values():
         validation |= trained.parts == Part.VAL
     decoding = [d for d in decodes if d != "none"]
-    if decoding:
-        if mln_inputs is None:
-            raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
-        _decode(inputs, decoding, available, network_weight_option, result)
-    if inputs.folds is not None:
-        result.cross_validated = cross_validate(inputs, mln_mode, decodes, available, network_weight_option)
+    if decoding and mln_inputs is None:
+        raise BadInput(f"--decode {','.join(decoding)} needs the MLN's factors: run `mlnseq learn-weights` first")
+    with one_thread():  # one block for the dozens of network-weight fits below
+        if decoding:
+            _decode(inputs, decoding, available, network_weight_option, result)
+        if inputs.folds is not None:
+            result.cross_validated = cross_validate(inputs, mln_mode, decodes, available, network_weight_option)
     if validation.any():
         result.validation.update({name: float((predicted[validation] == data.labels[validation]).mean())
                                   for name, predicted in result.predicted.items()})

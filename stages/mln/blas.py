@@ -6,16 +6,20 @@ Measured on this project's 2-core machines while other jobs ran: scipy's L-BFGS-
 (hundreds of weights, chains of 7 classes), so one thread is also the fast choice on an idle machine.
 As threadpoolctl does (without the dependency): the OpenBLAS libraries that numpy and scipy loaded are
 found in the process's memory map, set to one thread, and restored afterwards. Where none is found
-(another BLAS, another system), nothing changes.
+(another BLAS, another system), nothing changes. A block inside another keeps the outer block's setting: reading
+the memory map costs about 2 ms, and a caller running many learners (conflate's cross-validation) opens one block.
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import threading
 from collections.abc import Iterator
 
 _NAMES = ("openblas", "scipy_openblas", "scipy_openblas64_")  # prefixes of <prefix>_set_num_threads (+ suffix)
+_open = [0]  # one_thread blocks open in this process (the thread count is the process's)
+_lock = threading.Lock()
 
 
 def _libraries() -> list[tuple[ctypes._CFuncPtr, ctypes._CFuncPtr]]:
@@ -44,13 +48,17 @@ def _libraries() -> list[tuple[ctypes._CFuncPtr, ctypes._CFuncPtr]]:
 
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
-    """Run the block with every loaded OpenBLAS on one thread."""
-    libraries = _libraries()
-    before = [getter() for _, getter in libraries]
-    for setter, _ in libraries:
-        setter(1)
+    """Run the block with every loaded OpenBLAS on one thread (inside another block: as that one left it)."""
+    with _lock:
+        _open[0] += 1
+        libraries = _libraries() if _open[0] == 1 else []
+        before = [getter() for _, getter in libraries]
+        for setter, _ in libraries:
+            setter(1)
     try:
         yield
     finally:
-        for (setter, _), threads in zip(libraries, before):
-            setter(threads)
+        with _lock:
+            _open[0] -= 1
+            for (setter, _), threads in zip(libraries, before):
+                setter(threads)

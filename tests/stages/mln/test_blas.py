@@ -27,3 +27,24 @@ def test_one_thread_sets_and_restores() -> None:
     finally:
         for (setter, _), threads in zip(libraries, before):
             setter(threads)
+
+
+def test_a_block_inside_another_keeps_its_setting() -> None:
+    libraries = blas._libraries()
+    if not libraries:
+        pytest.skip("no OpenBLAS loaded in this process (another BLAS): the block changes nothing")
+    before = [getter() for _, getter in libraries]
+    try:
+        with blas.one_thread():
+            for setter, _ in libraries:  # what the outer block holds, changed inside it
+                setter(2)
+            if [getter() for _, getter in libraries] != [2] * len(libraries):
+                pytest.skip("OpenBLAS here runs at most one thread: the inner block's setting cannot be told apart")
+            with blas.one_thread():
+                inner = [getter() for _, getter in libraries]
+            after_inner = [getter() for _, getter in libraries]
+        assert inner == after_inner  # the inner block neither set one thread nor restored anything
+        assert [getter() for _, getter in libraries] == before  # the outer block restored what it found
+    finally:
+        for (setter, _), threads in zip(libraries, before):
+            setter(threads)
