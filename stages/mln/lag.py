@@ -12,7 +12,7 @@ restart the chain there, as ``chain.Filter`` does; the windows do not reach acro
 
 ``lag_online.Online`` runs one frame at a time with a buffer of L + 1 frames (O(L C^2) per frame); ``decode`` runs whole
 recordings, every chain side by side one position at a time for the forward pass, every window side by side
-one step at a time for the backward. Both apply the same row-wise operations (stages/mln/lag_steps.py) in the
+one step at a time for the backward (the windows of every lag grow together: one step per frame of the largest). Both apply the same row-wise operations (stages/mln/lag_steps.py) in the
 same order, so they give the same classes bit for bit (tests/stages/mln/test_lag.py checks this on DESK and Fetch
 chains).
 ``decode_all`` decodes one chain with several decoders, sharing their forward passes and scores.
@@ -20,7 +20,7 @@ chains).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +30,8 @@ from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.mln.lag_steps import (MANY, decision_scores, legal_label, max_back, max_back_by_class, max_forward,
                                   probabilities_of, rows_of, scaled, sum_back, sum_back_by_class, sum_forward)
 
-_FEW = 32  # transition matrices up to which a backward step moves each one's frames together
+_ROWS = 4096  # frames a pass gathers at once (offsets times chains)
+_BLOCK = 8192  # frames a class-major backward step moves at once (elementwise: any split gives the same numbers)
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
 
@@ -98,52 +99,38 @@ class _Tables:
         return max_back, max_back_by_class, self.log_transition, self.unary
 
 
-def _positions(link: np.ndarray) -> list[tuple[np.ndarray | None, np.ndarray]]:
-    """Per position within a chain, every chain side by side: which of the chains at the previous position reach it
-    (None: all of them) and their frames at it."""
-    first = np.flatnonzero(link < 0)
-    length = np.diff(np.r_[first, len(link)])
+def _runs(anchors: np.ndarray, lengths: np.ndarray, sign: int) -> list[tuple[np.ndarray | None, np.ndarray]]:
+    """Offsets 0, 1, ... within every chain side by side (frame ``anchor + sign * offset``), in blocks of offsets
+    over which the same chains go on: which of the previous block's chains reach the block (None: all of them), and
+    their frames [offsets, chains]."""
     out, position, going = [], 0, None
-    for stop in np.unique(length).tolist():  # the same chains go on from ``position`` up to ``stop``
-        out += [(going if p == position else None, first + p) for p in range(position, stop)]
-        going = length > stop
-        first, length, position = first[going], length[going], stop
+    for stop in np.unique(lengths).tolist():  # the same chains go on from ``position`` up to ``stop``
+        size = max(1, _ROWS // len(anchors))
+        for start in range(position, stop, size):
+            offsets = np.arange(start, min(start + size, stop))
+            out.append((going if start == position else None, anchors[None, :] + sign * offsets[:, None]))
+        going = lengths > stop
+        anchors, lengths, position = anchors[going], lengths[going], stop
     return out
 
 
-def _forward_pass(tables: _Tables, semiring: str, positions: list) -> tuple[np.ndarray, np.ndarray]:
-    """The forward vectors [T, C] (alpha or delta) and the dead ends [T] of every chain, side by side."""
-    n_frames, n_classes = tables.unary.shape
-    out, dead = np.empty((n_frames, n_classes)), np.zeros(n_frames, dtype=bool)
+def _forward_pass(tables: _Tables, semiring: str, runs: list) -> tuple[np.ndarray, np.ndarray]:
+    """The forward vectors [T, C] (alpha or delta) and the dead ends [T] of every chain, side by side (``runs``:
+    ``_runs`` from the chains' first frames)."""
+    out, dead = np.empty(tables.unary.shape), np.zeros(len(tables.link), dtype=bool)
     step, matrices, values = ((sum_forward, tables.transition, tables.linear) if semiring == "sum"
                               else (max_forward, tables.log_transition, tables.unary))
     last = None  # [chains, C] the last forward vector of each chain still going
-    for going, frames in positions:
-        if last is None:
-            last, dead[frames] = step(None, None, values[frames])
-        else:
-            if going is not None:
-                last = last[going]
-            last, dead[frames] = step(last, matrices[tables.link[frames]], values[frames])
-        out[frames] = last
+    for going, frames in runs:
+        if going is not None:
+            last = last[going]
+        moving, frame_values = matrices[tables.link[frames]], values[frames]  # gathered once for the block
+        block, block_dead = np.empty(frame_values.shape), np.zeros(frames.shape, dtype=bool)
+        for i in range(len(frames)):
+            last, block_dead[i] = step(last, None if last is None else moving[i], frame_values[i])
+            block[i] = last
+        out[frames], dead[frames] = block, block_dead
     return out, dead
-
-
-def _back(tables: _Tables, semiring: str, vectors: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """The backward vectors moved from ``frames`` into the frames before them. Where few transition matrices serve
-    many frames, each matrix moves its frames at once (broadcast, not copied per frame: the same numbers)."""
-    rows = tables.link[frames]
-    back, _, matrices, frame_values = tables.backward(semiring)
-    kinds = np.flatnonzero(np.bincount(rows, minlength=len(matrices))) if len(rows) >= MANY else rows
-    if len(kinds) * MANY > len(rows) or len(kinds) > _FEW:
-        return back(vectors, matrices[rows], frame_values[frames])
-    if len(kinds) == 1:
-        return back(vectors, matrices[kinds[0]][None], frame_values[frames])
-    out = np.empty_like(vectors)
-    for kind in kinds:
-        mine = rows == kind
-        out[mine] = back(vectors[mine], matrices[kind][None], frame_values[frames[mine]])
-    return out
 
 
 def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.ndarray, first: int,
@@ -160,34 +147,65 @@ def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.n
         return back(moving, matrices[rows], frame_values).T
     out = np.empty_like(vectors)
     for start, stop in zip(np.r_[0, cuts], np.r_[cuts, n]):
-        out[:, start:stop] = back_by_class(vectors[:, start:stop], matrices[rows[start]],
-                                           values[:, first + start:first + stop])
+        for block in range(start, stop, _BLOCK):  # blocks whose temporaries stay in the cache
+            end = min(block + _BLOCK, stop)
+            out[:, block:end] = back_by_class(vectors[:, block:end], matrices[rows[start]],
+                                              values[:, first + block:first + end])
     return out
 
 
-def _backward_window(tables: _Tables, semiring: str, segment: np.ndarray, lag: int | None) -> np.ndarray:
-    """[T, C] each frame's backward vector over its window: frames up to t + lag (None: to its chain's end)."""
+def _whole_chains(tables: _Tables, semiring: str, segment: np.ndarray) -> np.ndarray:
+    """[T, C] each frame's backward vector over the rest of its chain: one backward pass, every chain side by side
+    from its end (the windows stop at dead ends, as ``segment`` numbers them)."""
+    n_frames = len(segment)
+    back, _, matrices, frame_values = tables.backward(semiring)
+    vectors = np.full(tables.unary.shape, 1.0 if semiring == "sum" else 0.0)
+    ends = np.r_[np.flatnonzero(np.diff(segment)), n_frames - 1]
+    moving = None  # [chains, C] the backward vector of each chain still going
+    for going, frames in _runs(ends, np.diff(np.r_[-1, ends]), -1):
+        if going is not None:
+            moving = moving[going]
+        later = np.minimum(frames + 1, n_frames - 1)  # the frame that moves into each frame
+        transitions, values = matrices[tables.link[later]], frame_values[later]  # gathered once for the block
+        block = np.empty((*frames.shape, vectors.shape[1]))
+        for i in range(len(frames)):
+            moving = vectors[frames[i]] if moving is None else back(moving, transitions[i], values[i])
+            block[i] = moving
+        vectors[frames] = block
+    return vectors
+
+
+def _windows(tables: _Tables, semiring: str, segment: np.ndarray,
+             lags: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:
+    """(lag, [T, C]) for each of ``lags`` (> 0, ascending): each frame's backward vector over its window, the frames
+    up to t + lag. The window of t with lag L is that of t + 1 with lag L - 1 moved into t, so one step per lag up to
+    the largest serves every lag. A window reaching past its chain's end or a dead end stops there."""
     n_frames, n_classes = tables.unary.shape
     fill = 1.0 if semiring == "sum" else 0.0
-    if lag is None:  # the whole chain: one backward pass, every chain side by side from its end
-        vectors = np.full((n_frames, n_classes), fill)
-        ends = np.r_[np.flatnonzero(np.diff(segment)), n_frames - 1]
-        length = np.diff(np.r_[-1, ends])
-        for p in range(1, int(length.max(initial=1))):
-            frames = ends[length > p] - p + 1  # frame r moves into r - 1
-            vectors[frames - 1] = _back(tables, semiring, vectors[frames], frames)
-        return vectors
-    # A window reaching past its chain's end or a dead end keeps its vector: what moves from a chain's first frame is
-    # dropped, so that frame takes the previous frame's transition row and runs of one row stay unbroken.
+    # What moves from a chain's first frame is dropped, so that frame takes the previous frame's transition row and
+    # runs of one row stay unbroken.
     joined = np.where(tables.link >= 0, np.arange(n_frames), 0)
     carried = tables.link[np.maximum.accumulate(joined)]
-    by_class = np.full((n_classes, n_frames), fill)  # class-major: see _back_from
     values = np.ascontiguousarray(tables.backward(semiring)[3].T)
-    for step in range(min(lag, n_frames - 1), 0, -1):  # every frame t's window from t + step into t + step - 1
-        kept = n_frames - step
-        np.copyto(by_class[:, :kept], _back_from(tables, semiring, by_class[:, :kept], values, step, carried),
-                  where=(segment[step:] == segment[:kept])[None, :])
-    return np.ascontiguousarray(by_class.T)
+    going_on = (segment[1:] == segment[:-1])[None, :]  # frame t + 1 is in t's window
+    window = np.full((n_classes, n_frames), fill)  # class-major (see _back_from): lag 0
+    for lag in range(1, (max(lags) if lags else 0) + 1):
+        moved = np.full_like(window, fill)
+        if n_frames > 1:
+            np.copyto(moved[:, :-1], _back_from(tables, semiring, window[:, 1:], values, 1, carried), where=going_on)
+        window = moved
+        if lag in lags:
+            yield lag, np.ascontiguousarray(window.T)
+
+
+def _backward(tables: _Tables, semiring: str, segment: np.ndarray,
+              lags: set[int | None]) -> Iterator[tuple[int | None, np.ndarray]]:
+    """(lag, [T, C]) each frame's backward vector for each of ``lags``: 0 (none), a window, None (the whole chain)."""
+    yield from _windows(tables, semiring, segment, sorted(lag for lag in lags if lag))
+    if 0 in lags:
+        yield 0, np.full(tables.unary.shape, 1.0 if semiring == "sum" else 0.0)
+    if None in lags:
+        yield None, _whole_chains(tables, semiring, segment)
 
 
 def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarray:
@@ -241,22 +259,21 @@ def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Lag
         empty = LagDecoded(np.zeros(0, dtype=np.int64), np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64))
         return [empty for _ in decodings]
     tables = _Tables.of(factors)
-    positions = _positions(tables.link)
-    forward: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    scored: dict[tuple[str, int | None], np.ndarray] = {}
+    first = np.flatnonzero(tables.link < 0)
+    runs = _runs(first, np.diff(np.r_[first, len(tables.link)]), 1)
+    wanted = [(d.decoder.semiring, None if d.decoder.offline else d.lag) for d in decodings]
+    scored: dict[tuple[str, int | None], tuple[np.ndarray, np.ndarray]] = {}  # scores, probabilities
+    restarts: dict[str, np.ndarray] = {}
+    for semiring in dict.fromkeys(semiring for semiring, _ in wanted):
+        vectors, dead = _forward_pass(tables, semiring, runs)
+        restarts[semiring] = np.flatnonzero(dead)
+        segment = np.cumsum((tables.link < 0) | dead)
+        for lag, window in _backward(tables, semiring, segment, {lag for s, lag in wanted if s == semiring}):
+            scores = decision_scores(semiring, vectors, window)
+            scored[semiring, lag] = scores, probabilities_of(scores, semiring)
     out = []
-    for decoding in decodings:
-        semiring = decoding.decoder.semiring
-        if semiring not in forward:
-            forward[semiring] = _forward_pass(tables, semiring, positions)
-        vectors, dead = forward[semiring]
-        lag = None if decoding.decoder.offline else decoding.lag
-        if (semiring, lag) not in scored:
-            segment = np.cumsum((tables.link < 0) | dead)
-            backward = _backward_window(tables, semiring, segment, lag) if lag != 0 else \
-                np.full_like(vectors, 1.0 if semiring == "sum" else 0.0)
-            scored[semiring, lag] = decision_scores(semiring, vectors, backward)
-        scores = scored[semiring, lag]
-        path = _legal_pass(tables, scores, semiring) if decoding.decoder.legal else scores.argmax(axis=1)
-        out.append(LagDecoded(path, probabilities_of(scores, semiring), np.flatnonzero(dead)))
+    for decoding, key in zip(decodings, wanted):
+        scores, probabilities = scored[key]
+        path = _legal_pass(tables, scores, key[0]) if decoding.decoder.legal else scores.argmax(axis=1)
+        out.append(LagDecoded(path, probabilities, restarts[key[0]]))
     return out
