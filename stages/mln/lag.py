@@ -31,7 +31,7 @@ from mlnseq.mln.lag_steps import (MANY, decision_scores, legal_label, max_back, 
                                   probabilities_of, rows_of, scaled, sum_back, sum_back_by_class, sum_forward)
 
 _ROWS = 4096  # frames a pass gathers at once (offsets times chains)
-_BLOCK = 8192  # frames a class-major backward step moves at once (elementwise: any split gives the same numbers)
+_BLOCK = 8192  # frames whose lagged windows are computed together (elementwise: any split gives the same numbers)
 FORBID = 30.0  # nats below its row's best at which a transition counts as forbidden (e^-30: effectively 0)
 
 
@@ -147,10 +147,8 @@ def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.n
         return back(moving, matrices[rows], frame_values).T
     out = np.empty_like(vectors)
     for start, stop in zip(np.r_[0, cuts], np.r_[cuts, n]):
-        for block in range(start, stop, _BLOCK):  # blocks whose temporaries stay in the cache
-            end = min(block + _BLOCK, stop)
-            out[:, block:end] = back_by_class(vectors[:, block:end], matrices[rows[start]],
-                                              values[:, first + block:first + end])
+        out[:, start:stop] = back_by_class(vectors[:, start:stop], matrices[rows[start]],
+                                           values[:, first + start:first + stop])
     return out
 
 
@@ -175,11 +173,11 @@ def _whole_chains(tables: _Tables, semiring: str, segment: np.ndarray) -> np.nda
     return vectors
 
 
-def _windows(tables: _Tables, semiring: str, segment: np.ndarray,
-             lags: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:
-    """(lag, [T, C]) for each of ``lags`` (> 0, ascending): each frame's backward vector over its window, the frames
-    up to t + lag. The window of t with lag L is that of t + 1 with lag L - 1 moved into t, so one step per lag up to
-    the largest serves every lag. A window reaching past its chain's end or a dead end stops there."""
+def _windows(tables: _Tables, semiring: str, segment: np.ndarray, lags: Sequence[int]) -> dict[int, np.ndarray]:
+    """Per lag in ``lags`` (> 0), [T, C] each frame's backward vector over its window, the frames up to t + lag.
+    The window of t with lag L is that of t + 1 with lag L - 1 moved into t, so one step per lag up to the largest
+    serves every lag; blocks of frames (with the largest lag's frames after them) go one at a time, their arrays
+    in the cache. A window reaching past its chain's end or a dead end stops there."""
     n_frames, n_classes = tables.unary.shape
     fill = 1.0 if semiring == "sum" else 0.0
     # What moves from a chain's first frame is dropped, so that frame takes the previous frame's transition row and
@@ -188,20 +186,25 @@ def _windows(tables: _Tables, semiring: str, segment: np.ndarray,
     carried = tables.link[np.maximum.accumulate(joined)]
     values = np.ascontiguousarray(tables.backward(semiring)[3].T)
     going_on = (segment[1:] == segment[:-1])[None, :]  # frame t + 1 is in t's window
-    window = np.full((n_classes, n_frames), fill)  # class-major (see _back_from): lag 0
-    for lag in range(1, (max(lags) if lags else 0) + 1):
-        moved = np.full_like(window, fill)
-        if n_frames > 1:
-            np.copyto(moved[:, :-1], _back_from(tables, semiring, window[:, 1:], values, 1, carried), where=going_on)
-        window = moved
-        if lag in lags:
-            yield lag, np.ascontiguousarray(window.T)
+    out = {lag: np.empty((n_frames, n_classes)) for lag in lags}
+    largest = max(lags, default=0)
+    for first in range(0, n_frames, _BLOCK):
+        stop, reach = min(first + _BLOCK, n_frames), min(first + _BLOCK + largest, n_frames)
+        window = np.full((n_classes, reach - first), fill)  # class-major (see _back_from): lag 0
+        for lag in range(1, largest + 1):
+            moved = np.full_like(window, fill)
+            np.copyto(moved[:, :-1], _back_from(tables, semiring, window[:, 1:], values, first + 1, carried),
+                      where=going_on[:, first:reach - 1])
+            window = moved
+            if lag in out:
+                out[lag][first:stop] = window[:, :stop - first].T
+    return out
 
 
 def _backward(tables: _Tables, semiring: str, segment: np.ndarray,
               lags: set[int | None]) -> Iterator[tuple[int | None, np.ndarray]]:
     """(lag, [T, C]) each frame's backward vector for each of ``lags``: 0 (none), a window, None (the whole chain)."""
-    yield from _windows(tables, semiring, segment, sorted(lag for lag in lags if lag))
+    yield from _windows(tables, semiring, segment, [lag for lag in lags if lag]).items()
     if 0 in lags:
         yield 0, np.full(tables.unary.shape, 1.0 if semiring == "sum" else 0.0)
     if None in lags:
