@@ -12,9 +12,9 @@ restart the chain there, as ``chain.Filter`` does; the windows do not reach acro
 
 ``lag_online.Online`` runs one frame at a time with a buffer of L + 1 frames (O(L C^2) per frame); ``decode`` runs whole
 recordings, every chain side by side one position at a time for the forward pass, every window side by side
-one step at a time for the backward (the windows of every lag grow together: one step per frame of the largest). Both apply the same row-wise operations (stages/mln/lag_steps.py) in the
-same order, so they give the same classes bit for bit (tests/stages/mln/test_lag.py checks this on DESK and Fetch
-chains).
+one step at a time for the backward (the windows of every lag grow together: one step per frame of the largest).
+Both apply the same row-wise operations (stages/mln/lag_steps.py) in the same order, so they give the same classes
+bit for bit (tests/stages/mln/test_lag.py checks this on DESK and Fetch chains).
 ``decode_all`` decodes one chain with several decoders, sharing their forward passes and scores.
 """
 

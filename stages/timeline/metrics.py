@@ -12,6 +12,7 @@ score and F1@{10, 25, 50} of Lea et al. / MS-TCN, tp/fp/fn summed over episodes.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -39,19 +40,20 @@ def label_runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(labels[s.start]), s.start, s.stop) for s in sequences.runs(np.asarray(labels))]
 
 
-def levenshtein(a: np.ndarray, b: np.ndarray) -> int:
+def levenshtein(a: np.ndarray | Sequence[int], b: np.ndarray | Sequence[int]) -> int:
     """Levenshtein distance of two integer sequences, bit-parallel (Myers 1999, Hyyrö's global form): a column of
     the distance table is a bit vector over ``a`` as one Python integer, so a step of ``b`` is a dozen word-wide
     operations over len(a) / 64 words instead of len(a) cells. Exact; still len(a) x len(b) / 64 work."""
     m = len(a)
     if not m or not len(b):
         return max(m, len(b))
+    a, b = (x.tolist() if isinstance(x, np.ndarray) else x for x in (a, b))
     positions: dict[int, int] = {}  # per symbol, the bits of the rows of a that hold it
-    for i, symbol in enumerate(a.tolist()):
+    for i, symbol in enumerate(a):
         positions[symbol] = positions.get(symbol, 0) | (1 << i)
     mask, top = (1 << m) - 1, 1 << (m - 1)
     plus, minus, distance = mask, 0, m  # vertical deltas +1 / -1 of the current column; D[m][j]
-    for symbol in b.tolist():
+    for symbol in b:
         equal = positions.get(symbol, 0)
         x_vertical = equal | minus
         x_horizontal = ((((equal & plus) + plus) & mask) ^ plus) | equal
@@ -70,24 +72,33 @@ def edit_score(predicted: np.ndarray, truth: np.ndarray) -> float:
     return _edit(_runs_array(predicted)[:, 0], _runs_array(truth)[:, 0])
 
 
-def _edit(p: np.ndarray, t: np.ndarray) -> float:
+def _edit(p: np.ndarray | Sequence[int], t: np.ndarray | Sequence[int]) -> float:
     if not len(p) and not len(t):
         return 100.0
     return float(100 * (1 - levenshtein(p, t) / max(len(p), len(t))))
 
 
 def edit_scores(predicted: np.ndarray, truth: np.ndarray, episodes: np.ndarray) -> list[float]:
-    """:func:`edit_score` of each episode (a maximal run of ``episodes``), the runs of all found at once."""
+    """:func:`edit_score` of each episode (a maximal run of ``episodes``), the runs of all found at once; episodes
+    with the same two label sequences (most, over many short episodes) are scored once."""
     p, t = _runs_array(predicted, episodes), _runs_array(truth, episodes)
     if not len(p):
         return []
     first = np.flatnonzero(np.r_[True, np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]])
-    return [_edit(a, b) for a, b in zip(_by_episode(p, first), _by_episode(t, first))]
+    scored: dict[tuple[tuple[int, ...], tuple[int, ...]], float] = {}
+    out = []
+    for pair in zip(_by_episode(p, first), _by_episode(t, first)):
+        if pair not in scored:
+            scored[pair] = _edit(*pair)
+        out.append(scored[pair])
+    return out
 
 
-def _by_episode(runs: np.ndarray, first: np.ndarray) -> list[np.ndarray]:
+def _by_episode(runs: np.ndarray, first: np.ndarray) -> list[tuple[int, ...]]:
     """The labels of ``runs`` (cut at every episode start ``first``) split per episode."""
-    return np.split(runs[:, 0], np.searchsorted(runs[:, 1], first[1:]))
+    labels = runs[:, 0].tolist()
+    cuts = [0, *np.searchsorted(runs[:, 1], first[1:]).tolist(), len(labels)]
+    return [tuple(labels[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def _runs_array(labels: np.ndarray, episodes: np.ndarray | None = None) -> np.ndarray:
@@ -176,10 +187,8 @@ def score_method(
     segmental: bool,
 ) -> dict[str, Any]:
     """Every metric of one method on test frames (rows in order; ``episodes`` delimits sequences)."""
-    spans = sequences.segments(episodes, np.zeros_like(episodes), labels)
-    starts = np.array([s.start for s in spans], dtype=np.int64)
-    lengths = np.array([s.stop - s.start for s in spans], dtype=np.int64)
-    truth = labels[starts]
+    spans = _runs_array(labels, episodes)  # the true segments
+    starts, lengths, truth = spans[:, 1], spans[:, 2] - spans[:, 1], spans[:, 0]
     recognised = segment_predictions(starts, lengths, predictions, fraction)
     confusion = np.zeros((n_classes, n_classes), dtype=np.int64)
     np.add.at(confusion, (truth, recognised), 1)
