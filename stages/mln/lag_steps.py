@@ -80,7 +80,10 @@ def _row_max(values: np.ndarray) -> np.ndarray:
 
 def _over_top(moved: np.ndarray, top: np.ndarray) -> np.ndarray:
     """A backward step's vectors over their top (a row's, or a class-major column's): 1 where the top is 0."""
-    return np.where(top > 0, moved / np.where(top > 0, top, 1.0), 1.0)
+    positive = top > 0
+    if positive.all():  # the same numbers as below, without its masks (the top is 0 only past a dead end)
+        return moved / top
+    return np.where(positive, moved / np.where(positive, top, 1.0), 1.0)
 
 
 def _less_top(moved: np.ndarray, top: np.ndarray) -> np.ndarray:
