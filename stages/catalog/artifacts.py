@@ -15,7 +15,7 @@ import json
 import os
 import re
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
@@ -293,11 +293,13 @@ def read_metadata(path: Path, kind: str | None = None) -> dict[str, Any]:
     return meta
 
 
-def read_table(path: Path, kind: str | None = None) -> tuple[pl.DataFrame, dict[str, Any]]:
-    """Read a Parquet artifact and its metadata; missing, foreign, old or stale files are a clear error."""
+def read_table(path: Path, kind: str | None = None,
+               columns: Sequence[str] | None = None) -> tuple[pl.DataFrame, dict[str, Any]]:
+    """Read a Parquet artifact (``columns``: only those) and its metadata; missing, foreign, old or stale files are a
+    clear error."""
     meta = read_metadata(path, kind)
     try:
-        frame = pl.read_parquet(path)
+        frame = pl.read_parquet(path, columns=None if columns is None else list(columns))
     except Exception as error:  # polars raises several exception types for corrupt files
         raise BadInput(
             f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
