@@ -1,4 +1,7 @@
-"""eval: its options, and its core on tiny predictions with known scores (the metrics themselves: test_metrics.py)."""
+"""eval: its options, its core on tiny predictions with known scores (the metrics themselves: test_metrics.py), and
+its run on a DESK workdir."""
+
+import shutil
 
 import pytest
 
@@ -72,3 +75,14 @@ def test_methods_predicting_alike_get_the_same_scores_each_as_its_mode_asks():
     assert results["conflation"] == results["lstm+filter"] == results["lstm"]
     assert "edit" not in results["lstm"] and results["mln"]["edit"] == 50.0  # 1 0 1 0 | 1 0 vs 0 1 | 1
     assert {k: v for k, v in results["mln"].items() if not k.startswith(("edit", "f1@"))} == results["lstm"]
+
+
+def test_run_reads_the_classes_it_scores_and_refuses_a_method_the_predictions_lack(desk_full_workdir, tmp_path):
+    for path in desk_full_workdir.iterdir():  # a copy: eval writes metrics.parquet beside the predictions
+        if path.is_file():
+            shutil.copy(path, tmp_path / path.name)
+    every = stage.run(tmp_path, stage.EvalOptions()).results
+    one = stage.run(tmp_path, stage.EvalOptions(method="conflation")).results
+    assert list(one) == ["conflation"] and one["conflation"] == every["conflation"]
+    with pytest.raises(BadInput, match=r"no 'conflation\+filter' predictions .*conflate --decode filter`"):
+        stage.run(tmp_path, stage.EvalOptions(method="conflation+filter"))
