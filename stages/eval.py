@@ -101,10 +101,10 @@ def run(workdir: Path, options: EvalOptions) -> EvalResult:
     """Read ``workdir/predictions.parquet``; write ``workdir/metrics.parquet``."""
     options.validate()
     predictions_path = Path(workdir) / artifacts.PREDICTIONS
-    stored = artifacts.read_metadata(predictions_path, "predictions")["methods"]
-    scored = stored if options.method == "all" else [m for m in stored if m == options.stored_name]
-    predictions, meta = artifacts.read_table(predictions_path, "predictions",  # the classes, not the probabilities
-                                             ["split", "label", "episode", *map(artifacts.pred_column, scored)])
+    meta = artifacts.read_metadata(predictions_path, "predictions")
+    scored = [m for m in meta["methods"] if options.method == "all" or m == options.stored_name]
+    predictions = artifacts.read_rows(predictions_path,  # the classes, not the probabilities
+                                      ["split", "label", "episode", *map(artifacts.pred_column, scored)])
     results = evaluate(predictions, meta, options)
     table = metrics_table(results, meta["classes"], options.fraction)
     path = artifacts.write_table(table, Path(workdir) / artifacts.METRICS, "metrics",

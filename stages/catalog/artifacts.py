@@ -274,9 +274,8 @@ def read_metadata(path: Path, kind: str | None = None) -> dict[str, Any]:
     try:
         schema = pq.read_schema(path)
     except (OSError, pa.ArrowException) as error:
-        raise BadInput(
-            f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
-        ) from error
+        raise BadInput(f"{path} is not a readable Parquet file ({error}); "
+                       f"rerun `mlnseq {producer_of(path)}`") from error
     raw = (schema.metadata or {}).get(META_KEY)
     if raw is None:
         raise BadInput(f"{path} has no mlnseq metadata; rerun `mlnseq {producer_of(path)}` to make it")
@@ -293,20 +292,22 @@ def read_metadata(path: Path, kind: str | None = None) -> dict[str, Any]:
     return meta
 
 
-def read_table(path: Path, kind: str | None = None,
-               columns: Sequence[str] | None = None) -> tuple[pl.DataFrame, dict[str, Any]]:
-    """Read a Parquet artifact (``columns``: only those) and its metadata; missing, foreign, old or stale files are a
-    clear error."""
+def read_table(path: Path, kind: str | None = None) -> tuple[pl.DataFrame, dict[str, Any]]:
+    """Read a Parquet artifact and its metadata; missing, foreign, old or stale files are a clear error."""
     meta = read_metadata(path, kind)
-    try:
-        frame = pl.read_parquet(path, columns=None if columns is None else list(columns))
-    except Exception as error:  # polars raises several exception types for corrupt files
-        raise BadInput(
-            f"{path} is not a readable Parquet file ({error}); rerun `mlnseq {producer_of(path)}`"
-        ) from error
+    frame = read_rows(path)
     if kind == "frames":
         check_frames(frame, meta, path)
     return frame, meta
+
+
+def read_rows(path: Path, columns: Sequence[str] | None = None) -> pl.DataFrame:
+    """An artifact's rows (``columns``: only those), its metadata already read and checked (:func:`read_metadata`)."""
+    try:
+        return pl.read_parquet(path, columns=None if columns is None else list(columns))
+    except Exception as error:  # polars raises several exception types for corrupt files
+        raise BadInput(f"{path} is not a readable Parquet file ({error}); "
+                       f"rerun `mlnseq {producer_of(path)}`") from error
 
 
 def check_fresh(path: Path, meta: dict[str, Any]) -> None:
