@@ -4,10 +4,11 @@ Input: JSON lines (an object of feature name -> value per frame) or CSV (a heade
 frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
 no CSV header). An ``episode`` key or column starts a new
 episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
-next line is read: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the
-input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames answers frame t
-once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the end of the
-input). Everything is causal and stateful (the previous frame for the change predicates, the network's state,
+stream waits for more input: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and
+``"time"``, the input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames
+answers frame t once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the
+end of the input); the frames that arrived together (a backlog, a file) are decided together, the same classes
+faster. Everything is causal and stateful (the previous frame for the change predicates, the network's state,
 the decoder's belief and its last L frames).
 
 A bad line (not JSON, not UTF-8, a missing feature, NaN, inf or a non-number) is reported on stderr with
@@ -28,7 +29,7 @@ import itertools
 import json
 import math
 import signal
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -70,13 +71,15 @@ class InputLine(BadInput):
     """One input line that cannot be a frame; names the line."""
 
 
-def lines_of(source: BinaryIO, limit: int, stop_early: bool = False) -> Iterator[str | InputLine]:
+def lines_of(source: BinaryIO, limit: int, stop_early: bool = False,
+             before_wait: Sequence[Callable[[], None]] = ()) -> Iterator[str | InputLine]:
     """Every line of ``source`` without its newline, decoded as UTF-8, read in chunks of at most CHUNK_BYTES
-    as they arrive. A line over ``limit`` bytes is never held: it is an InputLine naming its number and
-    length once its end is read, or (``stop_early``) as soon as it passes the limit."""
+    as they arrive; each of ``before_wait`` is called before each read, which may wait for input. A line over
+    ``limit`` bytes is never held: it is an InputLine naming its number and length once its end is read, or
+    (``stop_early``) as soon as it passes the limit."""
     read = getattr(source, "read1", source.read)  # read1: what is there, without waiting to fill the chunk
     number, held, size = 1, [], 0  # the line being read: its number, its pieces (within the limit), its length
-    while chunk := read(CHUNK_BYTES):
+    for chunk in _chunks(read, before_wait):
         *ends, rest = chunk.split(b"\n")
         for piece in ends:
             if stop_early and size + len(piece) > limit >= size:
@@ -92,6 +95,17 @@ def lines_of(source: BinaryIO, limit: int, stop_early: bool = False) -> Iterator
         size += len(rest)
     if size:
         yield _line(number, b"".join(held), size, limit)
+
+
+def _chunks(read: Callable[[int], bytes], before_wait: Sequence[Callable[[], None]]) -> Iterator[bytes]:
+    """What ``read`` gives, a chunk at a time, until the end of the input; ``before_wait`` called before each read."""
+    while True:
+        for then in before_wait:
+            then()
+        chunk = read(CHUNK_BYTES)
+        if not chunk:
+            return
+        yield chunk
 
 
 def _line(number: int, data: bytes, size: int, limit: int) -> str | InputLine:
@@ -209,12 +223,13 @@ def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> 
 
 
 def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
-    """One frame through the model, its input time kept until its frame is answered; a bad frame names its line."""
+    """One frame through the model, its input time kept until its frame is answered; a bad frame names its line.
+    A lagged decoder's decisions wait for ``model.decide()``."""
     time = next((frame[key] for key in TIMES if key in frame), None)
     if time is not None:
         times[model.next_frame] = time
     try:
-        return model.step(frame)
+        return model.step(frame, decide=False)
     except BadInput as error:
         raise InputLine(f"line {number}: {error}") from None
 
@@ -229,7 +244,8 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn(f"note: {note}")
     if model.decoding.decoder.offline:
         warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
-    lines = lines_of(source, options.max_line_bytes, stop_early=options.strict)
+    before_wait: list[Callable[[], None]] = []  # _serve adds its answer to the frames it held back
+    lines = lines_of(source, options.max_line_bytes, options.strict, before_wait)
     head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
     for line in lines:
         head.append(line)
@@ -237,12 +253,13 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
             break
     if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
         return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
-    return _serve(options, model, itertools.chain(head, lines), emit, warn)
+    return _serve(options, model, itertools.chain(head, lines), emit, warn, before_wait)
 
 
 def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | InputLine], emit: Callable[[str], None],
-           warn: Callable[[str], None]) -> StreamSummary:
-    """JSON or CSV frames: frame t answered once frame t + lag has arrived, the pending ones at an episode's end."""
+           warn: Callable[[str], None], before_wait: list[Callable[[], None]]) -> StreamSummary:
+    """JSON or CSV frames: frame t answered once frame t + lag has arrived, the pending ones at an episode's end.
+    The frames read together are stepped first and decided together, before the next read (``before_wait``)."""
     used = set(model.features) | {EPISODE, *TIMES}
     ignored: set[str] = set()
     summary = StreamSummary()
@@ -255,6 +272,13 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
             summary.frames += 1
 
     with answering_before_interrupt() as busy:
+
+        def answer_held() -> None:
+            busy(True)
+            answer(model.decide(), episode)
+            busy(False)
+
+        before_wait.append(answer_held)
         try:
             for number, frame in frames_of(lines):
                 busy(True)

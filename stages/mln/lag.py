@@ -75,7 +75,7 @@ def fit_start(labels: np.ndarray, starts: np.ndarray, n_classes: int, smoothing:
 
 
 @dataclass(frozen=True)
-class _Tables:
+class Tables:
     """A chain's factors in the form both passes use: per pairwise row its scaled and log matrices and allowed
     transitions, per frame its scaled and log unary."""
 
@@ -87,7 +87,7 @@ class _Tables:
     unary: np.ndarray  # [T, C]
 
     @classmethod
-    def of(cls, factors: ChainFactors) -> _Tables:
+    def of(cls, factors: ChainFactors) -> Tables:
         pairwise = factors.pairwise
         return cls(factors.link, scaled(pairwise, (-2, -1)), pairwise, allowed(pairwise), scaled(factors.unary),
                    factors.unary)
@@ -114,7 +114,7 @@ def _runs(anchors: np.ndarray, lengths: np.ndarray, sign: int) -> list[tuple[np.
     return out
 
 
-def _forward_pass(tables: _Tables, semiring: str, runs: list) -> tuple[np.ndarray, np.ndarray]:
+def _forward_pass(tables: Tables, semiring: str, runs: list) -> tuple[np.ndarray, np.ndarray]:
     """The forward vectors [T, C] (alpha or delta) and the dead ends [T] of every chain, side by side (``runs``:
     ``_runs`` from the chains' first frames)."""
     out, dead = np.empty(tables.unary.shape), np.zeros(len(tables.link), dtype=bool)
@@ -133,7 +133,7 @@ def _forward_pass(tables: _Tables, semiring: str, runs: list) -> tuple[np.ndarra
     return out, dead
 
 
-def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.ndarray, first: int,
+def _back_from(tables: Tables, semiring: str, vectors: np.ndarray, values: np.ndarray, first: int,
                link: np.ndarray) -> np.ndarray:
     """The class-major backward vectors [C, N] moved from the frames ``first``, ``first`` + 1, ... into the frames
     before them, by the transition rows ``link`` [T] and the frames' class-major ``values`` [C, T] (linear or
@@ -152,7 +152,7 @@ def _back_from(tables: _Tables, semiring: str, vectors: np.ndarray, values: np.n
     return out
 
 
-def _whole_chains(tables: _Tables, semiring: str, segment: np.ndarray) -> np.ndarray:
+def _whole_chains(tables: Tables, semiring: str, segment: np.ndarray) -> np.ndarray:
     """[T, C] each frame's backward vector over the rest of its chain: one backward pass, every chain side by side
     from its end (the windows stop at dead ends, as ``segment`` numbers them)."""
     n_frames = len(segment)
@@ -173,7 +173,7 @@ def _whole_chains(tables: _Tables, semiring: str, segment: np.ndarray) -> np.nda
     return vectors
 
 
-def _windows(tables: _Tables, semiring: str, segment: np.ndarray, lags: Sequence[int]) -> dict[int, np.ndarray]:
+def _windows(tables: Tables, semiring: str, segment: np.ndarray, lags: Sequence[int]) -> dict[int, np.ndarray]:
     """Per lag in ``lags`` (> 0), [T, C] each frame's backward vector over its window, the frames up to t + lag.
     The window of t with lag L is that of t + 1 with lag L - 1 moved into t, so one step per lag up to the largest
     serves every lag; blocks of frames (with the largest lag's frames after them) go one at a time, their arrays
@@ -201,7 +201,7 @@ def _windows(tables: _Tables, semiring: str, segment: np.ndarray, lags: Sequence
     return out
 
 
-def _backward(tables: _Tables, semiring: str, segment: np.ndarray,
+def backward_vectors(tables: Tables, semiring: str, segment: np.ndarray,
               lags: set[int | None]) -> Iterator[tuple[int | None, np.ndarray]]:
     """(lag, [T, C]) each frame's backward vector for each of ``lags``: 0 (none), a window, None (the whole chain)."""
     yield from _windows(tables, semiring, segment, [lag for lag in lags if lag]).items()
@@ -211,7 +211,7 @@ def _backward(tables: _Tables, semiring: str, segment: np.ndarray,
         yield None, _whole_chains(tables, semiring, segment)
 
 
-def _legal_pass(tables: _Tables, scores: np.ndarray, semiring: str) -> np.ndarray:
+def _legal_pass(tables: Tables, scores: np.ndarray, semiring: str) -> np.ndarray:
     """Each frame's argmax among the classes allowed after the previous frame's choice (a chain's first frame: the
     free argmax). The free argmax stands wherever it is possible and allowed after the previous choice; only the
     other frames run ``legal_label``, one at a time."""
@@ -261,7 +261,7 @@ def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Lag
     if len(factors.link) == 0:
         empty = LagDecoded(np.zeros(0, dtype=np.int64), np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64))
         return [empty for _ in decodings]
-    tables = _Tables.of(factors)
+    tables = Tables.of(factors)
     first = np.flatnonzero(tables.link < 0)
     runs = _runs(first, np.diff(np.r_[first, len(tables.link)]), 1)
     wanted = [(d.decoder.semiring, None if d.decoder.offline else d.lag) for d in decodings]
@@ -271,7 +271,7 @@ def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Lag
         vectors, dead = _forward_pass(tables, semiring, runs)
         restarts[semiring] = np.flatnonzero(dead)
         segment = np.cumsum((tables.link < 0) | dead)
-        for lag, window in _backward(tables, semiring, segment, {lag for s, lag in wanted if s == semiring}):
+        for lag, window in backward_vectors(tables, semiring, segment, {lag for s, lag in wanted if s == semiring}):
             scores = decision_scores(semiring, vectors, window)
             scored[semiring, lag] = scores, probabilities_of(scores, semiring)
     out = []

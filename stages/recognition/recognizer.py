@@ -219,8 +219,10 @@ class Recognizer:
             raise BadInput(f"feature {bad!r} is {vector[self._feature_index[bad]]}, not a finite number")
         return vector
 
-    def step(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray) -> Prediction:
-        """Recognise the next frame of the current episode from its raw features."""
+    def step(self, frame: Mapping[str, Any] | Sequence[float] | np.ndarray, decide: bool = True) -> Prediction:
+        """Recognise the next frame of the current episode from its raw features. ``decide=False`` holds a lagged
+        decoder's decisions back until :meth:`decide` (frames at hand decided together, faster); its ``final`` is
+        then empty."""
         x = self.vector(frame)
         # predicates from the values as a frames table holds them (float32), as `predict` binarizes them
         evidence = self.binarizer.step(x.astype(np.float32)) if self.spec is not None else None
@@ -236,7 +238,7 @@ class Recognizer:
                 factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
             if self._online is not None:
-                return self._step_online(evidence, factor, pairwise)
+                return self._step_online(evidence, factor, pairwise, decide)
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
@@ -245,9 +247,10 @@ class Recognizer:
         self._frame += 1
         return replace(prediction, final=(prediction,))
 
-    def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None) -> Prediction:
+    def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None,
+                     decide: bool) -> Prediction:
         """A lagged or legal decoder's step: the current frame's filtered belief, and the frames decided by it."""
-        final = self._finals(self._online.step(factor, pairwise))
+        final = self._finals(self._online.step(factor, pairwise, decide))
         self._evidence = evidence
         probabilities = self._online.current
         label = int(np.argmax(probabilities))
@@ -258,6 +261,10 @@ class Recognizer:
 
     def _finals(self, finals: list) -> tuple[Prediction, ...]:
         return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted) for f in finals)
+
+    def decide(self) -> tuple[Prediction, ...]:
+        """The frames that ``step(..., decide=False)`` held back and whose lag has passed, decided."""
+        return () if self._online is None else self._finals(self._online.decide())
 
     def finish(self) -> list[Prediction]:
         """The episode (or the input) ended: decide its pending frames at once (a lagged decoder's last ``lag``

@@ -54,17 +54,26 @@ def head(factors: ChainFactors, frames: int) -> ChainFactors:
     return ChainFactors(factors.unary[:frames], factors.pairwise, factors.link[:frames])
 
 
-def online(factors: ChainFactors, decoding: Decoding) -> tuple[np.ndarray, int]:
-    """Classes one frame at a time (pending frames decided at each chain's end), and the most frames held."""
+def online_finals(factors: ChainFactors, decoding: Decoding, together: int = 1) -> tuple[list, int]:
+    """The frames decided one frame at a time (pending frames decided at each chain's end), ``together`` frames
+    stepped before each ``decide``, and the most frames held."""
     decoder, out, held = lag_online.Online(factors.n_classes, decoding), [], 0
     for t, row in enumerate(factors.link):
         if row < 0:
             out += decoder.finish()
-        out += decoder.step(factors.unary[t], None if row < 0 else factors.pairwise[row])
+        out += decoder.step(factors.unary[t], None if row < 0 else factors.pairwise[row], decide=False)
+        if (t + 1) % together == 0:
+            out += decoder.decide()
         held = max(held, decoder.pending)
     out += decoder.finish()
     assert [final.index for final in out] == list(range(len(factors.link)))
-    return np.array([final.label for final in out]), held
+    return out, held
+
+
+def online(factors: ChainFactors, decoding: Decoding) -> tuple[np.ndarray, int]:
+    """Classes one frame at a time, and the most frames held."""
+    finals, held = online_finals(factors, decoding)
+    return np.array([final.label for final in finals]), held
 
 
 EVERY = [Decoding(Decoder.FILTER), Decoding(Decoder.FILTER_LEGAL), Decoding(Decoder.POSTERIOR),
@@ -80,6 +89,22 @@ def test_online_gives_the_batch_classes_on_desk_with_bounded_state(desk_order, d
     np.testing.assert_array_equal(path, batch.path)
     if not decoding.decoder.offline:
         assert held <= decoding.lag + 1
+
+
+@pytest.mark.parametrize("decoding", [Decoding(Decoder.SMOOTH_LEGAL, 25), Decoding(Decoder.LAGVITERBI, 2),
+                                      Decoding(Decoder.POSTERIOR_LEGAL), Decoding(Decoder.FILTER_LEGAL)],
+                         ids=lambda d: d.name)
+def test_frames_decided_together_get_the_classes_and_probabilities_of_one_at_a_time(desk_order, decoding):
+    """A stream decides the frames it read together at once (``step(..., decide=False)``, then ``decide``), their
+    windows side by side: bit for bit what deciding each as it comes gives, whatever the number held back."""
+    factors = head(desk_order[0], 1405 + 600)
+    alone = online_finals(factors, decoding)[0]
+    for together in (3, 4, 60, 5000):
+        finals = online_finals(factors, decoding, together)[0]
+        assert [final.restarted for final in finals] == [final.restarted for final in alone]
+        np.testing.assert_array_equal([final.label for final in finals], [final.label for final in alone])
+        np.testing.assert_array_equal(np.array([final.probabilities for final in finals]),
+                                      np.array([final.probabilities for final in alone]), err_msg=str(together))
 
 
 @pytest.mark.parametrize("n_classes", [3, 7, 8, 12])

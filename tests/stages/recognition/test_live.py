@@ -107,6 +107,44 @@ def test_stream_answers_frame_t_once_t_plus_lag_arrived_as_predict_and_conflate(
     assert (classes[:-3] == np.array(predicted.table["class"].to_list())[:-3]).all()
 
 
+class Feed(io.RawIOBase):
+    """Input handed out ``lines`` lines a read, as a live feed (1) or a backlog does; notes at each read how many
+    lines it had handed out and how many answers the stream had emitted by then."""
+
+    def __init__(self, text: str, lines: int, answers: list):
+        all_lines = text.splitlines(keepends=True)
+        self.pieces = ["".join(all_lines[i:i + lines]).encode() for i in range(0, len(all_lines), lines)]
+        self.given, self.answers, self.seen = 0, answers, []
+
+    def readable(self) -> bool:
+        return True
+
+    def read1(self, size: int = -1) -> bytes:
+        self.seen.append((self.given, len(self.answers)))
+        piece = self.pieces.pop(0) if self.pieces else b""
+        self.given += piece.count(b"\n")
+        return piece
+
+
+def test_a_stream_answers_frame_t_before_it_waits_for_input_after_t_plus_lag(lagged_model, recording):
+    """Frames are decided when the stream has read all it had at hand: a live feed line by line gets frame t's
+    answer before the stream waits for the line after t + 3; a backlog of 250 lines a read gets its decisions
+    together, the same answers."""
+    frames = recording[1].head(300)
+    text = frames.select(Recognizer.load(lagged_model.path).features).write_csv()
+    got = {}
+    for lines in (1, 250):
+        answers: list[str] = []
+        feed = Feed(text, lines, answers)
+        stream.run(stream.StreamOptions(model=lagged_model.path), feed, answers.append, lambda _: None)
+        assert len(feed.seen) == 1 + -(-301 // lines) and feed.seen[-1][0] == 301  # a read a piece, and the end
+        for given, answered in feed.seen:
+            assert answered == max(0, given - 1 - 3)  # every frame with 3 frames after it, before the next read
+        assert len(answers) == 300  # the last 3 at the end of the input
+        got[lines] = answers
+    assert got[1] == got[250]
+
+
 def test_the_api_says_which_frames_became_final_at_each_step(lagged_model, recording):
     model = Recognizer.load(lagged_model.path)
     frames = recording[1].select(model.features).to_numpy()[:40]
@@ -119,6 +157,14 @@ def test_the_api_says_which_frames_became_final_at_each_step(lagged_model, recor
     assert [p.frame for p in rest] == [37, 38, 39]
     batch = model.predict(frames)[1]
     assert [p.label for p in decided + rest] == batch.tolist()
+    model.reset()
+    held = [model.step(row, decide=False).final for row in frames[:30]]
+    assert held == [()] * 30
+    together = model.decide()
+    assert [p.frame for p in together] == list(range(27)) and model.decide() == ()
+    assert [p.label for p in together] == batch.tolist()[:27]
+    for p, q in zip(together, decided):
+        np.testing.assert_array_equal(p.probabilities, q.probabilities)
 
 
 def test_a_malformed_lag_or_decoder_is_refused_on_load(lagged_model, tmp_path):
