@@ -10,7 +10,8 @@ on the training split, lstm and priorlayer trained 3 epochs in stream mode with 
 - CLI: ``mlnseq stream`` fed that recording as CSV through a pipe five times over (104,620 frames); frames
   per second after start-up, the start-up measured with an empty input (target >= 5,000 frames/s);
 - the same two for ``combined`` with the legal fixed-lag smoother at the live budget's lag (``smooth-legal@25``,
-  issue 24): each step also decides frame t - 25 from the 26 frames it holds;
+  issue 24): each API step also decides frame t - 25 from the 26 frames it holds; the stream decides the frames
+  it reads together at once, their windows side by side;
 - memory: 10^6 frames through the API (the recording replayed, a new episode each time); resident memory
   after the first 10^4 frames and at the end (target growth < 10 MB).
 
