@@ -202,7 +202,7 @@ def _windows(tables: Tables, semiring: str, segment: np.ndarray, lags: Sequence[
 
 
 def backward_vectors(tables: Tables, semiring: str, segment: np.ndarray,
-              lags: set[int | None]) -> Iterator[tuple[int | None, np.ndarray]]:
+                     lags: set[int | None]) -> Iterator[tuple[int | None, np.ndarray]]:
     """(lag, [T, C]) each frame's backward vector for each of ``lags``: 0 (none), a window, None (the whole chain)."""
     yield from _windows(tables, semiring, segment, [lag for lag in lags if lag]).items()
     if 0 in lags:
