@@ -65,8 +65,8 @@ class Online:
         self.semiring = decoding.decoder.semiring
         self.lag = None if decoding.decoder.offline else decoding.lag
         self._frames: deque = deque()  # (index, forward, segment, transition, log_transition, allowed, linear, unary,
-        #                                starts, dead, forms): the rows of this frame, the matrices joining it to the
-        #                                previous (forms: the three together, one object per run of the same matrix)
+        #                                starts, dead): the rows of this frame, the matrices joining it to the previous
+        #                                (the same objects over a run of one pairwise matrix)
         self._index = 0
         self._segment = 0
         self._previous: np.ndarray | None = None  # the last forward vector (None: the next frame starts a chain)
@@ -90,32 +90,32 @@ class Online:
         return len(self._frames)
 
     def _forms(self, pairwise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """[C, C] the pairwise matrix scaled, as logs, and its allowed transitions, made once per run of it."""
         key = pairwise.tobytes()
         if key != self._matrix[0]:  # a stream passes the same few matrices again and again
-            self._matrix = (key, (scaled(pairwise, (-2, -1))[None], pairwise[None], allowed(pairwise)))
+            self._matrix = (key, (scaled(pairwise, (-2, -1)), pairwise, allowed(pairwise)))
         return self._matrix[1]
 
     def step(self, unary: np.ndarray, pairwise: np.ndarray | None, decide: bool = True) -> list[Final]:
         """Take a frame; return the frames it lets decide (``decide=False``: none yet, ``decide`` does later)."""
         unary = np.asarray(unary, dtype=np.float64)[None]
         linear = scaled(unary)
-        if pairwise is None or self._previous is None:
+        starts = pairwise is None or self._previous is None  # the window never reads a chain start's matrices
+        if starts:
             self._previous = None
             self._segment += 1
             transition = log_transition = allowed_ = None
         else:
             transition, log_transition, allowed_ = self._forms(np.asarray(pairwise, dtype=np.float64))
         if self.semiring == "sum":
-            forward, dead = sum_forward(self._previous, transition, linear)
+            forward, dead = sum_forward(self._previous, None if starts else transition[None], linear)
         else:
-            forward, dead = max_forward(self._previous, log_transition, unary)
+            forward, dead = max_forward(self._previous, None if starts else log_transition[None], unary)
         if dead[0]:
             self._segment += 1
         self._previous, self._dead = forward, bool(dead[0])
-        starts = transition is None  # the window reads a later frame's rows, never a chain start's
-        self._frames.append((self._index, forward, self._segment, None if starts else transition[0],
-                             None if starts else log_transition[0], allowed_, linear[0], unary[0], starts,
-                             bool(dead[0]), None if starts else self._matrix[1]))
+        self._frames.append((self._index, forward, self._segment, transition, log_transition, allowed_, linear[0],
+                             unary[0], starts, bool(dead[0])))
         self._index += 1
         return self.decide() if decide else []
 
@@ -133,7 +133,7 @@ class Online:
 
     def _decide_oldest(self, count: int) -> list[Final]:
         """Decide the ``count`` oldest held frames: one by one where they are few, else their windows side by side."""
-        if count < _TOGETHER or all(frame[8] for frame in self._frames):
+        if count < _TOGETHER or all(frame[8] for frame in self._frames):  # (all chain starts: no matrix to stack)
             return [self._decide() for _ in range(count)]
         frames = list(self._frames)
         tables, segment = self._tables(frames)
@@ -144,13 +144,12 @@ class Online:
 
     def _tables(self, frames: list) -> tuple[Tables, np.ndarray]:
         """The held frames as ``lag.Tables`` (a transition row per run of the same matrix) and their segments."""
-        link, forms = [], []
+        link, runs = [], []  # runs: the first frame of each run of one matrix
         for frame in frames:
-            if not frame[8] and (not forms or frame[10] is not forms[-1]):
-                forms.append(frame[10])
-            link.append(-1 if frame[8] else len(forms) - 1)
-        transition, log_transition = (np.concatenate([form[k] for form in forms]) for k in (0, 1))
-        allowed_ = np.array([form[2] for form in forms])
+            if not frame[8] and (not runs or frame[3] is not runs[-1][3]):
+                runs.append(frame)
+            link.append(-1 if frame[8] else len(runs) - 1)
+        transition, log_transition, allowed_ = (np.array([run[k] for run in runs]) for k in (3, 4, 5))
         return (Tables(np.array(link), transition, log_transition, allowed_, np.array([frame[6] for frame in frames]),
                        np.array([frame[7] for frame in frames])), np.array([frame[2] for frame in frames]))
 
@@ -165,7 +164,7 @@ class Online:
 
     def _final(self, frame: tuple, scores: np.ndarray, label: int, probabilities: np.ndarray) -> Final:
         """The oldest held frame decided: its free argmax ``label``, or the legal choice after the last one emitted."""
-        index, *_, starts, dead, _forms = frame
+        index, *_, starts, dead = frame
         if self.decoding.decoder.legal and not starts and self._emitted is not None:
             label = legal_label(scores.tolist(), frame[5][self._emitted].tolist(), self.semiring, label)
         self._frames.popleft()
