@@ -110,6 +110,8 @@ def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableCo
                            features=tuple(model.features), classes=tuple(model.classes))
     names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
     known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
+    if options.label_column is not None:  # a label column named: not the annotations the model's labels came from
+        known.pop("annotations", None)
     recordings = SourceOptions(**{**known, **options.overrides})
     return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
 

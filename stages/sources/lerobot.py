@@ -162,7 +162,7 @@ def _with_annotations(recordings: list[Recording], subtasks: list, style: str, l
     when every frame is. For collect: episodes without annotations left out, as frames before an episode's first
     annotation are (or labelled ``unlabelled``), each with a note."""
     if label is Labels.OPTIONAL:
-        complete = all(found is not None and found[1].all() and (unlabelled or found[0].null_count() == 0)
+        complete = all(found is not None and found[1].all() and (unlabelled is not None or not found[0].null_count())
                        for found in subtasks)
         return [dataclasses.replace(r, label=_filled(found[0], unlabelled) if complete else None)
                 for r, found in zip(recordings, subtasks)]

@@ -146,23 +146,27 @@ def _episode_rows(keys: pl.DataFrame, predicted: Predicted, spans: dict, replace
                   path: Path) -> tuple[np.ndarray, dict, set]:
     """For a data file's rows: each row's frame in the predictions; each episode's persistent rows with the
     predicted subtasks; the episodes keeping their own."""
+    missing = [c for c in ("episode_index", "frame_index", "timestamp") if c not in keys.columns]
+    if missing:
+        raise BadInput(f"{path}: no column {missing[0]!r}; LeRobot places its subtask rows by episode, frame and time")
     position = keys.select((pl.col("frame_index").rank("ordinal").over("episode_index") - 1).alias("p"))["p"]
-    episodes = keys["episode_index"].to_numpy()
+    position, stamps = position.to_numpy(), keys["timestamp"].to_numpy()
     own = set() if replace or language.PERSISTENT not in keys.columns else language.annotated_episodes(keys)
     rows = np.zeros(keys.height, dtype=np.int64)
     lists = {}
-    for episode in dict.fromkeys(episodes.tolist()):
-        mine = np.flatnonzero(episodes == episode)
+    groups = keys.with_row_index("_row").group_by("episode_index", maintain_order=True).agg("_row")
+    for episode, mine in groups.iter_rows():
+        mine = np.asarray(mine, dtype=np.int64)
         first, n = spans.get(episode, (0, -1))
         if n != len(mine):
             raise BadInput(f"{path}: episode {episode} has {len(mine)} frames, {max(n, 0)} of them predicted; "
                            "--write-lerobot needs every frame: predict without --labels, or with --unlabelled CLASS")
-        order = position.to_numpy()[mine]
+        order = position[mine]
         rows[mine] = first + order
-        stamps = np.empty(n)
-        stamps[order] = keys["timestamp"].to_numpy()[mine] if "timestamp" in keys.columns else order
+        times = np.empty(n)
+        times[order] = stamps[mine]
         before = keys[language.PERSISTENT][int(mine[np.argmin(order)])] if language.PERSISTENT in keys.columns else None
-        subtasks = language.rows_of(list(predicted.classes[first:first + n]), stamps)
+        subtasks = language.rows_of(list(predicted.classes[first:first + n]), times)
         lists[episode] = language.merged(None if before is None else before.to_list(), subtasks)
     return rows, lists, own
 

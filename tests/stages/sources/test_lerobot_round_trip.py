@@ -62,6 +62,10 @@ def test_labels_subtask_on_the_annotated_dataset_are_its_intervals(lerobot_data)
     assert frames.equals(by_intervals) and frames.height == 1256
     assert meta["classes"] == same["classes"] == ["grasp", "lift", "place", "reach"]  # from the rows' contents
     assert meta["reading"]["annotations"] == "subtask" and meta["notes"] == []
+    picked = collect.collect(collect.CollectOptions(
+        env="lerobot", source=lerobot_data / "pick-place-annotated", recordings=SourceOptions(annotations="subtask"),
+        columns=TableColumns(features=("observation.state", "action/gripper")))).meta["features"]
+    assert picked == [*(f"observation.state/{n}" for n in JOINTS), "action/gripper"]
 
 
 def test_the_true_phases_written_back_are_lerobots_own_annotated_dataset_byte_for_byte(lerobot_data, tmp_path):
