@@ -214,6 +214,10 @@ def test_the_refusals_are_one_line_each(model, written_back, lerobot_data, tmp_p
     assert "is inside the source dataset" in refusal(*write, heldout / "meta" / "copy")
     assert "holds the source dataset" in refusal(*write, lerobot_data, "--force")
     assert f"--write-lerobot {out} exists; pass --force to replace it" in refusal(*write, out)
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "todo.txt").write_text("not a dataset\n")
+    assert "is a folder but not a LeRobot dataset (no meta/info.json); --force replaces only a dataset" in refusal(
+        *write, tmp_path / "notes", "--force")  # --force never removes a folder of other things
     assert "is inside --write-lerobot" in refusal("predict", model, "--source", heldout, "-o", out / "p.parquet",
                                                   "--write-lerobot", out, "--force")
     assert "--write-lerobot-probabilities and --replace-subtasks go with --write-lerobot OUT" in refusal(
