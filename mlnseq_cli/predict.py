@@ -30,7 +30,7 @@ def predict(
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
     intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
-    write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.", file_okay=False)] = None,
+    write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
     write_lerobot_probabilities: Annotated[bool, typer.Option(help="With --write-lerobot: the class probabilities as a per-frame feature too (mlnseq.subtask_probabilities).")] = False,
     replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
 ) -> None:

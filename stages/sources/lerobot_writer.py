@@ -65,10 +65,10 @@ def check_target(source: Path, out: Path, force: bool, others: dict[str, Any]) -
         raise BadInput(f"{flag} is inside the source dataset {source}; name a folder outside it")
     if here.is_relative_to(there):
         raise BadInput(f"{flag} holds the source dataset {source}; name a folder outside it")
-    if Path(out).exists() and not force:
-        raise BadInput(f"{flag} exists; pass --force to replace it, or name another folder")
     if Path(out).exists() and not Path(out).is_dir():
         raise BadInput(f"{flag} is a file; name a folder")
+    if Path(out).exists() and not force:
+        raise BadInput(f"{flag} exists; pass --force to replace it, or name another folder")
     if Path(out).is_dir() and any(Path(out).iterdir()) and not (Path(out) / "meta" / "info.json").is_file():
         raise BadInput(f"{flag} is a folder but not a LeRobot dataset (no meta/info.json); --force replaces only "
                        "a dataset: name a new folder")
