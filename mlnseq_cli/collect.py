@@ -10,6 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedCo
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from mlnseq import collect as stage
+from mlnseq.sources import labels_option
 
 
 def collect(
@@ -25,8 +26,8 @@ def collect(
     episode_column: Annotated[Optional[str], typer.Option(help="table: the episode column \\[default: 'episode' if present, else one episode per file].")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="table: the time/frame column, rising within an episode \\[default: 'frame' if present, else file order].")] = None,
     classes: Annotated[Optional[str], typer.Option(help="Class names in label order, comma-separated (any source with named labels: a table's label column, a bag's label topic, --labels) \\[default: sorted by name, or a numeric label's own order].")] = None,
-    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column]; hdf5: dataset paths in a demo (obs/joint_pos, actions).")] = None,
-    labels: Annotated[Optional[Path], typer.Option(help="Labels as intervals: a CSV/TSV of episode,start,end,label (every recording env).", dir_okay=False)] = None,
+    features: Annotated[Optional[str], typer.Option(help="table: feature columns, comma-separated \\[default: every other numeric column]; hdf5: dataset paths in a demo (obs/joint_pos, actions); lerobot: info.json features or their elements (observation.state, action/gripper); language columns and columns mlnseq wrote never are.")] = None,
+    labels: Annotated[Optional[Path], typer.Option(help="Labels as intervals: a CSV/TSV of episode,start,end,label (every recording env); lerobot: subtask reads the dataset's own subtask annotations (episodes without any left out).", dir_okay=False)] = None,
     labels_unit: Annotated[Optional[str], typer.Option(help="--labels' start and end: seconds or frames \\[default: seconds for rosbag, frames otherwise].")] = None,
     unlabelled: Annotated[Optional[str], typer.Option(help="jigsaws, --labels: the class of frames outside every interval \\[default: such frames are dropped].")] = None,
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics to read, comma-separated \\[default: every topic with numeric fields].")] = None,
@@ -62,7 +63,7 @@ def collect_options(*, label_column: str, episode_column: Optional[str], time_co
         **rest,
         columns=stage.TableColumns(label=label_column, episode=episode_column, time=time_column,
                                    classes=_names(classes), features=_names(features)),
-        recordings=stage.SourceOptions(labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
+        recordings=stage.SourceOptions(**labels_option(labels), labels_unit=labels_unit, unlabelled=unlabelled,
                                        topics=_names(topics), rate=rate, label_topic=label_topic),
     )
 

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from mlnseq_cli.console import console, counted, reported_errors
 from mlnseq import predict as stage
+from mlnseq.sources import labels_option
 
 
 def predict(
@@ -22,19 +23,24 @@ def predict(
     label_column: Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; with labels the metrics are printed and stored too.")] = None,
     episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")] = None,
     time_column: Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's; else 'frame' if present, else file order]; \"\" reads a recording without the model's time column.")] = None,
-    labels: Annotated[Optional[Path], typer.Option(help="True labels as intervals (episode,start,end,label), to score the predictions.", dir_okay=False)] = None,
+    labels: Annotated[Optional[Path], typer.Option(help="True labels as intervals (episode,start,end,label), to score the predictions; lerobot: subtask reads the dataset's own subtask annotations.", dir_okay=False)] = None,
     labels_unit: Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: the model's].")] = None,
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")] = None,
     rate: Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")] = None,
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
     intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
-    rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities (needs rerun-sdk).", dir_okay=False)] = None,
+    rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
+    write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
+    write_lerobot_probabilities: Annotated[bool, typer.Option(help="With --write-lerobot: the class probabilities as a per-frame feature too (mlnseq.subtask_probabilities).")] = False,
+    replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
 ) -> None:
-    """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). An existing output is kept unless --force."""
-    given = dict(labels=labels, labels_unit=labels_unit, topics=_names(topics), rate=rate, label_topic=label_topic)
+    """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
+    given = dict(**labels_option(labels), labels_unit=labels_unit, topics=_names(topics), rate=rate, label_topic=label_topic)
     options = stage.PredictOptions(
         model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
         episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
+        write_lerobot=write_lerobot, lerobot_probabilities=write_lerobot_probabilities,
+        replace_subtasks=replace_subtasks,
         overrides={k: v for k, v in given.items() if v not in (None, ())},
     )
     with reported_errors():
@@ -49,6 +55,10 @@ def predict(
                   f"{counted(result.episodes, 'episode')}{restarted})")
     for path in result.written:
         console.print(f"[green]predict[/]: wrote {path}")
+    if result.lerobot is not None:
+        kept = f"; {counted(result.lerobot.kept, 'episode')} kept their own" if result.lerobot.kept else ""
+        console.print(f"[green]predict[/]: subtasks of {counted(result.lerobot.predicted, 'episode')} written as LeRobot "
+                      f"annotations (language_persistent, style subtask){kept}", highlight=False)
     if result.metrics is not None:
         m = result.metrics
         table = Table("segments", "frames", "macro F1 (segments)", "edit", "F1@10", "F1@25", "F1@50", box=None,

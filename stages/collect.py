@@ -75,12 +75,13 @@ def collect_recordings(options: CollectOptions) -> Collected:
     resolved = {k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}
     meta["reading"] = reading_record(options.env, options.columns,
                                      **{**options.recordings.record(options.env), **resolved})
-    meta["notes"] = list(dict.fromkeys(
-        f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
-        for key, what in (("skipped_topics", "topics without a numeric field"),
-                          ("skipped_features", "image and video features"),
-                          ("empty_columns", "columns without a value"))
-        if r.resolved.get(key)))
+    meta["notes"] = list(dict.fromkeys([
+        *(f"{what} left out: {', '.join(r.resolved[key])}" for r in recordings
+          for key, what in (("skipped_topics", "topics without a numeric field"),
+                            ("skipped_features", "image and video features"),
+                            ("empty_columns", "columns without a value"))
+          if r.resolved.get(key)),
+        *(note for r in recordings for note in r.resolved.get("notes", []))]))  # a source's own notes
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
     return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from mlnseq.catalog import artifacts
+from mlnseq.catalog import artifacts, folders
 from mlnseq.timeline import metrics
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
@@ -45,6 +45,9 @@ class PredictOptions:
     force: bool = False  # overwrite an existing output
     intervals: Path | None = None  # also write the predicted segments as episode,start,end,label
     rerun: Path | None = None  # also write a Rerun recording
+    write_lerobot: Path | None = None  # also write a copy of the LeRobot dataset with the predicted subtasks
+    lerobot_probabilities: bool = False  # with write_lerobot: the class probabilities as a feature too
+    replace_subtasks: bool = False  # with write_lerobot: over episodes' own subtask annotations too
 
     def validate(self) -> None:
         if self.decode is not None:
@@ -55,6 +58,14 @@ class PredictOptions:
             for path in (self.output_path(), self.intervals, self.rerun):
                 if path is not None and Path(path).exists():
                     raise BadInput(f"{path} exists; pass --force to overwrite it, or name another file")
+        if self.write_lerobot is not None:
+            from mlnseq.sources import lerobot_writer
+
+            lerobot_writer.check_target(Path(self.source), Path(self.write_lerobot), self.force, {
+                "-o": self.output_path(), "--intervals": self.intervals, "--rerun": self.rerun, "the model": self.model,
+                "--labels": self.overrides.get("labels")})
+        elif self.lerobot_probabilities or self.replace_subtasks:
+            raise BadInput("--write-lerobot-probabilities and --replace-subtasks go with --write-lerobot OUT")
 
     def output_path(self) -> Path:
         return Path(self.output) if self.output is not None else Path(f"{Path(self.source).stem}.predictions.parquet")
@@ -69,6 +80,7 @@ class Predicted:
     reading: dict[str, Any] = field(default_factory=dict)  # how the recordings were read
     written: tuple[Path, ...] = ()  # the intervals and Rerun files, if asked
     restarts: list[tuple[Any, int]] = field(default_factory=list)  # (episode, frame) where the chain restarted
+    lerobot: Any = None  # with --write-lerobot: how many episodes got predicted subtasks, how many kept their own
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -98,6 +110,8 @@ def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableCo
                            features=tuple(model.features), classes=tuple(model.classes))
     names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
     known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
+    if options.label_column is not None:  # a label column named: not the annotations the model's labels came from
+        known.pop("annotations", None)
     recordings = SourceOptions(**{**known, **options.overrides})
     return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
 
@@ -122,7 +136,8 @@ def run(options: PredictOptions) -> Predicted:
     """Read the model and the recordings; write the per-frame predictions (and metrics, given labels): every
     output to a temporary file beside it, all renamed at the end, or none (each temporary file removed)."""
     with contextlib.ExitStack() as staged:
-        return _run(options, lambda final: staged.enter_context(artifacts.atomic_path(Path(final))))
+        return _run(options, lambda final, folder=False: staged.enter_context(
+            (folders.atomic_folder if folder else artifacts.atomic_path)(Path(final))))
 
 
 def _run(options: PredictOptions, stage) -> Predicted:
@@ -130,6 +145,8 @@ def _run(options: PredictOptions, stage) -> Predicted:
     check_outputs(options, [options.model, options.source, options.overrides.get("labels")])
     model = Recognizer.load(options.model)
     env, columns, source_options, label = reading_of(model, options)
+    if options.write_lerobot is not None and env != "lerobot":
+        raise BadInput(f"--write-lerobot writes LeRobot datasets, but --source {options.source} is read as --env {env}")
     recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
     frames, meta, times = prediction_frames(recordings, columns.classes)
     check_outputs(options, [*meta["source_files"], source_options.labels])
@@ -174,4 +191,15 @@ def _run(options: PredictOptions, stage) -> Predicted:
         rerun.write(stage(options.rerun), table["episode"].to_list(), frames, times, table, list(model.features),
                     list(model.classes))
         written.append(Path(options.rerun))
-    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts)
+    lerobot = _write_lerobot(options, stage, table, list(model.classes)) if options.write_lerobot else None
+    written += [Path(options.write_lerobot)] if lerobot else []
+    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts, lerobot)
+
+
+def _write_lerobot(options: PredictOptions, stage, table: pl.DataFrame, classes: list[str]) -> Any:
+    """The LeRobot dataset at --source copied with the predicted phases as its subtask annotations."""
+    from mlnseq.sources import lerobot_writer
+
+    predicted = lerobot_writer.Predicted.of(table, classes, options.lerobot_probabilities)
+    return lerobot_writer.write(stage(options.write_lerobot, folder=True), Path(options.source), predicted,
+                                options.replace_subtasks)

@@ -159,13 +159,13 @@ def _input_key(artifact: Path, source: Path) -> str:
     return str(source)
 
 
-def _umask() -> int:
+def umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
 
 
-def _writer_running(pid: int) -> bool:
+def writer_running(pid: int) -> bool:
     if os.name != "posix":  # no harmless probe of another process here: assume it still writes
         return True
     try:
@@ -184,7 +184,7 @@ def remove_leftovers(path: Path) -> list[Path]:
     removed = []
     for candidate in path.parent.glob(".*.tmp"):
         found = leftover.match(candidate.name)
-        if found and not (found.group(1) and _writer_running(int(found.group(1)))):
+        if found and not (found.group(1) and writer_running(int(found.group(1)))):
             candidate.unlink(missing_ok=True)
             removed.append(candidate)
     return removed
@@ -205,7 +205,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
         raise BadInput(f"cannot write {path}: {error.strerror or error}; choose a writable --workdir") from error
     os.close(fd)
     tmp = Path(tmp_name)
-    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; an artifact gets the mode open() would give it
+    os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes 0600; an artifact gets the mode open() would give it
     try:
         yield tmp
         os.replace(tmp, path)

@@ -53,6 +53,7 @@ def source_of(env: str) -> Source:
     raise BadInput(f"unknown --env {env!r}: choose one of {', '.join(ENVS)}")
 LABEL_UNITS = ("seconds", "frames")
 EXTRA = "recordings"
+ANNOTATIONS = ("subtask",)  # --labels STYLE: a LeRobot dataset's own annotations of that style, not a file
 
 
 @dataclass(frozen=True)
@@ -65,8 +66,11 @@ class SourceOptions:
     rate: float | None = None  # rosbag: the clock in Hz; default the first topic's rate
     label_topic: str | None = None  # rosbag: a std_msgs/String topic whose message holds until the next
     unlabelled: str | None = None  # jigsaws and --labels: class of frames outside any interval; default: dropped
+    annotations: str | None = None  # lerobot: labels from the dataset's own annotations of this style (subtask)
 
     def validate(self) -> None:
+        if self.annotations is not None and self.annotations not in ANNOTATIONS:
+            raise BadInput(f"unknown annotation style {self.annotations!r}: mlnseq reads {', '.join(ANNOTATIONS)}")
         if self.labels_unit is not None and self.labels_unit not in LABEL_UNITS:
             raise BadInput(f"unknown --labels-unit {self.labels_unit!r}: choose seconds or frames")
         if self.rate is not None and not self.rate > 0:
@@ -80,9 +84,19 @@ class SourceOptions:
         record: dict[str, Any] = {"labels_unit": self.unit(env)}
         if env == "rosbag":
             record.update(topics=list(self.topics), rate=self.rate, label_topic=self.label_topic)
-        if env == "jigsaws" or self.labels is not None:
+        if env == "jigsaws" or self.labels is not None or self.annotations is not None:
             record["unlabelled"] = self.unlabelled
+        if self.annotations is not None:
+            record["annotations"] = self.annotations
         return record
+
+
+def labels_option(value: Path | None) -> dict[str, Any]:
+    """``--labels`` as SourceOptions fields: ``subtask`` reads a LeRobot dataset's own subtask annotations, anything
+    else names a file of intervals."""
+    if value is not None and str(value) in ANNOTATIONS:
+        return {"annotations": str(value)}
+    return {"labels": value}
 
 
 def missing_extra(module: str, error: ImportError) -> BadInput:
@@ -101,6 +115,10 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
     source = Path(source)
     if not source.exists():
         raise BadInput(f"--source {source} not found")
+    if options.annotations is not None and env != "lerobot":
+        raise BadInput(f"--labels {options.annotations} reads a LeRobot dataset's own {options.annotations} "
+                       f"annotations, but --source is read as --env {env}; give a file of intervals (a file named "
+                       f"{options.annotations}: its full path)")
     own_label = Labels.NONE if options.labels is not None else label  # --labels replaces the recordings' own
     recordings = reader.load().read(source, columns, options, own_label)
     if options.labels is not None:

@@ -1,6 +1,7 @@
 """A Rerun recording (``.rrd``) of predictions beside their signals: per episode the features as scalar
 series, the true (when known) and predicted class index, and every class's probability, on the recording's
-own timeline (``time``, seconds) and by frame (``frame``). Needs rerun-sdk."""
+own timeline (``time``, seconds) and by frame (``frame``); and the predicted (and true) segments as time ranges,
+Rerun's state lanes (the segments ``--write-lerobot`` writes back). Needs rerun-sdk."""
 
 from __future__ import annotations
 
@@ -10,6 +11,20 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
+
+
+def _send_segments(recording, entity: str, names: np.ndarray, times: np.ndarray, frames: np.ndarray) -> None:
+    """An episode's runs of one class as time ranges (Rerun's state lanes): each class from its run's first frame,
+    and no state from one step past the last frame."""
+    import rerun as rr
+
+    labels = np.asarray(names, dtype=object)
+    starts = np.r_[0, np.flatnonzero(labels[1:] != labels[:-1]) + 1]
+    step = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    index = [rr.TimeColumn("time", duration=np.r_[times[starts], times[-1] + step]),
+             rr.TimeColumn("frame", sequence=np.r_[frames[starts], frames[-1] + 1])]
+    recording.send_columns(entity, indexes=index,
+                           columns=rr.StateChange.columns(state=[*map(str, labels[starts]), ""]))  # "": a reset
 
 
 def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, predictions: pl.DataFrame,
@@ -41,6 +56,12 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
             for entity, values in series.items():
                 recording.send_columns(f"{base}/{entity}", indexes=index,
                                        columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+            true = (np.asarray(classes, dtype=object)[frames["label"].to_numpy()[rows]]
+                    if "label" in predictions.columns else None)
+            for lane, names in (("predicted", predictions["class"].to_numpy()[rows]), ("true", true)):
+                if names is not None:
+                    _send_segments(recording, f"{base}/segments/{lane}", names, times[rows],
+                                   frames["frame"].to_numpy()[rows])
         recording.flush()
         handle.write(stream.read() or b"")  # at once: reading it in parts breaks the file's checksums (rerun 0.41)
         recording.disconnect()
