@@ -224,8 +224,8 @@ class Subscriptions:
         known = self.subscribed.get(topic)
         if known is not None:
             if known.type_name != type_name:
-                self._refuse(topic, f"a publisher on {topic} sends {type_name}; the node reads {topic} as "
-                             f"{known.type_name}, its first publisher's type, so that publisher is not heard")
+                self._refuse(topic, f"a publisher on {topic} sends {type_name}, not {known.type_name} (the type of "
+                             "its first publisher, subscribed to): its messages are not read")
             elif known.reliable and not reliable:
                 self._refuse(topic, f"a best-effort publisher on {topic} does not match the reliable subscription "
                              "made for the first: run with --qos best-effort")
