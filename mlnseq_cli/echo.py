@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
 from typing import Annotated, Optional
 
 import typer
@@ -22,9 +20,6 @@ def echo(
 ) -> None:
     """Subscribe to TOPIC over DDS as a ROS 2 node would (no ROS install; pip install 'mlnseq\\[ros2]'; ROS_DOMAIN_ID, ROS_LOCALHOST_ONLY, ROS_AUTOMATIC_DISCOVERY_RANGE and CYCLONEDDS_URI as ROS 2 reads them) and print its messages as the CSV `rostopic echo -p` prints on ROS 1: a %time header, then one row per message, flushed. `mlnseq echo /joint_states | mlnseq stream MODEL` recognises them live. SIGINT or SIGTERM stops it (exit 0)."""
     options = stage.EchoOptions(topic=topic, count=count, distro=distro, qos=qos)
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
 
     def emit(line: str) -> None:
         sys.stdout.write(line + "\n")
@@ -35,7 +30,7 @@ def echo(
 
     with reported_errors():
         try:
-            summary = stage.run(options, emit, warn, stop)
+            summary = stage.run(options, emit, warn)
         except BrokenPipeError:  # the reader went away (`| head`, stream stopped): nothing more to say
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return

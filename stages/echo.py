@@ -81,22 +81,30 @@ def csv_line(values: list[Any]) -> str:
 
 
 def run(options: EchoOptions, emit: Callable[[str], None], warn: Callable[[str], None],
-        stop: threading.Event) -> EchoSummary:
-    """Print the topic's messages through ``emit`` until ``stop`` is set or --count messages were printed."""
-    from mlnseq.dds import domain, require, types
+        stop: threading.Event | None = None) -> EchoSummary:
+    """Print the topic's messages through ``emit`` until SIGINT or SIGTERM (or ``stop``), or --count of them."""
+    from mlnseq.dds import domain, require, stopped_by_signals, types
 
     options.validate()
     require()
     distro = options.distro or types.default_distro()
+    message_types = types.MessageTypes(distro)
     participant = domain.Participant(distro, "mlnseq_echo")
-    subscriptions = domain.Subscriptions(participant, types.MessageTypes(distro), [options.topic], options.qos,
+    subscriptions = domain.Subscriptions(participant, message_types, [options.topic], options.qos,
                                          lambda topic, text: warn(f"error: {text}"))
+    with stopped_by_signals(stop) as stop:
+        return _echo(options, subscriptions, participant.domain_id, emit, warn, stop)
+
+
+def _echo(options: EchoOptions, subscriptions: Any, domain_id: int, emit: Callable[[str], None],
+          warn: Callable[[str], None], stop: threading.Event) -> EchoSummary:
+    """The rows, under the first message's header, until ``stop`` or --count."""
     summary, header = EchoSummary(), None
     while not stop.is_set() and summary.messages != options.count:
         for made in subscriptions.discover():
             summary.type_name = made.type_name
             warn(f"echo: {made.topic} ({made.type_name}, {'reliable' if made.reliable else 'best effort'}) on DDS "
-                 f"domain {participant.domain_id}")
+                 f"domain {domain_id}")
         for _, message, sent in subscriptions.take(WAIT_S):
             columns = fields(message)
             names = ["%time", *(name for name, _ in columns)]

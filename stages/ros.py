@@ -154,12 +154,10 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
 
 def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
     """The ROS 2 node (stages/dds/node.py) until SIGINT or SIGTERM (or ``stop``)."""
-    from mlnseq.dds import node, require, types
+    from mlnseq.dds import node, require, stopped_by_signals, types
 
     require()
-    stop = stop or threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    frames, bad = node.run(node.NodeOptions(options.model, options.activity_topic, options.node_name,
-                                            options.distro or types.default_distro(), options.qos), warn, stop)
-    return RosSummary(frames, bad)
+    node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
+                                    options.distro or types.default_distro(), options.qos)
+    with stopped_by_signals(stop) as stop:
+        return RosSummary(*node.run(node_options, warn, stop))

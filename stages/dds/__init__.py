@@ -10,6 +10,11 @@ live core (recognition/live.py's `MessageFeed`), which `mlnseq ros` (ROS 1) runs
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+
 from mlnseq.catalog.errors import MissingExtra
 
 EXTRA = "ros2"  # pip install 'mlnseq[ros2]': cyclonedds and rosbags
@@ -23,3 +28,19 @@ def require() -> None:
         except ImportError:
             raise MissingExtra(f"ROS 2 over DDS needs cyclonedds and rosbags ({module} is not installed): "
                                f"pip install 'mlnseq[{EXTRA}]'") from None
+
+
+@contextlib.contextmanager
+def stopped_by_signals(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+    """An event SIGINT and SIGTERM set (``stop``, or a new one) while inside; the previous handlers after. Outside
+    the main thread, where no handler can be set, only the caller sets it."""
+    stop = stop or threading.Event()
+    try:
+        previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread
+        previous = {}
+    try:
+        yield stop
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
