@@ -3,7 +3,7 @@
 
 It subscribes to the topics the model was trained on (its manifest's ``reading``), puts their messages on the
 model's clock as collect put the bags on it, runs the same `Recognizer` as predict and stream on every tick
-(stages/recognition/live.py, which a ROS 2 node can use as well: docs/ros.md), and publishes per tick the
+(stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the
 class name (std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every
 class's probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is
 one line on stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).

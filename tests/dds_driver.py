@@ -3,9 +3,9 @@ do, written here by hand and apart from mlnseq's own DDS code (stages/dds/), so 
 the node uses are checked against an independent peer: topics ``rt/...``, types ``pkg::msg::dds_::Type_`` as
 ``@final`` structs, ROS's default QoS (reliable, volatile, keep last 10).
 
-    python tests/dds_driver.py publish BAG SUBSCRIBERS  # a ROS 2 bag's messages (their CDR bytes as read) at their
-                                                        # recorded pace and times, once each topic has SUBSCRIBERS
-                                                        # readers
+    python tests/dds_driver.py publish BAG SUBSCRIBERS [SPEED]  # a ROS 2 bag's messages (their CDR bytes as read)
+                                  # at their recorded times and pace (SPEED times faster), once each topic has
+                                  # SUBSCRIBERS readers
     python tests/dds_driver.py record TOPIC FILE        # each std_msgs/String's data a line; "ready" on stdout
     python tests/dds_driver.py wrong TOPIC              # a std_msgs/String publisher on TOPIC for a second
 
@@ -78,8 +78,9 @@ def wait_until(check, what: str) -> None:
         time.sleep(0.02)
 
 
-def publish(bag: str, subscribers: int) -> None:
-    """The bag's messages (but /phase), each its CDR bytes read as the type above, at the pace they were recorded."""
+def publish(bag: str, subscribers: int, speed: float = 1.0) -> None:
+    """The bag's messages (but /phase), each its CDR bytes read as the type above, at the pace they were recorded
+    (``speed`` times faster)."""
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -95,7 +96,7 @@ def publish(bag: str, subscribers: int) -> None:
         begin, first = time.monotonic(), None
         for connection, timestamp, raw in reader.messages(connections=connections):
             first = timestamp if first is None else first
-            time.sleep(max(0.0, begin + (timestamp - first) / 1e9 - time.monotonic()))
+            time.sleep(max(0.0, begin + (timestamp - first) / 1e9 / speed - time.monotonic()))
             # the record time as the sample's source timestamp: a headerless message's time, as when it was recorded
             writers[connection.topic].write(TYPES[connection.msgtype].deserialize(bytes(raw)), timestamp=timestamp)
         for writer in writers.values():
@@ -130,4 +131,5 @@ def wrong(topic: str) -> None:
 
 if __name__ == "__main__":
     command, *args = sys.argv[1:]
-    {"publish": lambda bag, n: publish(bag, int(n)), "record": record, "wrong": wrong}[command](*args)
+    {"publish": lambda bag, n, speed="1": publish(bag, int(n), float(speed)), "record": record,
+     "wrong": wrong}[command](*args)

@@ -2,14 +2,17 @@
 participants speaking as ROS 2 nodes, each its own process, on the loopback, in a domain of the test's own): a
 ROS 2 bag's /joint_states published at its 100 Hz pace give the classes and probabilities `predict` gives on the
 bag; so do joints and a gripper on two topics; a publisher of another type is one error line; SIGINT answers the
-frame the node holds, then the node exits 0. Everything started is stopped by process group in a finally. Without
-cyclonedds the tests skip, saying why; in CI (CI=true) they fail instead."""
+frame the node holds, then the node exits 0. And the same bag through a C peer on Debian's Cyclone 0.10 (the
+series ROS 2 Humble ships; tests/dds_c_peer/). Everything started is stopped by process group in a finally.
+Without cyclonedds (or, for the C peer, Debian's cyclonedds-dev and cyclonedds-tools) the tests skip, saying why;
+in CI (CI=true) they fail instead."""
 
 from __future__ import annotations
 
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -30,14 +33,17 @@ DRIVER = Path(__file__).resolve().parents[1] / "dds_driver.py"
 WAIT_S = 30
 
 
+def skip_or_fail(why: str) -> None:
+    if os.environ.get("CI") == "true":
+        pytest.fail(why)
+    pytest.skip(why)
+
+
 def dds_or_skip() -> None:
     try:
         import cyclonedds.domain  # noqa: F401
     except ImportError as error:
-        why = f"cyclonedds is not installed ({error}): `make setup` installs mlnseq[ros2]"
-        if os.environ.get("CI") == "true":
-            pytest.fail(why)
-        pytest.skip(why)
+        skip_or_fail(f"cyclonedds is not installed ({error}): `make setup` installs mlnseq[ros2]")
 
 
 def cyclone_config(path: Path, tag: str, interface: bool = True, unicast: bool = True) -> str:
@@ -216,3 +222,59 @@ def test_two_topics_merged_and_the_frame_held_answered_at_sigint(two_topic_model
     node_log = (tmp_path / "node.log").read_text().splitlines()
     assert node_log[0].startswith("ros: mlnseq on ROS 2 jazzy (DDS domain ") and "/joint_states, /gripper" in node_log[0]
     assert node_log[-1] == f"ros: stopped after {expected.height} frames (0 bad messages)"
+
+
+@pytest.fixture(scope="module")
+def c_peer(tmp_path_factory) -> Path:
+    """tests/dds_c_peer/peer.c built on Debian's Cyclone C library (its idlc for the message types)."""
+    source = DRIVER.parent / "dds_c_peer"
+    missing = [tool for tool in ("idlc", "gcc") if shutil.which(tool) is None]
+    if missing or not Path("/usr/include/dds/dds.h").is_file():
+        skip_or_fail(f"Debian's Cyclone DDS C library is not installed ({', '.join(missing) or 'dds/dds.h'}): "
+                     "`make setup` as root installs cyclonedds-dev and cyclonedds-tools")
+    folder = tmp_path_factory.mktemp("c-peer")
+    for command in (["idlc", "-l", "c", str(source / "ros2_msgs.idl")],
+                    ["gcc", "-O1", "-Wall", "-Werror", "-o", "peer", str(source / "peer.c"), "ros2_msgs.c", "-I.",
+                     "-lddsc"]):
+        done = subprocess.run(command, cwd=folder, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+    return folder / "peer"
+
+
+def test_a_c_peer_on_cyclone_0_10_and_the_node(joint_state_model, c_peer, tmp_path):
+    """The bag's JointState messages from C (Cyclone 0.10's own CDR), the frames recorded by C."""
+    dds_or_skip()
+    from rosbags.highlevel import AnyReader
+
+    rows, model = joint_state_model["live"], str(joint_state_model["model"])
+    bag = ros2_episode.write_bag(tmp_path / "live", rows)
+    with AnyReader([bag]) as reader, open(tmp_path / "rows.txt", "w") as out:
+        out.write(" ".join(ros_episode.JOINTS) + "\n")
+        for connection, _, raw in reader.messages([c for c in reader.connections if c.topic == "/joint_states"]):
+            message = reader.deserialize(raw, connection.msgtype)
+            stamp = message.header.stamp.sec * 10**9 + message.header.stamp.nanosec
+            out.write(" ".join([str(stamp), *map(repr, message.position.tolist())]) + "\n")
+    peers, node_env = dds_env(tmp_path)
+    processes = Processes(peers)
+    logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("node", "peers")}
+    node_out = tmp_path / "node.jsonl"
+    try:
+        node = processes.start([MLNSEQ, "ros", model, "--ros", "2"], env=node_env, stdout=logs["node"],
+                               stderr=subprocess.STDOUT)
+        recorder = processes.start([str(c_peer), "record", "/mlnseq/activity/frame", str(node_out)],
+                                   stdout=subprocess.PIPE, text=True)
+        assert recorder.stdout.readline().strip() == "ready", (tmp_path / "node.log").read_text()
+        publisher = processes.start([str(c_peer), "publish", str(tmp_path / "rows.txt"), "1"], stdout=logs["peers"],
+                                    stderr=subprocess.STDOUT)
+        assert publisher.wait(WAIT_S) == 0, (tmp_path / "peers.log").read_text()
+        wait_for(lambda: len(lines(node_out)) >= len(rows) - 1, "the node's frames", 10)
+        node.send_signal(signal.SIGINT)
+        assert node.wait(WAIT_S) == 0, (tmp_path / "node.log").read_text()
+        wait_for(lambda: len(lines(node_out)) >= len(rows), "the frame the node held", 5)
+    finally:
+        processes.stop()
+        for handle in logs.values():
+            handle.close()
+    check_answers([json.loads(line) for line in lines(node_out)], predicted(joint_state_model["model"], bag, tmp_path),
+                  len(rows))
+    assert (tmp_path / "node.log").read_text().splitlines()[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
