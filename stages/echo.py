@@ -103,8 +103,7 @@ def _echo(options: EchoOptions, subscriptions: Any, domain_id: int, emit: Callab
     while not stop.is_set() and summary.messages != options.count:
         for made in subscriptions.discover():
             summary.type_name = made.type_name
-            warn(f"echo: {made.topic} ({made.type_name}, {'reliable' if made.reliable else 'best effort'}) on DDS "
-                 f"domain {domain_id}")
+            warn(f"echo: {made.describe()} on DDS domain {domain_id}")
         for _, message, sent in subscriptions.take(WAIT_S):
             columns = fields(message)
             names = ["%time", *(name for name, _ in columns)]

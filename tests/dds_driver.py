@@ -1,7 +1,8 @@
 """The ROS 2 tests' DDS peers, each run as its own process: plain Cyclone DDS participants that speak as ROS 2 nodes
 do, written here by hand and apart from mlnseq's own DDS code (stages/dds/), so that the names, types and bytes
 the node uses are checked against an independent peer: topics ``rt/...``, types ``pkg::msg::dds_::Type_`` as
-``@final`` structs, ROS's default QoS (reliable, volatile, keep last 10).
+``@final`` structs, ROS's default QoS (reliable, volatile, keep last 10), and for the gripper's std_msgs/Float64
+ROS's sensor-data QoS (best effort, keep last 5).
 
     python tests/dds_driver.py publish BAG SUBSCRIBERS [SPEED]  # a ROS 2 bag's messages (their CDR bytes as read)
                                   # at their recorded times and pace (SPEED times faster), once each topic has
@@ -64,6 +65,8 @@ class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
 TYPES = {"sensor_msgs/msg/JointState": JointState, "std_msgs/msg/Float64": Float64, "std_msgs/msg/String": String}
 DEFAULT = Qos(Policy.Reliability.Reliable(max_blocking_time=10**8), Policy.Durability.Volatile,
               Policy.History.KeepLast(10))  # rclcpp's default publisher / subscription QoS
+SENSOR = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))  # SensorDataQoS
+QOS = {"std_msgs/msg/Float64": SENSOR}  # the gripper's state, published as sensor data; the rest ROS's default
 
 
 def participant() -> DomainParticipant:
@@ -88,7 +91,7 @@ def publish(bag: str, subscribers: int, speed: float = 1.0) -> None:
     dp = participant()
     with AnyReader([Path(bag)]) as reader:
         connections = [c for c in reader.connections if c.topic != "/phase"]
-        writers = {c.topic: DataWriter(dp, Topic(dp, "rt" + c.topic, TYPES[c.msgtype]), qos=DEFAULT)
+        writers = {c.topic: DataWriter(dp, Topic(dp, "rt" + c.topic, TYPES[c.msgtype]), qos=QOS.get(c.msgtype, DEFAULT))
                    for c in connections}
         wait_until(lambda: all(len(w.get_matched_subscriptions()) >= subscribers for w in writers.values()),
                    f"{subscribers} readers of {', '.join(writers)}")
@@ -107,8 +110,9 @@ def publish(bag: str, subscribers: int, speed: float = 1.0) -> None:
 def record(topic: str, path: str) -> None:
     """Each std_msgs/String's data on ``topic``, a line of ``path``; "ready" once a publisher matches."""
     dp = participant()
-    reader = DataReader(dp, Topic(dp, "rt" + topic, String), qos=Qos(
-        Policy.Reliability.Reliable(max_blocking_time=10**8), Policy.Durability.Volatile, Policy.History.KeepLast(10**4)))
+    qos = Qos(Policy.Reliability.Reliable(max_blocking_time=10**8), Policy.Durability.Volatile,
+              Policy.History.KeepLast(10**4))
+    reader = DataReader(dp, Topic(dp, "rt" + topic, String), qos=qos)
     with open(path, "a") as out:
         deadline = time.monotonic() + WAIT_S
         while not reader.get_matched_publications() and time.monotonic() < deadline:

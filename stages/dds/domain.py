@@ -1,7 +1,7 @@
 """A DDS participant as a ROS 2 node's rmw_cyclonedds makes it: the domain ``ROS_DOMAIN_ID``, the discovery its
 distro's environment asks for, ROS topic names as DDS topics (``/joint_states`` is ``rt/joint_states``), ROS's QoS
-profiles, and subscriptions made as publishers are discovered, each of the type and reliability its publishers
-offer (as `ros2 topic echo` picks them).
+profiles, and subscriptions made as publishers are discovered, each of the type and reliability its first
+publisher offers (as `ros2 topic echo` adapts to the publishers it finds).
 
 Discovery, as rmw_cyclonedds configures Cyclone: up to Humble, ``ROS_LOCALHOST_ONLY=1`` binds the loopback
 interface; from Iron on, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (SUBNET, LOCALHOST, OFF, SYSTEM_DEFAULT; LOCALHOST where
@@ -26,13 +26,12 @@ from mlnseq.sources import rostopic
 TOPIC_PREFIX = "rt"  # ROS 2 topics in DDS: rt/joint_states (rmw's namespace_prefix.hpp)
 MAX_DOMAIN_ID = 232  # Cyclone's port mapping: 7400 + 250 x domain stays below 65536
 QUEUE = 1000  # samples a reader or writer holds: 10 s at 100 Hz, as the ROS 1 node's queues
-DEFAULT_DEPTH, SENSOR_DEPTH = 10, 5  # rmw_qos_profile_default, rmw_qos_profile_sensor_data
 
 
 class QosChoice(StrEnum):
     """``--qos``: the subscriptions' reliability."""
 
-    AUTO = "auto"  # as the topic's publishers offer it: reliable if all of them are, else best effort
+    AUTO = "auto"  # as the topic's first publisher offers it: reliable or best effort
     RELIABLE = "reliable"  # ROS's default profile
     BEST_EFFORT = "best-effort"  # ROS's sensor-data profile; matches every publisher
 
@@ -197,6 +196,9 @@ class Subscription:
     reliable: bool
     reader: Any
 
+    def describe(self) -> str:
+        return f"{self.topic} ({self.type_name}, {'reliable' if self.reliable else 'best effort'})"
+
 
 class Subscriptions:
     """The wanted ROS topics, each subscribed once its first publisher is discovered, as its type and with the QoS
@@ -252,8 +254,17 @@ class Subscriptions:
         """Every sample that has arrived (waiting up to ``seconds`` for one): (topic, message, source time in ns),
         in the order of their times (header stamps, else the source timestamps)."""
         self.participant.wait(seconds)
-        taken = [[(s.topic, sample, int(sample.sample_info.source_timestamp))
-                  for sample in s.reader.take(N=QUEUE) if sample.sample_info.valid_data]
-                 for s in self.subscribed.values()]
+        taken = [self._samples(subscription) for subscription in self.subscribed.values()]
         # merged by time, each topic's own order kept (a message older than its topic's last is the feed's to say)
         return list(heapq.merge(*taken, key=lambda item: rostopic.message_time(item[1]) or item[2]))
+
+    def _samples(self, subscription: Subscription) -> list[tuple[str, Any, int]]:
+        """A subscription's samples; a batch whose bytes its type cannot read is said, and dropped."""
+        try:
+            samples = subscription.reader.take(N=QUEUE)
+        except Exception as error:  # the type's deserializer on bytes of another layout: struct, index errors
+            self.say(subscription.topic, f"{subscription.topic} sent a message {subscription.type_name} cannot read "
+                     f"({type(error).__name__}: {error}); the messages taken with it are dropped")
+            return []
+        return [(subscription.topic, sample, int(sample.sample_info.source_timestamp))
+                for sample in samples if sample.sample_info.valid_data]

@@ -67,7 +67,8 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
          f"{', '.join(feed.topics)} on the model's {feed.live.rate:g} Hz clock; publishing {options.activity_topic} "
          f"and {options.frame_topic}")
     while not stop.is_set():
-        subscriptions.discover()
+        for made in subscriptions.discover():
+            warn(f"ros: subscribed to {made.describe()}")
         receive(WAIT_S)
     receive(0)
     publish(feed.finish())

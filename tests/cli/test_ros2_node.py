@@ -158,8 +158,8 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
     check_answers([json.loads(line) for line in lines(streamed)], expected, len(rows))
     node_log = (tmp_path / "node.log").read_text().splitlines()
     errors = [line for line in node_log if line.startswith("error:")]
-    assert errors == ["error: a publisher on /joint_states sends std_msgs/msg/String, not sensor_msgs/msg/JointState (the "
-                      "type of its first publisher, subscribed to): its messages are not read"], node_log
+    assert errors == ["error: a publisher on /joint_states sends std_msgs/msg/String, not sensor_msgs/msg/JointState "
+                      "(the type of its first publisher, subscribed to): its messages are not read"], node_log
     assert node_log[-1] == f"ros: stopped after {len(rows)} frames (1 bad message)"
     assert (tmp_path / "echo.log").read_text().splitlines()[-1] == f"echo: {len(rows)} messages of /joint_states"
 
@@ -220,7 +220,10 @@ def test_two_topics_merged_and_the_frame_held_answered_at_sigint(two_topic_model
     check_answers(answers, expected, expected.height)
     assert len(answers[0]["probabilities"]) > 1 and expected.height >= len(rows) - 1
     node_log = (tmp_path / "node.log").read_text().splitlines()
-    assert node_log[0].startswith("ros: mlnseq on ROS 2 jazzy (DDS domain ") and "/joint_states, /gripper" in node_log[0]
+    assert node_log[0].startswith("ros: mlnseq on ROS 2 jazzy (DDS domain ")
+    assert "listening to /joint_states, /gripper" in node_log[0]
+    assert sorted(node_log[1:3]) == ["ros: subscribed to /gripper (std_msgs/msg/Float64, best effort)",
+                                     "ros: subscribed to /joint_states (sensor_msgs/msg/JointState, reliable)"]
     assert node_log[-1] == f"ros: stopped after {expected.height} frames (0 bad messages)"
 
 
@@ -277,4 +280,5 @@ def test_a_c_peer_on_cyclone_0_10_and_the_node(joint_state_model, c_peer, tmp_pa
             handle.close()
     check_answers([json.loads(line) for line in lines(node_out)], predicted(joint_state_model["model"], bag, tmp_path),
                   len(rows))
-    assert (tmp_path / "node.log").read_text().splitlines()[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
+    node_log = (tmp_path / "node.log").read_text().splitlines()
+    assert node_log[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
