@@ -67,7 +67,7 @@ def fields(message: Any, path: str = "field") -> list[tuple[str, Any]]:
                     (f"{column}{k}", item)]
         elif hasattr(value, "get_fields_and_field_types"):
             out += fields(value, column)
-        else:
+        elif not isinstance(value, (bytes, bytearray)):  # a uint8[N] array comes as bytes: left out, as collect did
             out.append((column, value))
     return out
 

@@ -41,7 +41,6 @@ class RosVersion(StrEnum):
     TWO = "2"
 
 
-
 @dataclass(frozen=True)
 class RosOptions:
     """Options of `mlnseq ros`."""

@@ -20,11 +20,12 @@ from enum import StrEnum
 from typing import Any
 
 from mlnseq.catalog.errors import BadInput
-from mlnseq.dds.types import RANGED_DISTROS, MessageTypes, ros_type_name
+from mlnseq.dds.types import MessageTypes, ros_type_name
 from mlnseq.sources import rostopic
 
 TOPIC_PREFIX = "rt"  # ROS 2 topics in DDS: rt/joint_states (rmw's namespace_prefix.hpp)
 MAX_DOMAIN_ID = 232  # Cyclone's port mapping: 7400 + 250 x domain stays below 65536
+LOCALHOST_ONLY_DISTROS = ("dashing", "eloquent", "foxy", "galactic", "humble")  # later ones: the discovery range
 QUEUE = 1000  # samples a reader or writer holds: 10 s at 100 Hz, as the ROS 1 node's queues
 
 
@@ -64,7 +65,7 @@ def domain_id(environ: Mapping[str, str]) -> int:
 def discovery_config(distro: str, environ: Mapping[str, str]) -> str:
     """The Cyclone configuration a ROS 2 node of ``distro`` makes from the environment, then CYCLONEDDS_URI's."""
     localhost_only = environ.get("ROS_LOCALHOST_ONLY", "").strip() == "1"
-    if distro not in RANGED_DISTROS:
+    if distro in LOCALHOST_ONLY_DISTROS:
         fragment = ("<CycloneDDS><Domain><General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
                     "</General></Domain></CycloneDDS>") if localhost_only else ""
     else:

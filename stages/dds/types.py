@@ -14,11 +14,9 @@ from typing import Any
 from mlnseq.catalog.errors import BadInput
 
 DEFAULT_DISTRO = "humble"
-# ROS 2 distros whose rmw reads ROS_AUTOMATIC_DISCOVERY_RANGE (Iron on); the older ones read ROS_LOCALHOST_ONLY
-RANGED_DISTROS = ("iron", "jazzy", "kilted", "lyrical")
 STRING = "std_msgs/msg/String"
 DDS_PREFIX, DDS_SUFFIX = "dds_", "_"  # sensor_msgs::msg::dds_::JointState_
-BASE_TYPES = {"bool": "bool", "byte": "uint8", "char": "uint8", "octet": "uint8", "int8": "int8", "uint8": "uint8",
+BASE_TYPES = {"byte": "uint8", "char": "uint8", "octet": "uint8", "int8": "int8", "uint8": "uint8",
               "int16": "int16", "uint16": "uint16", "int32": "int32", "uint32": "uint32", "int64": "int64",
               "uint64": "uint64", "float32": "float32", "float64": "float64"}
 
@@ -101,9 +99,11 @@ class MessageTypes:
             base, bound = detail
             if base == "string":
                 return types.bounded_str[bound] if bound else str
+            if base == "bool":
+                return bool
             if base not in BASE_TYPES:
                 raise BadInput(f"a field of type {base} has no DDS type here (ROS 2 {self.distro})")
-            return bool if base == "bool" else getattr(types, BASE_TYPES[base])
+            return getattr(types, BASE_TYPES[base])
         element, size = detail
         if kind == Nodetype.ARRAY:
             return types.array[self._member(element), size]
