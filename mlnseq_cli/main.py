@@ -46,7 +46,9 @@ COMMANDS = {
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
-    "ros": Command("ros", "ros", "A ROS 1 node recognising the model's topics live: the activity on a topic."),
+    "ros": Command("ros", "ros", "A ROS 2 (DDS) or ROS 1 node recognising the model's topics live: the activity on a "
+                   "topic."),
+    "echo": Command("echo", "echo", "Print a ROS 2 topic's messages as `rostopic echo -p` rows, for `mlnseq stream`."),
     "sweep": Command("sweep", "sweep", "Run a grid of options x seeds through Snakemake, locally or on SLURM: "
                      "OUT/results.parquet."),
     "config": Command("config", "app", "Inspect the project file (mlnseq.toml)."),

@@ -1,10 +1,10 @@
-"""`mlnseq ros`: a ROS 1 node recognising the model's topics live."""
+"""`mlnseq ros`: a ROS 2 (DDS) or ROS 1 node recognising the model's topics live."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 
@@ -16,9 +16,12 @@ def ros(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`, trained on ROS bags.", dir_okay=False)],
     topic: Annotated[str, typer.Option(help="Where the activity goes (std_msgs/String, the class name); TOPIC/frame gets the frame as JSON (time, class, probabilities).")] = stage.ACTIVITY_TOPIC,
     name: Annotated[str, typer.Option(help="The node's name.")] = "mlnseq",
+    ros: Annotated[str, typer.Option("--ros", help="1 or 2; auto: ROS_VERSION where a ROS set-up was sourced, else 1 where ROS_MASTER_URI is set, else 2.")] = "auto",
+    distro: Annotated[Optional[str], typer.Option(help="ROS 2: the distro whose message definitions the topics' types are read with \\[default: ROS_DISTRO, else humble].", show_default=False)] = None,
+    qos: Annotated[str, typer.Option(help="ROS 2: the subscriptions' reliability: reliable, best-effort, or auto (as the topic's first publisher offers it).")] = "auto",
 ) -> None:
-    """Subscribe to the topics MODEL was trained on (it remembers them, and their rate), recognise every tick of its clock as predict and stream do, and publish the class name on --topic and the frame as JSON ({"episode", "frame", "time", "class", "probabilities"}, as stream writes it) on TOPIC/frame. Needs rospy (ROS 1) and a running master (ROS_MASTER_URI). A message the model cannot use is one line on stderr and the node goes on; SIGINT or SIGTERM stops it."""
-    options = stage.RosOptions(model=model, activity_topic=topic, node_name=name)
+    """Subscribe to the topics MODEL was trained on (it remembers them, and their rate), recognise every tick of its clock as predict and stream do, and publish the class name on --topic and the frame as JSON ({"episode", "frame", "time", "class", "probabilities"}, as stream writes it) on TOPIC/frame. ROS 2: a DDS participant (Cyclone DDS; no ROS install; pip install 'mlnseq\\[ros2]') on ROS_DOMAIN_ID, with ROS_LOCALHOST_ONLY, ROS_AUTOMATIC_DISCOVERY_RANGE and CYCLONEDDS_URI as a ROS 2 node reads them. ROS 1: rospy and a running master (ROS_MASTER_URI). A message the model cannot use is one line on stderr and the node goes on; SIGINT or SIGTERM answers the frames held and stops it."""
+    options = stage.RosOptions(model=model, activity_topic=topic, node_name=name, ros=ros, distro=distro, qos=qos)
 
     def warn(line: str) -> None:
         print(line, file=sys.stderr, flush=True)

@@ -19,6 +19,15 @@ if ! ros_ready && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     || echo "setup: apt-get could not install $ROS_PACKAGES; the ROS test will say so"
 fi
 if ros_ready; then /usr/bin/python3 scripts/link_ros1.py .venv; fi
+# ROS 2 needs no system package (the ros2 extra's cyclonedds wheel holds its C library); its interop test builds a C
+# peer on Debian's Cyclone DDS 0.10 (the series ROS 2 Humble ships): its library, headers and idlc, installed where
+# apt-get is and we are root; elsewhere that test skips (under CI it fails), saying why.
+CYCLONE_PACKAGES="cyclonedds-dev cyclonedds-tools"
+cyclone_ready() { command -v idlc >/dev/null && [ -f /usr/include/dds/dds.h ]; }
+if ! cyclone_ready && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $CYCLONE_PACKAGES >/dev/null; } \
+    || echo "setup: apt-get could not install $CYCLONE_PACKAGES; the ROS 2 C-peer test will say so"
+fi
 # mlnseq sweep's cluster test (in make test) starts a one-node SLURM: Debian's slurm-wlm and munge, installed
 # where apt-get exists and we are root (elsewhere that test skips, or fails under CI, saying what is missing).
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v slurmctld >/dev/null; then

@@ -1,8 +1,9 @@
-"""ros: a ROS 1 node (rospy) recognising live topics with a model file trained on ROS bags.
+"""ros: a ROS node recognising live topics with a model file trained on ROS bags: ROS 2 over DDS
+(stages/dds/node.py: a Cyclone DDS participant, no ROS install) or ROS 1 (rospy, below).
 
 It subscribes to the topics the model was trained on (its manifest's ``reading``), puts their messages on the
 model's clock as collect put the bags on it, runs the same `Recognizer` as predict and stream on every tick
-(stages/recognition/live.py, which a ROS 2 node can use as well: docs/ros.md), and publishes per tick the
+(stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the
 class name (std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every
 class's probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is
 one line on stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).
@@ -10,15 +11,19 @@ one line on stderr and the node goes on; only start-up errors stop it (BadInput,
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.catalog.methods import member
+from mlnseq.dds.domain import QosChoice
 from mlnseq.recognition.live import LiveFrame, MessageFeed
 from mlnseq.recognition.recognizer import Recognizer
 
@@ -28,6 +33,14 @@ QUEUE = 1000  # messages a subscriber or publisher holds before dropping the old
 ROS_PACKAGES = "python3-rospy python3-rosmaster python3-rostopic python3-std-msgs python3-sensor-msgs"
 
 
+class RosVersion(StrEnum):
+    """``--ros``: which ROS the node speaks."""
+
+    AUTO = "auto"  # ROS_VERSION where a ROS set-up was sourced, else ROS 1 where ROS_MASTER_URI is set, else ROS 2
+    ONE = "1"
+    TWO = "2"
+
+
 @dataclass(frozen=True)
 class RosOptions:
     """Options of `mlnseq ros`."""
@@ -35,10 +48,28 @@ class RosOptions:
     model: Path
     activity_topic: str = ACTIVITY_TOPIC
     node_name: str = "mlnseq"
+    ros: RosVersion | str = RosVersion.AUTO
+    distro: str | None = None  # ROS 2's message definitions: default ROS_DISTRO where it is a ROS 2 one, else humble
+    qos: QosChoice | str = QosChoice.AUTO  # ROS 2: the subscriptions' reliability
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ros", member(RosVersion, self.ros))
+        object.__setattr__(self, "qos", member(QosChoice, self.qos))
 
     def validate(self) -> None:
         if not self.activity_topic.strip() or " " in self.activity_topic:
             raise BadInput(f"--topic {self.activity_topic!r}: not a ROS topic name")
+        check_choice("ros", self.ros, tuple(RosVersion))
+        check_choice("qos", self.qos, tuple(QosChoice))
+
+    def version(self) -> RosVersion:
+        """The ROS spoken: --ros, else the environment's."""
+        if self.ros is not RosVersion.AUTO:
+            return self.ros
+        sourced = os.environ.get("ROS_VERSION", "").strip()
+        if sourced in ("1", "2"):
+            return RosVersion(sourced)
+        return RosVersion.ONE if os.environ.get("ROS_MASTER_URI", "").strip() else RosVersion.TWO
 
 
 @dataclass
@@ -76,6 +107,8 @@ def check_master() -> str:
 def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
     """Run the node until SIGINT or SIGTERM (or ``stop``); the frames it answered and the errors it said."""
     options.validate()
+    if options.version() is RosVersion.TWO:
+        return run_dds(options, warn, stop)
     rospy, roslib_message, String = rospy_modules()
     model = Recognizer.load(options.model)
     feed = MessageFeed(model, warn, time.monotonic)
@@ -116,3 +149,14 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
         publish(feed.finish())
     rospy.signal_shutdown("mlnseq ros stopped")
     return RosSummary(feed.frames, feed.bad)
+
+
+def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
+    """The ROS 2 node (stages/dds/node.py) until SIGINT or SIGTERM (or ``stop``)."""
+    from mlnseq.dds import node, require, stopped_by_signals, types
+
+    require()
+    node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
+                                    options.distro or types.default_distro(), options.qos)
+    with stopped_by_signals(stop) as stop:
+        return RosSummary(*node.run(node_options, warn, stop))

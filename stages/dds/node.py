@@ -1,0 +1,76 @@
+"""`mlnseq ros --ros 2`: the recogniser as a ROS 2 node, a DDS participant with no ROS install.
+
+It subscribes to the model's topics as their publishers are discovered (their ROS 2 types from rosbags' typestore
+for ``--distro``, the QoS they offer or ``--qos``), runs every message through the live core that the ROS 1 node
+runs (recognition/live.py's `MessageFeed`: the header stamps' clock, the model's rate, several topics merged by the
+model's rule, a lagged decoder's wait), and publishes per decided frame the class name (std_msgs/String on the
+activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame). When ``stop`` is set
+(SIGINT, SIGTERM), the samples already arrived are read, the frames the feed holds are decided and published
+(`MessageFeed.finish`), and the writers wait for their readers' acknowledgements before the node leaves.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from mlnseq.dds import domain, require
+from mlnseq.dds.types import STRING, MessageTypes
+from mlnseq.recognition.live import LiveFrame, MessageFeed
+from mlnseq.recognition.recognizer import Recognizer
+
+FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's (as the ROS 1 node)
+WAIT_S = 0.1  # the longest the node waits for a sample before looking at discovery and the stop flag again
+ACKS_S = 2.0  # at shutdown: the longest the writers wait for their readers to acknowledge the last frames
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """What the ROS 2 node is told: the model, the activity topic, its name, the distro's types, the QoS."""
+
+    model: Path
+    activity_topic: str
+    node_name: str
+    distro: str
+    qos: domain.QosChoice
+
+    @property
+    def frame_topic(self) -> str:
+        return self.activity_topic.rstrip("/") + FRAME_SUFFIX
+
+
+def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event) -> tuple[int, int]:
+    """Run the node until ``stop`` is set; the frames it answered and the bad messages it said."""
+    require()
+    model = Recognizer.load(options.model)
+    feed = MessageFeed(model, warn, time.monotonic)
+    types = MessageTypes(options.distro)
+    String = types.get(STRING)
+    participant = domain.Participant(options.distro, options.node_name)
+    activity = participant.writer(options.activity_topic, String)
+    framed = participant.writer(options.frame_topic, String)
+    subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error)
+
+    def publish(frames: list[LiveFrame]) -> None:
+        for frame in frames:
+            activity.write(String(data=frame.prediction.name))
+            framed.write(String(data=frame.json(feed.classes)))
+
+    def receive(seconds: float) -> None:
+        for topic, message, sent in subscriptions.take(seconds):
+            publish(feed.receive(topic, message, sent))
+
+    warn(f"ros: {options.node_name} on ROS 2 {options.distro} (DDS domain {participant.domain_id}): listening to "
+         f"{', '.join(feed.topics)} on the model's {feed.live.rate:g} Hz clock; publishing {options.activity_topic} "
+         f"and {options.frame_topic}")
+    while not stop.is_set():
+        for made in subscriptions.discover():
+            warn(f"ros: subscribed to {made.describe()}")
+        receive(WAIT_S)
+    receive(0)
+    publish(feed.finish())
+    participant.acknowledged((activity, framed), ACKS_S)
+    return feed.frames, feed.bad
