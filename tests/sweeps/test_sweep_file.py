@@ -130,5 +130,5 @@ def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir
     code = ("import sys; sys.modules['snakemake'] = None; from mlnseq_cli.main import main; "
             f"sys.argv = ['mlnseq', 'sweep', {str(path)!r}]; main()")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    refused(done, "pip install 'mlnseq[sweep]'")
+    refused(done, "pip install '.[sweep]' in mlnseq's checkout", "'mlnseq-0.1.0-py3-none-any.whl[sweep]' beside the wheel")
     assert not (tmp_path / "sweep").exists()
