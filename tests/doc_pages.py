@@ -235,7 +235,7 @@ class PageRun:
 def line_pattern(shown: str, capture: bool = True) -> re.Pattern:
     """A shown line as a pattern: ``...`` any text, each number itself (any number when writing figures)."""
     parts = []
-    for piece in re.split(r"(\.\.\.|" + NUMBER + ")", shown.strip()):
+    for piece in re.split(r"(\.\.\.|" + NUMBER + ")", shown.strip() if capture else shown):
         if piece == "...":
             parts.append(".*?")
         elif piece and re.fullmatch(NUMBER, piece) and capture:
@@ -321,9 +321,14 @@ def new_folder(root: Path, page: str, after: Path | None = None) -> Path:
         if (REPO / name).exists():
             (folder / name).symlink_to(REPO / name)
     for name in COPIED:
-        shutil.copytree(REPO / name, folder / name,
-                        ignore=shutil.ignore_patterns("__pycache__", "sweep", "mlnseq-work", "*.mlnseq"))
+        shutil.copytree(REPO / name, folder / name, ignore=left_behind)
     return folder
+
+
+def left_behind(folder: str, names: list[str]) -> set[str]:
+    """What a copy of examples/ leaves out: what a run there wrote (a sweep's OUT, a workdir, a model)."""
+    made = {"__pycache__", "mlnseq-work"} | ({"sweep"} if Path(folder).name == "sweep" else set())
+    return {name for name in names if name in made or name.endswith(".mlnseq")}
 
 
 class Runs:
