@@ -30,7 +30,7 @@ test: setup ## Run the test suite (the SLURM cluster's test included: root, abou
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
 	$(VENV)/bin/pytest -q -m slurm tests/sweeps
 
-dist: $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package index: install that file on a robot)
+dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package index: install that file on a robot)
 	rm -rf build && $(PY) -m pip wheel --no-deps --no-build-isolation --no-index -q -w dist .
 	@ls dist/mlnseq-*.whl
 

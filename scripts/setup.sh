@@ -6,7 +6,7 @@
 # torch 2.13.0 goes first: on these machines it is a CPU wheel on local disk, while a looser
 # requirement with nothing installed would download a multi-GB CUDA build.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$(readlink -f "$0")")/.."  # the checkout itself, also when run through a link to scripts/
 PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip

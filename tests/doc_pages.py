@@ -54,7 +54,8 @@ def pages() -> list[Path]:
 
 
 def page_name(path: Path) -> str:
-    return path.relative_to(REPO).as_posix()
+    """A page by its path from the checkout's root (a page elsewhere, as the runner's own tests write: its name)."""
+    return path.relative_to(REPO).as_posix() if path.is_relative_to(REPO) else path.name
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ def builds_on(document: Document) -> str | None:
     """The page this one continues (``<!-- continues: PAGE -->``, PAGE relative to this page), or None."""
     for _, region in document.regions:
         if isinstance(region.parsed, Directive) and region.parsed.name == "continues":
-            return page_name((Path(document.path).parent / region.parsed.argument).resolve())
+            return page_name((Path(document.path).parent / region.parsed.argument).resolve(strict=False))
     return None
 
 
@@ -146,7 +147,9 @@ def steps(document: Document) -> list[Step]:
                 found.append(Step(page, "block", example.line, index))
         before = parsed.name if isinstance(parsed, Directive) else None
     for match in FIGURE.finditer(document.text):
-        found.append(Step(page, "figure", document.text.count("\n", 0, match.start()) + 1, match.start()))
+        line_start = document.text.rfind("\n", 0, match.start()) + 1
+        if document.text[line_start:match.start()].count("`") % 2 == 0:  # not a marker shown in inline code
+            found.append(Step(page, "figure", document.text.count("\n", 0, match.start()) + 1, match.start()))
     return found
 
 
@@ -181,6 +184,7 @@ class PageRun:
     """A page's folder and what its shell blocks printed."""
 
     page: str
+    path: Path  # the page's file
     folder: Path
     env: dict[str, str]
     printed: list[Printed] = field(default_factory=list)
@@ -215,13 +219,13 @@ class PageRun:
             numbers = [n for n in match.groups()]
             rewritten.append(re.sub(NUMBER, lambda _: numbers.pop(0), wanted))
         if WRITE:
-            WRITTEN.append((self.page, start, shown, "\n".join(rewritten) + "\n"))
+            WRITTEN.append((self.path, start, shown, "\n".join(rewritten) + "\n"))
         return None
 
     def figure(self, pattern: str) -> str | None:
         """The number PATTERN's ``{}`` stands for in the first printed line it matches (``wall``: seconds)."""
         if pattern == "wall":
-            return f"{self.seconds():.0f}"
+            return f"{max(1, round(self.seconds()))}"  # whole seconds, at least 1
         head, _, tail = pattern.partition("{}")
         regex = re.compile(line_pattern(head, capture=False).pattern + f"({NUMBER})"
                            + line_pattern(tail, capture=False).pattern)
@@ -245,7 +249,7 @@ def line_pattern(shown: str, capture: bool = True) -> re.Pattern:
     return re.compile("".join(parts))
 
 
-WRITTEN: list[tuple[str, int, str, str]] = []  # (page, where, old text, new text): written at the session's end
+WRITTEN: list[tuple[Path, int, str, str]] = []  # (page, where, old text, new text): written at the session's end
 
 
 def within(quoted: str, measured: str, tolerance: str | None) -> bool:
@@ -262,7 +266,7 @@ def quoted_before(text: str, end: int) -> re.Match | None:
     return re.search(f"({NUMBER})(?:\\s?(?:%|s|x|KB|MB))?$", text[:end])
 
 
-def figure_check(text: str, at: int, page: str, measured_in) -> str | None:
+def figure_check(path: Path, text: str, at: int, page: str, measured_in) -> str | None:
     """The figure whose marker starts at ``at`` of the page ``text``: None when its number is the run's.
     ``measured_in(PAGE)`` gives the PageRun of a page, run to its end."""
     marker = FIGURE.match(text, at)
@@ -275,7 +279,7 @@ def figure_check(text: str, at: int, page: str, measured_in) -> str | None:
     if measured is None:
         return f"{page}:{line}: {source}'s run printed no line matching {marker.group('pattern')!r}"
     if WRITE:
-        WRITTEN.append((page, quoted.start(1), quoted.group(1), measured))
+        WRITTEN.append((path, quoted.start(1), quoted.group(1), measured))
         return None
     if not within(quoted.group(1), measured, marker.group("tolerance")):
         tolerance = f" within {marker.group('tolerance')}" if marker.group("tolerance") else ""
@@ -286,15 +290,15 @@ def figure_check(text: str, at: int, page: str, measured_in) -> str | None:
 def write_figures() -> list[str]:
     """MLNSEQ_DOCS_FIGURES=write: the numbers measured written into the pages; returns the pages changed."""
     changed = []
-    for page in sorted({w[0] for w in WRITTEN}):
-        path = REPO / page
+    for path in sorted({w[0] for w in WRITTEN}):
         text = original = path.read_text(encoding="utf-8")
-        for _, start, old, new in sorted((w for w in WRITTEN if w[0] == page), key=lambda w: -w[1]):
+        for _, start, old, new in sorted((w for w in WRITTEN if w[0] == path), key=lambda w: -w[1]):
             at = text.index(old, start)
             text = text[:at] + new + text[at + len(old):]
         if text != original:
             path.write_text(text, encoding="utf-8")
-            changed.append(page)
+            changed.append(page_name(path))
+    WRITTEN.clear()
     return changed
 
 
@@ -335,9 +339,9 @@ class Runs:
     """Every page's run in this session, each done once, lazily and in page order: a check of block k runs the
     page's blocks before it first (and the page it continues, to its end)."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, paths: list[Path] | None = None) -> None:
         self.root = root
-        self.documents = {page_name(path): parse(path) for path in pages()}
+        self.documents = {page_name(path): parse(path) for path in paths or pages()}
         self.runs: dict[str, PageRun] = {}
         self.done: dict[str, dict[int, BaseException | None]] = {}  # page -> example index -> its outcome
 
@@ -346,7 +350,7 @@ class Runs:
         if page not in self.runs:
             after = builds_on(document)
             folder = new_folder(self.root, page, self.run_to(after).folder if after else None)
-            self.runs[page] = PageRun(page, folder, environment())
+            self.runs[page] = PageRun(page, Path(document.path), folder, environment())
             document.namespace["run"] = self.runs[page]
             self.done[page] = {}
         outcomes = self.done[page]
@@ -370,8 +374,8 @@ class Runs:
 
     def outcome(self, step: Step) -> BaseException | None:
         if step.kind == "figure":
-            problem = figure_check(self.documents[step.page].text, step.index, step.page,
-                                   lambda page: self.run_to(page))
+            document = self.documents[step.page]
+            problem = figure_check(Path(document.path), document.text, step.index, step.page, self.run_to)
             return AssertionError(problem) if problem else None
         self.run_to(step.page, step.index)
         return self.done[step.page][step.index]
