@@ -274,7 +274,7 @@ def figure_check(path: Path, text: str, at: int, page: str, measured_in) -> str 
     line = text.count("\n", 0, at) + 1
     if quoted is None:
         return f"{page}:{line}: no number right before the figure marker {marker.group(0)}"
-    source = marker.group("page") or page
+    source = page_name((path.parent / marker.group("page")).resolve()) if marker.group("page") else page
     measured = measured_in(source).figure(marker.group("pattern"))
     if measured is None:
         return f"{page}:{line}: {source}'s run printed no line matching {marker.group('pattern')!r}"
