@@ -8,15 +8,17 @@ MLNSEQ := $(VENV)/bin/mlnseq
 SETUP_DONE := $(VENV)/.setup-done
 PRACMLN_DONE := $(VENV)/.pracmln-done
 
-.PHONY: help setup test test-slurm bench reproduce report clean
+.PHONY: help setup test test-slurm bench reproduce report clean dist docs-figures
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
 
 setup: $(SETUP_DONE) $(PRACMLN_DONE) ## Create .venv with mlnseq, its test dependencies and pracmln
 
+# As root where apt-get is, set-up also installs Debian packages (ROS 1, slurm-wlm, munge) and says so first;
+# NO_SYSTEM=1 leaves the system alone.
 $(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/link_ros1.py
-	bash scripts/setup.sh
+	NO_SYSTEM=$(NO_SYSTEM) bash scripts/setup.sh
 
 # pracmln (the paper's MLN engine) is optional: the tests compare against it, the reproduction does not use it.
 $(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
@@ -27,6 +29,14 @@ test: setup ## Run the test suite (the SLURM cluster's test included: root, abou
 
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
 	$(VENV)/bin/pytest -q -m slurm tests/sweeps
+
+dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package index: install that file on a robot)
+	rm -rf build && $(PY) -m pip wheel --no-deps --no-build-isolation --no-index -q -w dist .
+	@ls dist/mlnseq-*.whl
+
+docs-figures: setup ## Rerun the docs' commands and write what they print into the pages' quoted outputs and figures
+	MLNSEQ_DOCS_FIGURES=write $(VENV)/bin/pytest -q -p no:cacheprovider tests/docs
+	@git status --short README.md docs
 
 bench: setup ## Run the benchmarks (figures and ratios measured side by side)
 	$(PY) -m benchmarks

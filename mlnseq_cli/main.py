@@ -162,7 +162,9 @@ def _workdir_in(args: list[str]) -> Optional[Path]:
 app = typer.Typer(
     cls=MlnseqGroup,
     name="mlnseq",
-    help="Sequential activity recognition with logic constraints (LSTM + Markov Logic Network).",
+    help="Sequential activity recognition with logic constraints (LSTM + Markov Logic Network). The words the "
+         "commands print (network factor weight, mln-mode, folds, edit, F1@50, lag ...) are explained in "
+         "docs/glossary.md.",
     no_args_is_help=True,
     add_completion=True,
     pretty_exceptions_enable=False,

@@ -2,18 +2,26 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from mlnseq_cli.console import console, reported_errors
+from mlnseq_cli.conflate import conflate as conflate_command
+from mlnseq_cli.export import export as export_command
+from mlnseq_cli.train import train as train_command
 from mlnseq import conflate, export, train
 from mlnseq import sweep as stage
 from mlnseq.catalog.errors import BadInput
 
-# The stages whose options a grid sets (the command line wires them: the sweep stage imports no other stage).
-STAGES = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
+# The stages whose options a grid sets (the command line wires them: the sweep stage imports no other stage), with
+# the options their commands take: a grid key is one of those, as the workflow runs the commands.
+STAGES = stage.grid.StageOptions(
+    {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions},
+    {name: inspect.signature(command).parameters for name, command in
+     (("train", train_command), ("conflate", conflate_command), ("export", export_command))})
 
 
 def sweep(

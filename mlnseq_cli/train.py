@@ -133,14 +133,18 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
             yield lambda done: bar.update(task, completed=done.epoch, refresh=True, scores=_scores(done) + (
                 "; now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else ""))
         return
-    started = time.monotonic()
+    started, said = time.monotonic(), []
 
     def line(done: stage.EpochDone) -> None:
         if done.epoch == done.epochs or 10 * done.epoch // done.epochs > 10 * (done.epoch - 1) // done.epochs:
             left = (time.monotonic() - started) / done.epoch * (done.epochs - done.epoch)
             then = "now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else \
                 f"{left:.0f} s left"
-            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {_scores(done)}, {then}",
+            scores = _scores(done)
+            if not scores and not said:  # said once: the epochs in between are not measured
+                scores = "measured after the last epoch (--measure every-epoch: after each)"
+                said.append(True)
+            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {scores + ', ' if scores else ''}{then}",
                           soft_wrap=True, highlight=False)
 
     yield line
@@ -148,6 +152,6 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
 
 def _scores(done: stage.EpochDone) -> str:
     if done.loss is None:
-        return "not measured (--measure last-epoch)"
+        return ""  # not measured (--measure last-epoch)
     val = "–" if done.val_accuracy is None else f"{done.val_accuracy:.1%}"
     return f"loss {done.loss:.3f}, train {done.train_accuracy:.1%}, val {val}"

@@ -1,20 +1,24 @@
 #!/usr/bin/env bash
 # Creates .venv in the repository and installs mlnseq editable with every extra (all) and the test dependencies
-# (pracmln, optional, is installed by scripts/install_pracmln.sh; `make setup` runs both).
+# (pracmln, optional, is installed by scripts/install_pracmln.sh; `make setup` runs both). As root where apt-get
+# is, it also installs Debian packages for the tests of `mlnseq ros` and of the SLURM sweep, saying which and why
+# before it does; NO_SYSTEM=1 (`make setup NO_SYSTEM=1`) leaves the system alone (those tests then skip).
 # torch 2.13.0 goes first: on these machines it is a CPU wheel on local disk, while a looser
 # requirement with nothing installed would download a multi-GB CUDA build.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$(readlink -f "$0")")/.."  # the checkout itself, also when run through a link to scripts/
 PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0" || .venv/bin/python -m pip install -q "torch>=2.2"
-.venv/bin/python -m pip install -q -e ".[all,test,sweep]"
+.venv/bin/python -m pip install -q -e ".[all,test]"
 # ROS 1 from Debian's own packages (`mlnseq ros` and its test against a real master): installed where apt-get is
 # and we are root (CI), then linked into .venv (scripts/link_ros1.py); elsewhere the ROS test skips, saying why.
 ROS_PACKAGES="python3-rosmaster python3-rostopic python3-rospy python3-sensor-msgs python3-std-msgs"
 ros_ready() { /usr/bin/python3 -c "import rospy, rostopic, rosmaster, sensor_msgs.msg, std_msgs.msg" 2>/dev/null; }
-if ! ros_ready && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+system_ok() { [ -z "${NO_SYSTEM:-}" ] && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; }
+if ! ros_ready && system_ok; then
+  echo "setup: apt-get install $ROS_PACKAGES (Debian's ROS 1, for mlnseq ros and its test; NO_SYSTEM=1 skips this)"
   { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q $ROS_PACKAGES; } >/dev/null \
     || echo "setup: apt-get could not install $ROS_PACKAGES; the ROS test will say so"
 fi
@@ -24,13 +28,15 @@ if ros_ready; then /usr/bin/python3 scripts/link_ros1.py .venv; fi
 # apt-get is and we are root; elsewhere that test skips (under CI it fails), saying why.
 CYCLONE_PACKAGES="cyclonedds-dev cyclonedds-tools"
 cyclone_ready() { command -v idlc >/dev/null && [ -f /usr/include/dds/dds.h ]; }
-if ! cyclone_ready && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+if ! cyclone_ready && system_ok; then
+  echo "setup: apt-get install $CYCLONE_PACKAGES (Cyclone DDS 0.10, for the ROS 2 interop test; NO_SYSTEM=1 skips it)"
   { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $CYCLONE_PACKAGES >/dev/null; } \
     || echo "setup: apt-get could not install $CYCLONE_PACKAGES; the ROS 2 C-peer test will say so"
 fi
 # mlnseq sweep's cluster test (in make test) starts a one-node SLURM: Debian's slurm-wlm and munge, installed
 # where apt-get exists and we are root (elsewhere that test skips, or fails under CI, saying what is missing).
-if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v slurmctld >/dev/null; then
+if system_ok && ! command -v slurmctld >/dev/null; then
+  echo "setup: apt-get install slurm-wlm munge (a one-node SLURM cluster for the sweep's test; NO_SYSTEM=1 skips this)"
   { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge >/dev/null; } \
     || echo "setup: slurm-wlm and munge not installed (the SLURM cluster test needs them)"
 fi

@@ -324,7 +324,9 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
         staged.write_text(learned.learned_mln, encoding="utf-8")
         path = artifacts.write_table(learned.weights, workdir / artifacts.WEIGHTS, "weights", table_meta,
                                      inputs=[predicates_path, formulas_path])
-        if folds is not None:
+        if folds is None:  # an earlier run's fold weights (other frames or formulas) are no longer these weights'
+            (workdir / artifacts.FOLD_WEIGHTS).unlink(missing_ok=True)
+        else:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
                                   {**table_meta, "folds": folds.record(), "training_episodes": int(
                                       predicates.filter(pl.col("split") == "train")["episode"].n_unique())},

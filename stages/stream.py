@@ -240,8 +240,11 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``."""
     options.validate()
     model = Recognizer.load(options.model)
-    for note in model.manifest.notes:
-        warn(f"note: {note}")
+    notes = model.manifest.notes  # said in full by export, which made them, and shown by info; here one line
+    if len(notes) == 1:
+        warn(f"note: {notes[0]}")
+    elif notes:
+        warn(f"note: the model holds {len(notes)} notes from its export (`mlnseq info {options.model}` shows them)")
     if model.decoding.decoder.offline:
         warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
     before_wait: list[Callable[[], None]] = []  # _serve adds its answer to the frames it held back

@@ -20,7 +20,7 @@ from typing import Any
 
 import polars as pl
 
-from mlnseq.catalog import artifacts
+from mlnseq.catalog import artifacts, errors
 from mlnseq.catalog.errors import BadInput, MlnseqError
 from mlnseq.sweeps import grid, results, workflow
 
@@ -143,10 +143,10 @@ def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> S
     """Run the sweep (only what is missing or stale) and gather OUT/results.parquet."""
     sweep = plan(sweep_file, options, stages)
     if not installed("snakemake"):
-        raise BadInput("mlnseq sweep runs on Snakemake, which is not installed: pip install 'mlnseq[sweep]' "
-                       "(make setup installs it)")
+        raise BadInput("mlnseq sweep runs on Snakemake, which is not installed: "
+                       f"{errors.install_hint('sweep')} (make setup installs it)")
     if options.executor is Executor.SLURM and not installed("snakemake_executor_plugin_slurm"):
-        raise BadInput("--executor slurm needs Snakemake's SLURM executor: pip install 'mlnseq[sweep]'")
+        raise BadInput(f"--executor slurm needs Snakemake's SLURM executor: {errors.install_hint('sweep')}")
     out = options.out_dir(sweep)
     snakefile = workflow.write(sweep, out, mlnseq_command())
     code = run_snakemake(snakemake_command(snakefile, out, options))

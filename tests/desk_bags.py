@@ -97,7 +97,28 @@ def write_folders(desk: np.ndarray, folder: Path, heldout: Path, every: int = 1)
     return folder, heldout
 
 
-if __name__ == "__main__":
-    out = Path(sys.argv[1])
+def main(argv: list[str]) -> int:
+    """Write FOLDER and FOLDER-heldout; both there already as this script writes them: said, and nothing done; a
+    folder in the way: one line, exit 2 (never a folder removed)."""
+    if len(argv) != 2:
+        print("usage: python tests/desk_bags.py FOLDER", file=sys.stderr)
+        return 2
+    out = Path(argv[1])
+    heldout = out.with_name(out.name + "-heldout")
+    expected = {out: [f"trial_{k}" for k in range(1, 7)], heldout: ["trial_7"]}
+    if all(folder.is_dir() and sorted(p.name for p in folder.iterdir()) == names for folder, names in expected.items()):
+        print(f"{out} and {heldout} are there already: nothing to do (remove them to write them again)")
+        return 0
+    for folder in expected:
+        if folder.exists():
+            print(f"error: {folder} exists and is not the bags this script writes: remove it or name another folder",
+                  file=sys.stderr)
+            return 2
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "desk-taurus" / "taurus_kinematics_train.txt"
-    write_folders(np.loadtxt(data), out, out.with_name(out.name + "-heldout"))
+    write_folders(np.loadtxt(data), out, heldout)
+    print(f"wrote {out} (trial_1 .. trial_6) and {heldout} (trial_7)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 import shutil
 import subprocess
 from pathlib import Path
@@ -45,13 +47,21 @@ def reduced(tmp_path_factory, repo_root, shared_data) -> dict[str, Path | list[s
         shutil.copy(repo_root / "examples" / name, specs[name])
     command = [
         "make", "--no-print-directory", "-C", str(repo_root), f"RUNS={root / 'runs'}", f"REPORTS={root / 'reports'}",
-        "SEEDS=0", "EPOCHS=2", "DESK_EPOCHS=2", "FETCH_EPISODES=4", "FRACTIONS=0.25 0.5",
-        f"DESK_DIR={shared_data / 'desk-taurus'}", f"FETCH_RICH_SPEC={specs['fetch-rich.binarize.toml']}",
-        f"TEMPORAL_SPEC={specs['temporal.mln']}",
+        *page_sizes(repo_root), f"DESK_DIR={shared_data / 'desk-taurus'}",
+        f"FETCH_RICH_SPEC={specs['fetch-rich.binarize.toml']}", f"TEMPORAL_SPEC={specs['temporal.mln']}",
     ]
     first = make(command, "-j2", "-Otarget", "report")
     return {"root": root, "command": command, "rich_spec": specs["fetch-rich.binarize.toml"],
             "temporal_spec": specs["temporal.mln"], "first": first}
+
+
+def page_sizes(repo_root: Path) -> list[str]:
+    """The size variables of docs/reproduce.md's tiny run, as the page writes them (the docs test leaves that
+    block to this test)."""
+    block = re.search(r"```bash\n(make report .*?)\n```", (repo_root / "docs" / "reproduce.md").read_text(), re.S)
+    sizes = [word for word in shlex.split(block.group(1))[2:] if not word.startswith(("RUNS=", "REPORTS="))]
+    assert [word.split("=")[0] for word in sizes] == ["SEEDS", "EPOCHS", "DESK_EPOCHS", "FETCH_EPISODES", "FRACTIONS"]
+    return sizes
 
 
 def make(command: list, *args: str) -> subprocess.CompletedProcess:

@@ -262,7 +262,8 @@ def test_a_command_that_needs_an_extra_names_it_in_one_line(installed, light, de
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines() == [
         f"error: {'simulating Fetch' if extra == 'sim' else 'training'} needs {library}, which is not installed: "
-        f"pip install 'mlnseq[{extra}]'"]
+        f"pip install '.[{extra}]' in mlnseq's checkout, or pip install 'mlnseq-0.1.0-py3-none-any.whl[{extra}]' "
+        "beside the wheel"]
     assert sorted(path.name for path in tmp_path.iterdir()) == before
 
 
@@ -272,5 +273,6 @@ def test_a_rerun_recording_on_the_base_install_names_the_recordings_extra(instal
                   "p.rrd", deps=light, cwd=tmp_path)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
-        "error: writing a Rerun recording needs rerun-sdk, which is not installed: pip install 'mlnseq[recordings]'"]
+        "error: writing a Rerun recording needs rerun-sdk, which is not installed: pip install '.[recordings]' in "
+        "mlnseq's checkout, or pip install 'mlnseq-0.1.0-py3-none-any.whl[recordings]' beside the wheel"]
     assert not (tmp_path / "p.rrd").exists()

@@ -43,6 +43,18 @@ EXTRAS = {
     "h5py": ("reading this format", "h5py", "recordings"),
     "rerun": ("writing a Rerun recording", "rerun-sdk", "recordings"),
 }
+WHEEL = "mlnseq-{version}-py3-none-any.whl"  # what `make dist` builds: mlnseq is on no package index
+
+
+def install_hint(extra: str) -> str:
+    """How to add an extra where mlnseq came from: its checkout, or the wheel `make dist` built."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        wheel = WHEEL.format(version=version("mlnseq"))
+    except PackageNotFoundError:
+        wheel = WHEEL.format(version="VERSION")
+    return f"pip install '.[{extra}]' in mlnseq's checkout, or pip install '{wheel}[{extra}]' beside the wheel"
 
 
 def missing_extra(error: ImportError) -> MissingExtra | None:
@@ -51,8 +63,7 @@ def missing_extra(error: ImportError) -> MissingExtra | None:
     if name not in EXTRAS:
         return None
     purpose, package, extra = EXTRAS[name]
-    return MissingExtra(f"{purpose} needs {package}, which is not installed: pip install 'mlnseq[{extra}]'")
-
+    return MissingExtra(f"{purpose} needs {package}, which is not installed: {install_hint(extra)}")
 
 
 def check_choice(option: str, value: Any, allowed: Iterable[Any], more: str = "") -> None:

@@ -102,7 +102,7 @@ def labels_option(value: Path | None) -> dict[str, Any]:
 def missing_extra(module: str, error: ImportError) -> BadInput:
     """The one-line refusal for a format's library ``module`` that could not be imported (``error``)."""
     return errors.missing_extra(error) or BadInput(
-        f"reading this format needs {module}, which is not installed: pip install 'mlnseq[{EXTRA}]'")
+        f"reading this format needs {module}, which is not installed: {errors.install_hint(EXTRA)}")
 
 
 def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,

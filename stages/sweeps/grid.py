@@ -26,7 +26,7 @@ import re
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -34,9 +34,18 @@ from typing import Any
 from mlnseq.catalog.errors import BadInput
 
 STAGES = ("train", "conflate", "export")
-# The options dataclass of each stage in STAGES, given by the caller (the command line wires the stages: a library
-# imports no stage); each has a default for every field and validate() raising BadInput.
-StageOptions = Mapping[str, type]
+
+
+class StageOptions(dict):
+    """The options dataclass of each stage in STAGES (each with a default for every field and validate() raising
+    BadInput), and in ``flags`` the fields its command takes as options: a grid key is one of those, since the
+    workflow runs the commands. Given by the caller (the command line wires the stages: a library imports no
+    stage)."""
+
+    def __init__(self, options: Mapping[str, type], flags: Mapping[str, Iterable[str]]) -> None:
+        super().__init__(options)
+        self.flags = {stage: frozenset(names) for stage, names in flags.items()}
+
 FIXED = {"train": ("seed",), "conflate": ("decode",), "export": ("output", "force")}  # set by the sweep itself
 SHARED_BARE = {"mln_mode": ("conflate", "export"), "decode": ("export",)}  # bare keys with their own stages
 # What the sweep runs unless the grid says otherwise: stream networks whose folds follow the MLN's fold
@@ -73,7 +82,7 @@ def allowed_keys(stages: StageOptions) -> dict[str, tuple[str, ...]]:
     keys: dict[str, tuple[str, ...]] = {}
     for stage in STAGES:
         for f in fields(stages[stage]):
-            if f.name in FIXED[stage]:
+            if f.name in FIXED[stage] or f.name not in stages.flags[stage]:
                 continue
             keys[f"{stage}.{f.name}"] = (stage,)
             keys.setdefault(f.name, SHARED_BARE.get(f.name, (stage,)))
@@ -140,10 +149,10 @@ def flatten(table: Any, path: Path, text: str, stages: StageOptions) -> dict[str
             else [(key, value)]
         for name, values in items:
             if name not in allowed and name != FORMULAS:
-                close = [k for k in allowed if "." not in k]
-                raise BadInput(f"{where(path, text, name)}: unknown grid key {name!r}: choose {FORMULAS} (.mln "
-                               f"files) or among the options of train, conflate and export: {', '.join(close)} "
-                               "(qualify a shared name: train.method, export.method)")
+                raise BadInput(f"{where(path, text, name)}: unknown grid key {name!r}: no stage takes "
+                               f"--{name.rsplit('.', 1)[-1].replace('_', '-')}; choose {FORMULAS} (.mln files) or an "
+                               f"option of train, conflate or export: {options_named(allowed)} (qualify a shared "
+                               "name: train.method, export.method)")
             if not isinstance(values, list) or not values:
                 raise BadInput(f"{where(path, text, name)}: grid key {name!r} needs a non-empty list of values, "
                                f"e.g. {name} = [{json.dumps(values)}]")
@@ -156,6 +165,12 @@ def flatten(table: Any, path: Path, text: str, stages: StageOptions) -> dict[str
                                        "file (.mln; a path relative to the sweep file, or absolute)")
             grid[name] = values
     return grid
+
+
+def options_named(allowed: dict[str, tuple[str, ...]]) -> str:
+    """The grid keys by stage, as a message lists them: "train's cell, epochs ...; conflate's ..."."""
+    return "; ".join(f"{stage}'s {', '.join(k.split('.', 1)[1] for k in allowed if k.startswith(stage + '.'))}"
+                     for stage in STAGES)
 
 
 def formulas_path(sweep_file: Path, value: str) -> Path:

@@ -108,8 +108,9 @@ def test_training_progress_in_a_log_is_a_line_per_tenth_of_the_epochs(workdir):
     out = train_output(workdir, 20, terminal=False)
     lines = [line for line in out.splitlines() if line.startswith("training lstm")]
     assert [line.split(": epoch ")[1].split(",")[0] for line in lines] == [f"{e}/20" for e in range(2, 21, 2)]
-    # measured after the last epoch only (train's default --measure last-epoch): the line says so until then
-    assert all("not measured" in line and " s left" in line for line in lines[:-1])
+    # measured after the last epoch only (train's default --measure last-epoch): said once, on the first line
+    assert "measured after the last epoch (--measure every-epoch: after each)" in lines[0]
+    assert all("measure" not in line and " s left" in line for line in lines[1:-1]) and " s left" in lines[0]
     assert all(part in lines[-1] for part in ("loss ", "train ", "val –", " s left"))
     assert "\r" not in out and "\x1b" not in out
 

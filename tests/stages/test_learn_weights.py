@@ -312,3 +312,16 @@ def test_fold_weights_are_learned_without_their_fold(tmp_path: Path, shared_data
     np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy())
     with pytest.raises(BadInput, match="--folds 1: .* at most 70; use --folds 5 \\(5 folds by block"):
         stage.run(tmp_path, stage.LearnWeightsOptions(folds=1))
+
+
+def test_learning_without_folds_removes_an_earlier_runs_fold_weights(desk_mln_workdir, tmp_path: Path) -> None:
+    """Pages followed in one folder (issue 44 item 5): fold weights of earlier formulas or frames do not outlive a
+    learn-weights without folds, so a stream network never follows folds of other weights."""
+    import shutil
+
+    for name in ("frames.parquet", "predicates.parquet", "formulas.mln"):
+        shutil.copy(desk_mln_workdir / name, tmp_path / name)
+    stage.run(tmp_path, stage.LearnWeightsOptions(folds=3))
+    assert (tmp_path / artifacts.FOLD_WEIGHTS).is_file()
+    stage.run(tmp_path, stage.LearnWeightsOptions())
+    assert (tmp_path / artifacts.WEIGHTS).is_file() and not (tmp_path / artifacts.FOLD_WEIGHTS).exists()

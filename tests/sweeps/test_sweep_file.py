@@ -24,15 +24,15 @@ def mlnseq(*args: str, cwd: Path):
 
 
 def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tiny_desk_workdir):
-    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm", "gru"]\nhidden_size = [8, 16]\nepochs = [3]\n'
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm", "gru"]\nwindow = [32, 16]\nepochs = [3]\n'
                        'export.method = ["conflation"]\nmln_mode = ["exact"]\n', seeds="[3]")
     sweep = grid.read(path, STAGES)
-    assert sweep.seeds == (3,) and sweep.keys == ("cell", "hidden_size", "epochs", "export.method", "mln_mode")
-    assert [c.name for c in sweep.configs] == ["cell-lstm_hidden-size-8", "cell-lstm_hidden-size-16",
-                                              "cell-gru_hidden-size-8", "cell-gru_hidden-size-16"]
+    assert sweep.seeds == (3,) and sweep.keys == ("cell", "window", "epochs", "export.method", "mln_mode")
+    assert [c.name for c in sweep.configs] == ["cell-lstm_window-32", "cell-lstm_window-16",
+                                              "cell-gru_window-32", "cell-gru_window-16"]
     last = sweep.configs[-1]
     assert grid.flags("train", last.options["train"]) == ["--epochs", "3", "--mode", "stream", "--cell", "gru",
-                                                         "--hidden-size", "16"]
+                                                         "--window", "16"]
     assert grid.flags("conflate", last.options["conflate"]) == ["--mln-mode", "exact"]
     assert grid.flags("export", last.options["export"]) == ["--method", "conflation", "--decode", "filter",
                                                           "--mln-mode", "exact"]
@@ -40,7 +40,8 @@ def test_the_grid_expands_in_the_files_order_with_the_stages_flags(tmp_path, tin
 
 @pytest.mark.parametrize("grid_lines, words", [
     ('cell = ["lstm", "lstmm"]', ["line 6", "'cell'", "'lstmm'", "choose one of lstm"]),
-    ('epochs = [5]\nhiden_size = [8]', ["line 7", "'hiden_size'", "hidden_size"]),
+    ('epochs = [5]\nwindw = [8]', ["line 7", "'windw'", "no stage takes --windw", "train's method, ", "window"]),
+    ('hidden_size = [16]', ["line 6", "'hidden_size'", "no stage takes --hidden-size", "conflate's "]),
     ('epochs = ["five"]', ["line 6", "'epochs'", "whole number"]),
     ('epochs = [0]', ["line 6", "--epochs must be at least 1"]),
     ('export.decode = ["sideways"]', ["line 6", "'export.decode'", "'sideways'", "filter"]),
@@ -78,7 +79,7 @@ def test_a_missing_workdir_input_names_the_stage_that_writes_it(tmp_path, tiny_d
 
 
 def test_more_than_1000_configs_need_yes(tmp_path, tiny_desk_workdir):
-    grid_lines = f"hidden_size = {list(range(1, 35))}\nwindow = {list(range(1, 31))}"
+    grid_lines = f"batch_size = {list(range(1, 35))}\nwindow = {list(range(1, 31))}"
     path = write_sweep(tmp_path, tiny_desk_workdir, grid_lines)
     refused(mlnseq("sweep", str(path), cwd=tmp_path), "1,020 configs", "over 1,000", "--yes")
     assert not (tmp_path / "sweep").exists()
@@ -117,8 +118,8 @@ def test_a_formulas_key_names_configs_by_the_files_stem(tmp_path, tiny_desk_work
 
 def test_the_example_sweep_file_reads():
     sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
-    assert len(sweep.configs) == 6 and sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
-    assert sweep.configs[0].name == "cell-lstm_hidden-size-16"
+    assert [c.name for c in sweep.configs] == ["cell-lstm", "cell-tcn"]
+    assert sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
 
 
 def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir):
@@ -130,5 +131,5 @@ def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir
     code = ("import sys; sys.modules['snakemake'] = None; from mlnseq_cli.main import main; "
             f"sys.argv = ['mlnseq', 'sweep', {str(path)!r}]; main()")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    refused(done, "pip install 'mlnseq[sweep]'")
+    refused(done, "pip install '.[sweep]' in mlnseq's checkout", "'mlnseq-0.1.0-py3-none-any.whl[sweep]' beside the wheel")
     assert not (tmp_path / "sweep").exists()

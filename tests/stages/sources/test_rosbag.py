@@ -214,7 +214,8 @@ def test_a_missing_reader_library_is_one_line_naming_the_extra(bags, tmp_path):
                           cwd=Path(__file__).resolve().parents[3])
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip() == ("error: reading this format needs rosbags, which is not installed: "
-                                   "pip install 'mlnseq[recordings]'")
+                                   "pip install '.[recordings]' in mlnseq's checkout, or "
+                                   "pip install 'mlnseq-0.1.0-py3-none-any.whl[recordings]' beside the wheel")
     assert not (tmp_path / "frames.parquet").exists()
 
 
