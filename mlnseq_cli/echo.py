@@ -18,7 +18,7 @@ def echo(
     distro: Annotated[Optional[str], typer.Option(help="The distro whose message definitions the topic's type is read with \\[default: ROS_DISTRO, else humble].", show_default=False)] = None,
     qos: Annotated[str, typer.Option(help="The subscription's reliability: reliable, best-effort, or auto (as the topic's first publisher offers it).")] = "auto",
 ) -> None:
-    """Subscribe to TOPIC over DDS as a ROS 2 node would (no ROS install; pip install 'mlnseq\\[ros2]'; ROS_DOMAIN_ID, ROS_LOCALHOST_ONLY, ROS_AUTOMATIC_DISCOVERY_RANGE and CYCLONEDDS_URI as ROS 2 reads them) and print its messages as the CSV `rostopic echo -p` prints on ROS 1: a %time header, then one row per message, flushed. `mlnseq echo /joint_states | mlnseq stream MODEL` recognises them live. SIGINT or SIGTERM stops it (exit 0)."""
+    """Subscribe to TOPIC over DDS as a ROS 2 node would (no ROS install; the extra ros2; ROS_DOMAIN_ID, ROS_LOCALHOST_ONLY, ROS_AUTOMATIC_DISCOVERY_RANGE and CYCLONEDDS_URI as ROS 2 reads them) and print its messages as the CSV `rostopic echo -p` prints on ROS 1: a %time header, then one row per message, flushed. `mlnseq echo /joint_states | mlnseq stream MODEL` recognises them live. SIGINT or SIGTERM stops it (exit 0)."""
     options = stage.EchoOptions(topic=topic, count=count, distro=distro, qos=qos)
 
     def emit(line: str) -> None:

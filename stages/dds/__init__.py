@@ -15,9 +15,9 @@ import signal
 import threading
 from collections.abc import Iterator
 
-from mlnseq.catalog.errors import MissingExtra
+from mlnseq.catalog.errors import MissingExtra, install_hint
 
-EXTRA = "ros2"  # pip install 'mlnseq[ros2]': cyclonedds and rosbags
+EXTRA = "ros2"  # the extra of cyclonedds and rosbags
 
 
 def require() -> None:
@@ -27,7 +27,7 @@ def require() -> None:
             __import__(module)
         except ImportError:
             raise MissingExtra(f"ROS 2 over DDS needs cyclonedds and rosbags ({module} is not installed): "
-                               f"pip install 'mlnseq[{EXTRA}]'") from None
+                               f"{install_hint(EXTRA)}") from None
 
 
 @contextlib.contextmanager
