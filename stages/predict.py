@@ -69,6 +69,7 @@ class Predicted:
     reading: dict[str, Any] = field(default_factory=dict)  # how the recordings were read
     written: tuple[Path, ...] = ()  # the intervals and Rerun files, if asked
     restarts: list[tuple[Any, int]] = field(default_factory=list)  # (episode, frame) where the chain restarted
+    notes: tuple[str, ...] = ()  # how the recordings were read: channels held, stopped or started late
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -174,4 +175,5 @@ def _run(options: PredictOptions, stage) -> Predicted:
         rerun.write(stage(options.rerun), table["episode"].to_list(), frames, times, table, list(model.features),
                     list(model.classes))
         written.append(Path(options.rerun))
-    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts)
+    notes = tuple(note for r in recordings for note in r.resolved.get("notes", []))
+    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts, notes)
