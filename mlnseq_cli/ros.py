@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 
@@ -16,13 +16,17 @@ def ros(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`, trained on ROS bags.", dir_okay=False)],
     topic: Annotated[str, typer.Option(help="Where the activity goes (std_msgs/String, the class name); TOPIC/frame gets the frame as JSON (time, class, probabilities).")] = stage.ACTIVITY_TOPIC,
     name: Annotated[str, typer.Option(help="The node's name.")] = "mlnseq",
+    max_hold: Annotated[Optional[float], typer.Option(help="The longest a frame holds a silent topic's last message, in seconds (inf: no bound); past it the frames are skipped, with a note \\[default: the model's].")] = None,
+    queue_size: Annotated[int, typer.Option(help="Messages waiting for the recogniser; when it falls behind, the oldest are dropped first, counted and said.")] = stage.QUEUE,
 ) -> None:
-    """Subscribe to the topics MODEL was trained on (it remembers them, and their rate), recognise every tick of its clock as predict and stream do, and publish the class name on --topic and the frame as JSON ({"episode", "frame", "time", "class", "probabilities"}, as stream writes it) on TOPIC/frame. Needs rospy (ROS 1) and a running master (ROS_MASTER_URI). A message the model cannot use is one line on stderr and the node goes on; SIGINT or SIGTERM stops it."""
-    options = stage.RosOptions(model=model, activity_topic=topic, node_name=name)
+    """Subscribe to the topics MODEL was trained on (it remembers them, and their rate), recognise every tick of its clock as predict and stream do, and publish the class name on --topic and the frame as JSON ({"episode", "frame", "time", "class", "probabilities"}, as stream writes it) on TOPIC/frame. Needs rospy (ROS 1) and a running master (ROS_MASTER_URI). A message the model cannot use is one line on stderr and the node goes on; a master that restarts is registered with again. SIGINT or SIGTERM stops it, once every message received is recognised and every frame held is decided and published."""
+    options = stage.RosOptions(model=model, activity_topic=topic, node_name=name, max_hold=max_hold,
+                               queue_size=queue_size)
 
     def warn(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
     with reported_errors():
         summary = stage.run(options, warn)
-    warn(f"ros: stopped after {counted(summary.frames, 'frame')} ({counted(summary.errors, 'bad message')})")
+    dropped = f", {counted(summary.dropped, 'message')} dropped" if summary.dropped else ""
+    warn(f"ros: stopped after {counted(summary.frames, 'frame')} ({counted(summary.errors, 'bad message')}{dropped})")

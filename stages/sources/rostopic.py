@@ -12,6 +12,7 @@ topic's last value at or before it: a tick is known once a later message arrives
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -182,11 +183,14 @@ class OutOfOrder(BadInput):
 
 class HoldLast:
     """collect's bag clock, online: ticks every 1/rate s from the message that completes every topic, each
-    holding every topic's last values at or before it (``width`` features; ``slots[topic]``: its positions)."""
+    holding every topic's last values at or before it (``width`` features; ``slots[topic]``: its positions), for
+    at most ``max_hold`` s: a topic silent for longer is missing (NaN) in the ticks after that, as collect drops
+    those frames (stages/sources/holds.py)."""
 
-    def __init__(self, slots: Mapping[str, Sequence[int]], width: int, rate: float):
+    def __init__(self, slots: Mapping[str, Sequence[int]], width: int, rate: float, max_hold: float = math.inf):
         self.slots = {topic: np.asarray(positions, dtype=np.int64) for topic, positions in slots.items()}
         self.period = 1e9 / rate
+        self.hold = max_hold * 1e9
         self.row = np.full(width, np.nan)
         self.seen: dict[str, int] = {}  # topic -> its last message's time
         self.clock0: int | None = None
@@ -212,8 +216,15 @@ class HoldLast:
 
     def _ticks_before(self, time: int) -> Iterator[tuple[int, np.ndarray]]:
         while self.clock0 is not None and self.next_time() < time:
-            yield self.next_time(), self.row.copy()
+            tick, row = self.next_time(), self.row.copy()
+            for topic in self.stale(tick):
+                row[self.slots[topic]] = np.nan
+            yield tick, row
             self.tick += 1
+
+    def stale(self, tick: int) -> list[str]:
+        """The topics whose last value is older than the hold at ``tick`` (ns)."""
+        return [topic for topic, seen in self.seen.items() if tick - seen > self.hold]
 
     def finish(self) -> list[tuple[int, np.ndarray]]:
         """The ticks up to the last message, once the feed has ended."""
