@@ -30,6 +30,7 @@ from mlnseq.recognition.recognizer import Recognizer
 ACTIVITY_TOPIC = "/mlnseq/activity"
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's
 PUBLISHER_QUEUE = 1000  # messages a publisher holds for a slow subscriber before dropping the oldest
+FLUSH_S = 0.5  # after the last frames are published, before the node's connections close
 MASTER_POLL_S = 1.0  # how often the node asks whether its master is still the one it registered with
 ROS_PACKAGES = "python3-rospy python3-rosmaster python3-rostopic python3-std-msgs python3-sensor-msgs"
 
@@ -170,6 +171,9 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
          f"{options.activity_topic.rstrip('/')}{FRAME_SUFFIX}")
     while not stop.is_set() and not rospy.is_shutdown():
         publish(feed.pending(0.1))
-    publish(feed.drain())  # what was queued, and every frame held (a lagged decoder's last frames), decided
+    last = feed.drain()  # what was queued, and every frame held (a lagged decoder's last frames), decided
+    publish(last)
+    if last:
+        time.sleep(FLUSH_S)  # rospy sends from a thread per connection: let the last frames leave
     rospy.signal_shutdown("mlnseq ros stopped")
     return RosSummary(feed.frames, feed.bad, feed.dropped)
