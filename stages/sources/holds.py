@@ -17,6 +17,7 @@ import numpy as np
 MAX_HOLD_S = 2.0  # twice the period of a 1 Hz topic, the slowest a recogniser usually reads: its jitter never cuts it
 STOP_PERIODS = 3  # a channel silent for this many of its own periods (and two ticks) before the end has stopped
 NAMES_SHOWN = 6
+GAPS_SAID = 3  # a topic's gaps said one by one; more are one line
 
 
 def hold_ns(max_hold: float) -> float:
@@ -151,10 +152,17 @@ class Held:
                 events.setdefault((channel.topic, "held", round(last / tick), 0), []).append(short)
             if first - self.clock.begin > threshold:
                 events.setdefault((channel.topic, "late", round(first / tick), 0), []).append(short)
-        return [self._say(where, key, names, len(dropped.get(key, ()))) for key, names in events.items()]
+        for topic in {key[0] for key in events}:  # a topic silent again and again: one line for all its gaps
+            gaps = [key for key in events if key[0] == topic and key[1] == "gap"]
+            if len(gaps) > GAPS_SAID:
+                merged = (topic, "gaps", min(k[2] for k in gaps), max(k[3] for k in gaps), len(gaps))
+                events[merged] = sorted({name for key in gaps for name in events.pop(key)})
+                dropped[merged] = set().union(*(dropped.pop(key) for key in gaps))
+        return [self._say(where, key, names, len(dropped.get(key, ())))
+                for key, names in sorted(events.items(), key=lambda item: item[0][2])]  # in time order
 
     def _say(self, where: str, key: tuple, names: list[str], dropped: int) -> str:
-        topic, kind, a, b = key
+        topic, kind, a, b = key[:4]
         tick = max(self.clock.period, 1.0)
         at = lambda ticks: f"{(ticks * tick - self.clock.start) / 1e9:.2f} s"  # noqa: E731
         shown = ", ".join(names[:NAMES_SHOWN]) + (f" and {len(names) - NAMES_SHOWN} more" if len(names) > NAMES_SHOWN
@@ -165,6 +173,9 @@ class Held:
             return f"{where}: {topic} {shown} stop{verb} at {at(a)}, before the end at {at(b)}: {held}"
         if kind == "gap":
             return f"{where}: {topic} {shown} send{verb} nothing from {at(a)} to {at(b)}: {held}"
+        if kind == "gaps":
+            return (f"{where}: {topic} {shown} send{verb} nothing for over {self.max_hold:g} s {key[4]} times between "
+                    f"{at(a)} and {at(b)}: each time {held} (a topic this slow needs a longer --max-hold)")
         if kind == "held":
             end = f"{(self.clock.end - self.clock.start) / 1e9:.2f} s"
             bound = f"within --max-hold {self.max_hold:g} s" if math.isfinite(self.max_hold) else "--max-hold inf"

@@ -123,3 +123,24 @@ def test_predict_reads_a_new_bag_with_the_models_hold_and_says_the_stale_joints(
                                               output=tmp_path / "q.parquet", overrides={"max_hold": float("inf")}))
     assert held.table.height == 405 and "held to the end" in held.notes[0]
     assert held.table.head(350)["class"].equals(result.table["class"])
+
+
+def test_a_topic_slower_than_the_hold_is_one_line_for_all_its_gaps(tmp_path):
+    with Writer(tmp_path / "slower.bag") as writer:  # a topic sending every 0.5 s, with a hold of 0.2 s
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=STORE)
+        slow = writer.add_connection("/slow", Float64.__msgtype__, typestore=STORE)
+        for k in range(300):
+            t = START + k * STEP
+            message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=""),
+                                 name=["a"], position=np.array([k / 100]), velocity=np.zeros(0), effort=np.zeros(0))
+            writer.write(joints, t, STORE.serialize_ros1(message, JointState.__msgtype__))
+            if k % 50 == 0:
+                writer.write(slow, t, STORE.serialize_ros1(Float64(data=k / 100), Float64.__msgtype__))
+    recording = sources.read("rosbag", tmp_path / "slower.bag", TableColumns(), SourceOptions(max_hold=0.2),
+                             label=Labels.NONE)[0]
+    notes = recording.resolved["notes"]
+    assert notes == ["slower.bag: /slow data sends nothing for over 0.2 s 5 times between 0.00 s and 2.50 s: each time "
+                     "held 0.2 s (--max-hold), then missing: 145 frames dropped (a topic this slow needs a longer "
+                     "--max-hold)", "slower.bag: /slow data stops at 2.50 s, before the end at 2.99 s: held 0.2 s "
+                     "(--max-hold), then missing: 29 frames dropped"]
+    assert recording.features.height == 300 - 145 - 29
