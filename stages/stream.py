@@ -251,37 +251,48 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
             emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
 
-    before_wait.append(lambda: answer(model.decide(), episode))
-    try:
-        for number, frame in frames_of(lines):
-            try:
-                if isinstance(frame, InputLine):
-                    raise frame
-                _check_episode(frame, number)
-                unused = set(frame) - used - ignored
-                if unused:
-                    ignored |= unused
-                    warn(f"note: line {number}: keys the model does not use are ignored: {', '.join(sorted(unused))}")
-                if not summary.episodes or frame.get(EPISODE) != episode:
-                    if summary.episodes:
-                        answer(model.finish(), episode)  # the episode's pending frames, decided at once
-                        times.clear()
-                        model.reset()
-                    episode = frame.get(EPISODE)
-                    summary.episodes += 1
-                prediction = _step(model, frame, number, times)
-            except InputLine as error:
-                summary.skipped += 1
-                if options.strict:
-                    raise
-                warn(f"error: {error}")
-                continue
-            answer(prediction.final, episode)
-    except Stopped:  # SIGINT or SIGTERM: every frame read is decided and answered, then the signal's exit
-        answer(model.finish(), episode)
-        raise
-    answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
+    with answering_held(before_wait, lambda: answer(model.decide(), episode)):
+        try:
+            for number, frame in frames_of(lines):
+                try:
+                    if isinstance(frame, InputLine):
+                        raise frame
+                    _check_episode(frame, number)
+                    unused = set(frame) - used - ignored
+                    if unused:
+                        ignored |= unused
+                        warn(f"note: line {number}: keys the model does not use are ignored: "
+                             f"{', '.join(sorted(unused))}")
+                    if not summary.episodes or frame.get(EPISODE) != episode:
+                        if summary.episodes:
+                            answer(model.finish(), episode)  # the episode's pending frames, decided at once
+                            times.clear()
+                            model.reset()
+                        episode = frame.get(EPISODE)
+                        summary.episodes += 1
+                    prediction = _step(model, frame, number, times)
+                except InputLine as error:
+                    summary.skipped += 1
+                    if options.strict:
+                        raise
+                    warn(f"error: {error}")
+                    continue
+                answer(prediction.final, episode)
+        except Stopped:  # SIGINT or SIGTERM: every frame read is decided and answered, then the signal's exit
+            answer(model.finish(), episode)
+            raise
+        answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
     return summary
+
+
+@contextlib.contextmanager
+def answering_held(before_wait: list[Callable[[], None]], answer_held: Callable[[], None]) -> Iterator[None]:
+    """In this block, the decisions held back are answered before each read that may wait (``before_wait``)."""
+    before_wait.append(answer_held)
+    try:
+        yield
+    finally:
+        before_wait.remove(answer_held)
 
 
 def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterable[tuple[int, str | InputLine]],
@@ -304,4 +315,5 @@ def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterabl
         for frame in live.finish():
             emit(frame.json(model.classes))
         raise
+    summary.episodes = live.episode + 1  # time that jumped back started the others
     return summary

@@ -283,7 +283,11 @@ class MessageFeed:
         frames = []
         for topic, message, received in taken:
             if self.decode is not None:
-                message = self.decode(topic, message)
+                try:
+                    message = self.decode(topic, message)
+                except Exception as error:  # a buffer its type cannot read (genpy's, struct's errors): said, skipped
+                    self.error(topic, f"a {topic} message cannot be read ({type(error).__name__}: {error})")
+                    continue
                 if message is None:
                     continue
             frames += self.receive(topic, message, received)

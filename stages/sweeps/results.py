@@ -115,22 +115,26 @@ def config_jobs(sweep: Sweep, config: Config, out: Path, seed: int) -> list[tupl
 
 
 def failure(sweep: Sweep, config: Config, out: Path, errors: list[JobError]) -> Failure | None:
-    """The config's first job whose output is missing, with Snakemake's reason for it; None when all are there."""
+    """The config's failed job: of each seed's first job whose output is missing, the first Snakemake reported
+    failed (else the first), with its reason; None when every output is there."""
+    missing = []
     for seed in sweep.seeds:
-        for stage, output, log in config_jobs(sweep, config, out, seed):
-            if output.exists():
-                continue
-            relative = str(log.relative_to(out))
-            error = next((e for e in errors if relative in e.logs), None)
-            reason = error.reason() if error else "did not run (a job it needs failed, or the sweep stopped)"
-            others = [Path(out, p) for p in (error.logs if error else []) if p != relative]
-            tail = last_lines(log) + tuple(line for other in others for line in last_lines(other))
-            full = None if tail or error is None else disk_full(log.parent)
-            if full:
-                reason += f" and its log is empty: {full}"
-            return Failure(config.name, None if stage in ("formulas", "learn-weights") else seed, stage, log, reason,
-                           tail, tuple(others))
-    return None
+        first = next(((stage, log) for stage, output, log in config_jobs(sweep, config, out, seed)
+                      if not output.exists()), None)
+        if first is not None:
+            relative = str(first[1].relative_to(out))
+            missing.append((seed, *first, next((e for e in errors if relative in e.logs), None)))
+    if not missing:
+        return None
+    seed, stage, log, error = next((m for m in missing if m[3] is not None), missing[0])
+    reason = error.reason() if error else "did not run (a job it needs failed, or the sweep stopped)"
+    others = [Path(out, p) for p in (error.logs if error else []) if p != str(log.relative_to(out))]
+    tail = last_lines(log) + tuple(line for other in others for line in last_lines(other))
+    full = None if tail or error is None else disk_full(log.parent)
+    if full:
+        reason += f" and its log is empty: {full}"
+    return Failure(config.name, None if stage in ("formulas", "learn-weights") else seed, stage, log, reason, tail,
+                   tuple(others))
 
 
 def disk_full(folder: Path, size: int = 64 * 1024) -> str | None:
