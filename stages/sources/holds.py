@@ -2,7 +2,7 @@
 value, where it stopped before the end, started after the beginning or went silent, and what the clock did with
 each gap: a tick holds a channel's last value for at most ``max_hold`` seconds (``--max-hold``); past that the
 value is missing, and a frame with a missing value is dropped, as frames without a value are before the clock
-starts. The bag reader (``mlnseq.sources.rosbag``) fills `Arrivals` message by message and asks `Held` for the
+starts. A channel that sent one message only (a latched topic, such as /tf_static) is a constant: held throughout. The bag reader (``mlnseq.sources.rosbag``) fills `Arrivals` message by message and asks `Held` for the
 frames to keep and the notes, one line per topic and time, naming the channels.
 """
 
@@ -114,6 +114,8 @@ class Held:
     def _missing_ticks(self, k: int) -> list[tuple[str, int, int, np.ndarray]]:
         """Feature ``k``'s silences past the hold: (kind, from, to, the ticks it leaves missing)."""
         channel, times = self.channels[k], self.clock.times
+        if channel.count == 1:  # latched: a constant, never stale
+            return []
         spans = [("gap", a, b) for a, b in channel.silences(self.hold)]
         last = channel.last
         if self.clock.end - last > self.hold:
@@ -148,7 +150,9 @@ class Held:
                 key = (channel.topic, kind, round(a / tick), round(b / tick))
                 events.setdefault(key, []).append(short)
                 dropped.setdefault(key, set()).update(ticks.tolist())
-            if threshold < self.clock.end - last <= self.hold:
+            if count == 1 and self.clock.end - last > 2 * tick:
+                events.setdefault((channel.topic, "once", round(last / tick), 0), []).append(short)
+            elif threshold < self.clock.end - last <= self.hold:
                 events.setdefault((channel.topic, "held", round(last / tick), 0), []).append(short)
             if first - self.clock.begin > threshold:
                 events.setdefault((channel.topic, "late", round(first / tick), 0), []).append(short)
@@ -176,6 +180,9 @@ class Held:
         if kind == "gaps":
             return (f"{where}: {topic} {shown} send{verb} nothing for over {self.max_hold:g} s {key[4]} times between "
                     f"{at(a)} and {at(b)}: each time {held} (a topic this slow needs a longer --max-hold)")
+        if kind == "once":
+            return (f"{where}: {topic} {shown} sent one message, at {at(a)} (a latched value): held to the end, "
+                    "whatever --max-hold")
         if kind == "held":
             end = f"{(self.clock.end - self.clock.start) / 1e9:.2f} s"
             bound = f"within --max-hold {self.max_hold:g} s" if math.isfinite(self.max_hold) else "--max-hold inf"

@@ -144,3 +144,20 @@ def test_a_topic_slower_than_the_hold_is_one_line_for_all_its_gaps(tmp_path):
                      "--max-hold)", "slower.bag: /slow data stops at 2.50 s, before the end at 2.99 s: held 0.2 s "
                      "(--max-hold), then missing: 29 frames dropped"]
     assert recording.features.height == 300 - 145 - 29
+
+
+def test_a_topic_sent_once_is_a_latched_value_held_throughout(tmp_path):
+    with Writer(tmp_path / "latched.bag") as writer:  # /calibration sent once, at the start (as /tf_static is)
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=STORE)
+        once = writer.add_connection("/calibration", Float64.__msgtype__, typestore=STORE)
+        writer.write(once, START, STORE.serialize_ros1(Float64(data=0.5), Float64.__msgtype__))
+        for k in range(500):
+            t = START + k * STEP
+            message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=""),
+                                 name=["a"], position=np.array([k / 100]), velocity=np.zeros(0), effort=np.zeros(0))
+            writer.write(joints, t, STORE.serialize_ros1(message, JointState.__msgtype__))
+    recording = sources.read("rosbag", tmp_path / "latched.bag", TableColumns(), SourceOptions(rate=100),
+                             label=Labels.NONE)[0]
+    assert recording.features.height == 500 and (recording.features["/calibration/data"] == 0.5).all()
+    assert recording.resolved["notes"] == ["latched.bag: /calibration data sent one message, at 0.00 s (a latched "
+                                           "value): held to the end, whatever --max-hold"]
