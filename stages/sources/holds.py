@@ -2,8 +2,9 @@
 value, where it stopped before the end, started after the beginning or went silent, and what the clock did with
 each gap: a tick holds a channel's last value for at most ``max_hold`` seconds (``--max-hold``); past that the
 value is missing, and a frame with a missing value is dropped, as frames without a value are before the clock
-starts. A channel that sent one message only (a latched topic, such as /tf_static) is a constant: held throughout. The bag reader (``mlnseq.sources.rosbag``) fills `Arrivals` message by message and asks `Held` for the
-frames to keep and the notes, one line per topic and time, naming the channels.
+starts. A channel that sent one message only (a latched topic, such as /tf_static) is a constant: held throughout.
+The bag reader (``mlnseq.sources.rosbag``) fills `Arrivals` message by message and asks `Held` for the frames to
+keep and the notes, one line per topic and time, naming the channels.
 """
 
 from __future__ import annotations
