@@ -13,7 +13,13 @@ The model: an lstm (stream mode, 40 epochs) trained on a ROS 1 bag of DESK's arm
 - stream: `mlnseq stream` fed the 60,000 rows through a pipe; rows per second after start-up;
 - real master (where ROS 1 is installed): `rosmaster`, `mlnseq ros` and tests/ros_driver.py publishing 20 s of
   /joint_states at 100 Hz (2,000 messages) and recording /mlnseq/activity/frame: frames answered, and how many
-  had arrived when the publisher exited 0.5 s after its last message (all of them when the node keeps up).
+  had arrived when the publisher exited 0.5 s after its last message (all of them when the node keeps up);
+- flood, node core: a 1 kHz /joint_states (10x the model's 100 Hz clock: each 100 Hz row sent 10 times) offered to
+  `MessageFeed` from a thread as fast as it goes (far faster than the recogniser), the main thread recognising
+  what is queued, as `mlnseq ros` does; with the node's bounded queue (1,000) beside an unbounded one: messages
+  dropped, frames answered, resident memory growth while the flood lasts (target < 10 MB with the bound);
+- flood, real master: the node fed 10 s of that 1 kHz feed through `rosmaster`: frames, messages dropped, and the
+  node process's resident memory at the start and the end of the flood.
 
 The machine's load average is printed first: these machines are shared, and a preempted process shows in p99.
 
@@ -101,6 +107,48 @@ def node_core(model_path: Path, rows: np.ndarray) -> None:
           f"(target < {TARGET_GROWTH_MB:g} MB)")
 
 
+def flood(model_path: Path, rows: np.ndarray) -> None:
+    import threading
+
+    import ros_episode
+    from mlnseq.recognition.live import QUEUE, MessageFeed
+    from mlnseq.recognition.recognizer import Recognizer
+
+    try:
+        from sensor_msgs.msg import JointState
+    except ImportError as error:
+        print(f"flood, node core: skipped, rospy's message classes are not importable ({error})")
+        return
+    import rospy
+
+    wire = []
+    for k in range(MESSAGES):  # 1 kHz stamps, each 100 Hz row 10 times
+        t = ros_episode.START + k * ros_episode.STEP // 10
+        message = JointState(name=ros_episode.JOINTS, position=rows[(k // 10) % len(rows), :7].tolist())
+        message.header.stamp = rospy.Time(t // 10**9, t % 10**9)
+        buffer = io.BytesIO()
+        message.serialize(buffer)
+        wire.append(buffer.getvalue())
+    for bound in (QUEUE, 10**9):
+        feed = MessageFeed(Recognizer.load(model_path), lambda _: None, time.monotonic, queue_size=bound,
+                           decode=lambda topic, data: JointState().deserialize(data))
+        # each message a new buffer, as a client library hands over (a copy of the bytes)
+        producer = threading.Thread(target=lambda: [feed.offer("/joint_states", bytes(bytearray(data)), 0)
+                                                    for data in wire])
+        start, peak, frames = resident_mb(), 0.0, 0
+        began = time.perf_counter()
+        producer.start()
+        while producer.is_alive() or feed.queue:
+            frames += len(feed.pending(0.01))
+            peak = max(peak, resident_mb())
+        frames += len(feed.drain())
+        wall = time.perf_counter() - began
+        name = f"bounded queue of {bound:,}" if bound == QUEUE else "unbounded queue"
+        print(f"flood, node core, {name}: {MESSAGES:,} messages of a 1 kHz feed offered in {wall:.2f} s -> "
+              f"{frames:,} frames, {feed.dropped:,} messages dropped; resident memory {peak - start:+.1f} MB at "
+              f"its peak (target < {TARGET_GROWTH_MB:g} MB with the bound)")
+
+
 def stream_pipe(model_path: Path, rows: np.ndarray, folder: Path) -> None:
     import ros_episode
 
@@ -121,15 +169,16 @@ def stream_pipe(model_path: Path, rows: np.ndarray, folder: Path) -> None:
           f"{MESSAGES / max(wall - startup, 1e-9):,.0f} rows/s after start-up")
 
 
-def real_master(model_path: Path, rows: np.ndarray, folder: Path) -> None:
+def real_master(model_path: Path, rows: np.ndarray, folder: Path, hz: float = 100.0, count: int = 2_000) -> None:
     import shutil
     import signal
     import socket
 
     import ros_episode
 
+    what = "real master" if hz == 100 else "flood, real master"
     if shutil.which("rosmaster") is None:
-        print("real master: skipped, rosmaster is not installed (`make setup` as root on Debian installs it)")
+        print(f"{what}: skipped, rosmaster is not installed (`make setup` as root on Debian installs it)")
         return
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -137,38 +186,55 @@ def real_master(model_path: Path, rows: np.ndarray, folder: Path) -> None:
     env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1",
            "ROS_HOME": str(folder / "ros"), "PYTHONUNBUFFERED": "1",
            "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO / "tests"), os.environ.get("PYTHONPATH")]))}
-    count = 2_000
-    np.save(folder / "rows.npy", np.concatenate([rows] * (count // len(rows) + 1))[:count])
-    record, started = folder / "node.jsonl", []
+    repeat = round(hz / 100)  # each 100 Hz row sent this many times
+    np.save(folder / "rows.npy", np.repeat(np.concatenate([rows] * (count // len(rows) // repeat + 1)), repeat,
+                                           axis=0)[:count])
+    record, started, node_log = folder / "node.jsonl", [], folder / "node.log"
+    record.unlink(missing_ok=True)
     driver = [sys.executable, str(REPO / "tests" / "ros_driver.py")]
 
     def start(args, **kwargs):
-        started.append(subprocess.Popen(args, env=env, start_new_session=True, stderr=subprocess.DEVNULL, **kwargs))
+        started.append(subprocess.Popen(args, env=env, start_new_session=True, **{"stderr": subprocess.DEVNULL,
+                                                                                   **kwargs}))
         return started[-1]
 
     try:
         start(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL)
         time.sleep(1.5)
-        start([str(Path(sys.executable).parent / "mlnseq"), "ros", str(model_path)])
+        with open(node_log, "w") as log:
+            node = start([str(Path(sys.executable).parent / "mlnseq"), "ros", str(model_path)], stdout=log,
+                         stderr=log)
         recorder = start([*driver, "record", "/mlnseq/activity/frame", str(record)], stdout=subprocess.PIPE, text=True)
         if recorder.stdout.readline().strip() != "ready":
-            print("real master: the recorder found no node")
+            print(f"{what}: the recorder found no node")
             return
-        publisher = start([*driver, "publish", str(folder / "rows.npy"), "1"], stdout=subprocess.DEVNULL)
+        before = process_mb(node.pid)
+        publisher = start([*driver, "publish", str(folder / "rows.npy"), "1", str(hz)], stdout=subprocess.DEVNULL)
         publisher.wait(120)
+        after = process_mb(node.pid)
         at_exit = len(record.read_text().splitlines())  # the driver exits 0.5 s after its last message
         deadline = time.monotonic() + 30
-        while len(record.read_text().splitlines()) < count - 1 and time.monotonic() < deadline:
+        while len(record.read_text().splitlines()) < count // repeat - 1 and time.monotonic() < deadline:
             time.sleep(0.01)
         answered = len(record.read_text().splitlines())
+        node.send_signal(signal.SIGTERM)
+        node.wait(30)
     finally:
         for process in reversed(started):
             if process.poll() is None:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
-    print(f"real master: {count:,} messages at 100 Hz ({count * ros_episode.STEP / 1e9:.0f} s) -> {answered:,} frames "
-          f"answered (the last tick waits for a later message), {at_exit:,} of them already when the publisher exited "
-          "0.5 s after its last message")
+    stopped = node_log.read_text().strip().splitlines()[-1]
+    print(f"{what}: {count:,} messages at {hz:g} Hz ({count / hz:.0f} s) -> {answered:,} frames answered (the last tick "
+          f"waits for a later message), {at_exit:,} of them already when the publisher exited 0.5 s after its last "
+          f"message; the node's resident memory {before:.1f} MB -> {after:.1f} MB; {stopped}")
+
+
+def process_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def main() -> None:
@@ -180,8 +246,10 @@ def main() -> None:
 
         live = rows[ros_episode.TRAIN_FRAMES:]
         node_core(model, live)
+        flood(model, live)
         stream_pipe(model, live, folder)
         real_master(model, live, folder)
+        real_master(model, live, folder, hz=1000.0, count=1_000 if os.environ.get("BENCH_QUICK") else 10_000)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ def collect(
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics to read, comma-separated \\[default: every topic with numeric fields].")] = None,
     rate: Annotated[Optional[float], typer.Option(help="rosbag: the frames' clock in Hz \\[default: the first topic's rate].")] = None,
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of phase names, each holding until the next.")] = None,
+    max_hold: Annotated[float, typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the value is missing and the frame dropped. Each topic or joint that stops early, starts late or goes silent is a note.")] = stage.MAX_HOLD_S,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
@@ -40,7 +41,7 @@ def collect(
                               train_frames=train_frames, goals=goals, cache=cache, label_column=label_column,
                               episode_column=episode_column, time_column=time_column, classes=classes,
                               features=features, labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
-                              topics=topics, rate=rate, label_topic=label_topic)
+                              topics=topics, rate=rate, label_topic=label_topic, max_hold=max_hold)
     with reported_errors():
         options.validate()
         with Progress(
@@ -57,14 +58,14 @@ def collect(
 def collect_options(*, label_column: str, episode_column: Optional[str], time_column: Optional[str],
                     classes: Optional[str], features: Optional[str], labels: Optional[Path], labels_unit: Optional[str],
                     unlabelled: Optional[str], topics: Optional[str], rate: Optional[float], label_topic: Optional[str],
-                    **rest) -> stage.CollectOptions:
+                    max_hold: float = stage.MAX_HOLD_S, **rest) -> stage.CollectOptions:
     """The stage's options from the command's flags (also `mlnseq fit`'s source flags)."""
     return stage.CollectOptions(
         **rest,
         columns=stage.TableColumns(label=label_column, episode=episode_column, time=time_column,
                                    classes=_names(classes), features=_names(features)),
         recordings=stage.SourceOptions(**labels_option(labels), labels_unit=labels_unit, unlabelled=unlabelled,
-                                       topics=_names(topics), rate=rate, label_topic=label_topic),
+                                       topics=_names(topics), rate=rate, label_topic=label_topic, max_hold=max_hold),
     )
 
 

@@ -28,6 +28,7 @@ def predict(
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")] = None,
     rate: Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")] = None,
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
+    max_hold: Annotated[Optional[float], typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the frame is dropped \\[default: the model's].")] = None,
     intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
@@ -35,7 +36,8 @@ def predict(
     replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
-    given = dict(**labels_option(labels), labels_unit=labels_unit, topics=_names(topics), rate=rate, label_topic=label_topic)
+    given = dict(**labels_option(labels), labels_unit=labels_unit, topics=_names(topics), rate=rate,
+                 label_topic=label_topic, max_hold=max_hold)
     options = stage.PredictOptions(
         model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
         episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
@@ -47,6 +49,8 @@ def predict(
         result = stage.run(options)
     from mlnseq.recognition.recognizer import restart_note
 
+    for note in result.notes:
+        console.print(f"note: {note}", markup=False, highlight=False)
     restarted = ""
     if result.restarts:
         console.print(f"[yellow]note[/]: {restart_note('predict', result.restarts)}")

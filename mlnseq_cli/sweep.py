@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -41,25 +42,56 @@ def sweep(
                            f"{', '.join(e.value for e in stage.Executor)}") from None
         options = stage.SweepOptions(cores=cores, executor=chosen, profile=profile, out=out,
                                      limit=None if yes else stage.grid.MAX_CONFIGS)
-        swept = stage.run(sweep_file, options, STAGES)
+        swept = stage.run(sweep_file, options, STAGES, say_progress)
     console.print("cross-validated on the training split (mean ± spread over seeds); test only for display:",
                   highlight=False)
     for line in summary_lines(swept):
         console.print(line, highlight=False, markup=False)
-    console.print(f"[green]sweep[/]: wrote {swept.path} ({swept.table.height} configs)")
+    failed = f", {len(swept.failures)} failed" if swept.failures else ""
+    if swept.path is not None:
+        console.print(f"[green]sweep[/]: wrote {swept.path} ({swept.table.height} configs{failed})")
     best = swept.best
-    console.print(f"best by cross-validation: {best['config']} ({best['method']}): segment accuracy "
-                  f"{best['cv_segment_accuracy']:.1f} ± {best['cv_segment_accuracy_std']:.1f} %, frame accuracy "
-                  f"{best['cv_frame_accuracy']:.1f} ± {best['cv_frame_accuracy_std']:.1f} %, edit "
-                  f"{best['cv_edit']:.1f} ± {best['cv_edit_std']:.1f}; deploy it: {best['deploy']}",
-                  highlight=False, markup=False)
+    if best is not None:
+        console.print(f"best by cross-validation: {best['config']} ({best['method']}): segment accuracy "
+                      f"{best['cv_segment_accuracy']:.1f} ± {best['cv_segment_accuracy_std']:.1f} %, frame accuracy "
+                      f"{best['cv_frame_accuracy']:.1f} ± {best['cv_frame_accuracy_std']:.1f} %, edit "
+                      f"{best['cv_edit']:.1f} ± {best['cv_edit_std']:.1f}; deploy it: {best['deploy']}",
+                      highlight=False, markup=False)
+    if swept.log_error:
+        print(f"warning: {swept.log_error}: Snakemake's output was not all kept", file=sys.stderr)
+    for failure in swept.failures:
+        print(f"error: {failure.line()}", file=sys.stderr)
+        for line in failure.tail:
+            print(f"    | {line}", file=sys.stderr)
+    if swept.write_error:
+        print(f"error: {swept.write_error}", file=sys.stderr)
+    if swept.failures or swept.write_error:
+        print("error: rerun `mlnseq sweep` to redo only what is missing (free space first if the disk is full)",
+              file=sys.stderr)
+        raise typer.Exit(1)
+
+
+def say_progress(progress: stage.Progress) -> None:
+    """One line on stderr each time a config finishes or fails (Snakemake's own output goes to the sweep's log)."""
+    if progress.starting:
+        already = f" ({progress.done} done already)" if progress.done else ""
+        print(f"sweep: {progress.total} configs{already}; Snakemake's output goes to {progress.log}", file=sys.stderr,
+              flush=True)
+        return
+    failed = f", {progress.failed} failed" if progress.failed else ""
+    jobs = f" ({progress.jobs[0]} of {progress.jobs[1]} jobs)" if progress.jobs[1] else ""
+    print(f"sweep: {progress.done} of {progress.total} configs done{failed}{jobs}", file=sys.stderr, flush=True)
 
 
 def summary_lines(swept: stage.Swept) -> list[str]:
     """The configs as aligned plain lines, best cross-validated score first; test figures are shown, never ranked on."""
     header = ("config", "method", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %", "test edit")
     rows = [header]
-    for row in swept.table.sort("cv_score", descending=True, maintain_order=True).iter_rows(named=True):
+    for row in swept.table.sort("cv_score", descending=True, nulls_last=True, maintain_order=True).iter_rows(
+            named=True):
+        if row["status"] != stage.results.DONE:
+            rows.append((row["config"], "failed", *("–" for _ in range(6))))
+            continue
         rows.append((row["config"], row["method"],
                      *(f"{row[f'cv_{f}']:.1f} ± {row[f'cv_{f}_std']:.1f}" for f in stage.results.FIGURES),
                      *(f"{row[f'test_{f}']:.1f}" for f in stage.results.FIGURES)))

@@ -21,6 +21,7 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
+from mlnseq.sources.holds import MAX_HOLD_S
 from mlnseq.sources.recording import Collected, TableColumns, split_by_position
 from mlnseq.sources.table import collect_frames, reading_record
 
@@ -52,7 +53,7 @@ class CollectOptions:
         if self.env in RECORDING_ENVS and self.source is None:
             raise BadInput(f"--env {self.env} needs --source PATH, the recordings to read")
         if self.env not in RECORDING_ENVS and self.recordings != SourceOptions():
-            raise BadInput(f"--labels, --topics, --rate, --label-topic and --unlabelled are for recordings "
+            raise BadInput(f"--labels, --topics, --rate, --label-topic, --max-hold and --unlabelled are for recordings "
                            f"({', '.join(RECORDING_ENVS)}), not --env {self.env}")
         self.recordings.validate()
         if self.env == "desk":

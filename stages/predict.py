@@ -81,6 +81,7 @@ class Predicted:
     written: tuple[Path, ...] = ()  # the intervals and Rerun files, if asked
     restarts: list[tuple[Any, int]] = field(default_factory=list)  # (episode, frame) where the chain restarted
     lerobot: Any = None  # with --write-lerobot: how many episodes got predicted subtasks, how many kept their own
+    notes: tuple[str, ...] = ()  # how the recordings were read: channels held, stopped or started late
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
@@ -193,7 +194,8 @@ def _run(options: PredictOptions, stage) -> Predicted:
         written.append(Path(options.rerun))
     lerobot = _write_lerobot(options, stage, table, list(model.classes)) if options.write_lerobot else None
     written += [Path(options.write_lerobot)] if lerobot else []
-    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts, lerobot)
+    notes = tuple(note for r in recordings for note in r.resolved.get("notes", []))
+    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts, lerobot=lerobot, notes=notes)
 
 
 def _write_lerobot(options: PredictOptions, stage, table: pl.DataFrame, classes: list[str]) -> Any:

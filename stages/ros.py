@@ -3,10 +3,15 @@
 
 It subscribes to the topics the model was trained on (its manifest's ``reading``), puts their messages on the
 model's clock as collect put the bags on it, runs the same `Recognizer` as predict and stream on every tick
-(stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the
-class name (std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every
-class's probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is
-one line on stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).
+(stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the class name
+(std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every class's
+probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is one line on
+stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).
+
+The callbacks only queue the messages (`MessageFeed.offer`: bounded, the oldest dropped first and counted); the
+main thread recognises and publishes them. SIGINT or SIGTERM drains the queue and decides every frame held before
+the node exits. A master that restarts is noticed within a second, and the node registers its publications and
+subscriptions with it again (rospy does not), with a note.
 """
 
 from __future__ import annotations
@@ -24,12 +29,14 @@ from typing import Any
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import member
 from mlnseq.dds.domain import QosChoice
-from mlnseq.recognition.live import LiveFrame, MessageFeed
+from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed
 from mlnseq.recognition.recognizer import Recognizer
 
 ACTIVITY_TOPIC = "/mlnseq/activity"
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's
-QUEUE = 1000  # messages a subscriber or publisher holds before dropping the oldest: 10 s at 100 Hz
+PUBLISHER_QUEUE = 1000  # messages a publisher holds for a slow subscriber before dropping the oldest
+FLUSH_S = 0.5  # after the last frames are published, before the node's connections close
+MASTER_POLL_S = 1.0  # how often the node asks whether its master is still the one it registered with
 ROS_PACKAGES = "python3-rospy python3-rosmaster python3-rostopic python3-std-msgs python3-sensor-msgs"
 
 
@@ -55,6 +62,8 @@ class RosOptions:
     def __post_init__(self) -> None:
         object.__setattr__(self, "ros", member(RosVersion, self.ros))
         object.__setattr__(self, "qos", member(QosChoice, self.qos))
+    max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
+    queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
 
     def validate(self) -> None:
         if not self.activity_topic.strip() or " " in self.activity_topic:
@@ -70,12 +79,17 @@ class RosOptions:
         if sourced in ("1", "2"):
             return RosVersion(sourced)
         return RosVersion.ONE if os.environ.get("ROS_MASTER_URI", "").strip() else RosVersion.TWO
+        if self.max_hold is not None and not self.max_hold > 0:
+            raise BadInput(f"--max-hold must be above 0 seconds (inf: no bound), got {self.max_hold:g}")
+        if self.queue_size < 1:
+            raise BadInput(f"--queue-size must be at least 1 message, got {self.queue_size}")
 
 
 @dataclass
 class RosSummary:
     frames: int = 0
     errors: int = 0
+    dropped: int = 0
 
 
 def rospy_modules() -> tuple[Any, Any, Any]:
@@ -104,6 +118,52 @@ def check_master() -> str:
     return uri
 
 
+def register_again(rospy: Any) -> tuple[int, int]:
+    """Register this node's publications and subscriptions with the master again, each subscription told the
+    master's publishers (as rospy does at start-up); how many of each."""
+    import xmlrpc.client
+
+    import rosgraph
+    from rospy.impl.registration import get_topic_manager
+
+    master, node = rosgraph.Master(rospy.get_name()), rospy.get_node_uri()
+    manager = get_topic_manager()
+    publications, subscriptions = manager.get_publications(), manager.get_subscriptions()
+    for topic, kind in publications:
+        master.registerPublisher(topic, kind, node)
+    for topic, kind in subscriptions:
+        publishers = master.registerSubscriber(topic, kind, node)
+        xmlrpc.client.ServerProxy(node).publisherUpdate("/master", topic, publishers)
+    return len(publications), len(subscriptions)
+
+
+def watch_master(rospy: Any, uri: str, warn: Callable[[str], None], stop: threading.Event) -> None:
+    """Until ``stop``: ask the master its process id every MASTER_POLL_S; when it went away and came back (or
+    another answers), register again and say so."""
+    import rosgraph
+
+    master = rosgraph.Master(rospy.get_name())
+    known: int | None = master.getPid()
+    while not stop.wait(MASTER_POLL_S):
+        try:
+            pid = master.getPid()
+        except Exception:  # refused, reset: the master is gone for now
+            if known is not None:
+                warn(f"ros: the master at {uri} is gone; the node goes on with the connections it has, and "
+                     "registers again when a master answers")
+            known = None
+            continue
+        if pid != known:
+            try:
+                publications, subscriptions = register_again(rospy)
+            except Exception as error:  # it went away again: the next poll retries
+                warn(f"ros: the master at {uri} answers but refused the registration ({error}); retrying")
+                continue
+            warn(f"ros: the master at {uri} is back (process {pid}): registered again {publications} publications "
+                 f"and {subscriptions} subscriptions")
+            known = pid
+
+
 def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
     """Run the node until SIGINT or SIGTERM (or ``stop``); the frames it answered and the errors it said."""
     options.validate()
@@ -111,44 +171,45 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
         return run_dds(options, warn, stop)
     rospy, roslib_message, String = rospy_modules()
     model = Recognizer.load(options.model)
-    feed = MessageFeed(model, warn, time.monotonic)
+    classes: dict[str, Any] = {}
+
+    def decode(topic: str, raw: Any) -> Any:
+        kind = raw._connection_header.get("type", "?")
+        if kind not in classes:
+            classes[kind] = roslib_message.get_message_class(kind)
+            if classes[kind] is None:
+                feed.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
+        return None if classes[kind] is None else classes[kind]().deserialize(raw._buff)
+
+    feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size, decode)
     uri = check_master()
     stop = stop or threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     rospy.init_node(options.node_name, disable_signals=True)
-    activity = rospy.Publisher(options.activity_topic, String, queue_size=QUEUE)
-    framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String, queue_size=QUEUE)
-    lock, classes = threading.Lock(), {}
+    activity = rospy.Publisher(options.activity_topic, String, queue_size=PUBLISHER_QUEUE)
+    framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String, queue_size=PUBLISHER_QUEUE)
 
     def publish(frames: list[LiveFrame]) -> None:
         for frame in frames:
             activity.publish(String(data=frame.prediction.name))
             framed.publish(String(data=frame.json(model.classes)))
 
-    def receive(raw: Any, topic: str) -> None:
-        received = rospy.get_rostime().to_nsec()
-        kind = raw._connection_header.get("type", "?")
-        if kind not in classes:
-            classes[kind] = roslib_message.get_message_class(kind)
-            if classes[kind] is None:
-                feed.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
-        if classes[kind] is None:
-            return
-        with lock:
-            publish(feed.receive(topic, classes[kind]().deserialize(raw._buff), received))
-
     for topic in feed.topics:
-        rospy.Subscriber(topic, rospy.AnyMsg, receive, callback_args=topic, queue_size=QUEUE)
+        rospy.Subscriber(topic, rospy.AnyMsg, lambda raw, t: feed.offer(t, raw, rospy.get_rostime().to_nsec()),
+                         callback_args=topic, queue_size=options.queue_size)
+    threading.Thread(target=watch_master, args=(rospy, uri, warn, stop), daemon=True).start()
     warn(f"ros: {options.node_name} at {uri}: listening to {', '.join(feed.topics)} on the model's "
          f"{feed.live.rate:g} Hz clock; publishing {options.activity_topic} and "
          f"{options.activity_topic.rstrip('/')}{FRAME_SUFFIX}")
-    while not stop.wait(0.1) and not rospy.is_shutdown():
-        pass
-    with lock:
-        publish(feed.finish())
+    while not stop.is_set() and not rospy.is_shutdown():
+        publish(feed.pending(0.1))
+    last = feed.drain()  # what was queued, and every frame held (a lagged decoder's last frames), decided
+    publish(last)
+    if last:
+        time.sleep(FLUSH_S)  # rospy sends from a thread per connection: let the last frames leave
     rospy.signal_shutdown("mlnseq ros stopped")
-    return RosSummary(feed.frames, feed.bad)
+    return RosSummary(feed.frames, feed.bad, feed.dropped)
 
 
 def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
@@ -157,6 +218,7 @@ def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Ev
 
     require()
     node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
-                                    options.distro or types.default_distro(), options.qos)
+                                    options.distro or types.default_distro(), options.qos, options.max_hold,
+                                    options.queue_size)
     with stopped_by_signals(stop) as stop:
         return RosSummary(*node.run(node_options, warn, stop))

@@ -28,13 +28,13 @@ import csv
 import itertools
 import json
 import math
-import signal
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, ContextManager
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.stopping import Stopped, StopSignals
 from mlnseq.recognition import live as ros_live
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import rostopic
@@ -52,10 +52,13 @@ class StreamOptions:
     model: Path
     strict: bool = False
     max_line_bytes: int = MAX_LINE_BYTES
+    max_hold: float | None = None  # `rostopic echo -p`: seconds a tick holds the feed's last row; default: the model's
 
     def validate(self) -> None:
         if self.max_line_bytes < 1:
             raise BadInput(f"--max-line-bytes {self.max_line_bytes}: a line limit is at least 1 byte")
+        if self.max_hold is not None and not self.max_hold > 0:
+            raise BadInput(f"--max-hold must be above 0 seconds (inf: no bound), got {self.max_hold:g}")
 
 
 @dataclass
@@ -72,14 +75,16 @@ class InputLine(BadInput):
 
 
 def lines_of(source: BinaryIO, limit: int, stop_early: bool = False,
-             before_wait: Sequence[Callable[[], None]] = ()) -> Iterator[str | InputLine]:
+             before_wait: Sequence[Callable[[], None]] = (),
+             reading: Callable[[], ContextManager[Any]] = contextlib.nullcontext) -> Iterator[str | InputLine]:
     """Every line of ``source`` without its newline, decoded as UTF-8, read in chunks of at most CHUNK_BYTES
-    as they arrive; each of ``before_wait`` is called before each read, which may wait for input. A line over
-    ``limit`` bytes is never held: it is an InputLine naming its number and length once its end is read, or
-    (``stop_early``) as soon as it passes the limit."""
+    as they arrive; each of ``before_wait`` is called before each read, which may wait for input, and the read
+    runs in ``reading()`` (where a stop signal ends it). A line over ``limit`` bytes is never held: it is an
+    InputLine naming its number and length once its end is read, or (``stop_early``) as soon as it passes the
+    limit."""
     read = getattr(source, "read1", source.read)  # read1: what is there, without waiting to fill the chunk
     number, held, size = 1, [], 0  # the line being read: its number, its pieces (within the limit), its length
-    for chunk in _chunks(read, before_wait):
+    for chunk in _chunks(read, before_wait, reading):
         *ends, rest = chunk.split(b"\n")
         for piece in ends:
             if stop_early and size + len(piece) > limit >= size:
@@ -97,12 +102,14 @@ def lines_of(source: BinaryIO, limit: int, stop_early: bool = False,
         yield _line(number, b"".join(held), size, limit)
 
 
-def _chunks(read: Callable[[int], bytes], before_wait: Sequence[Callable[[], None]]) -> Iterator[bytes]:
+def _chunks(read: Callable[[int], bytes], before_wait: Sequence[Callable[[], None]],
+            reading: Callable[[], ContextManager[Any]]) -> Iterator[bytes]:
     """What ``read`` gives, a chunk at a time, until the end of the input; ``before_wait`` called before each read."""
     while True:
         for then in before_wait:
             then()
-        chunk = read(CHUNK_BYTES)
+        with reading():
+            chunk = read(CHUNK_BYTES)
         if not chunk:
             return
         yield chunk
@@ -184,34 +191,6 @@ def _number(text: str) -> float | str:
         return text  # the recogniser names the feature that is not a number
 
 
-@contextlib.contextmanager
-def answering_before_interrupt() -> Iterator[Callable[[bool], None]]:
-    """Ctrl-C while a frame is being answered takes effect once it is answered; while waiting for input, at
-    once. Yields ``busy(flag)`` to mark the answering."""
-    state = {"busy": False, "pending": False}
-
-    def handler(signum: int, frame: Any) -> None:
-        if state["busy"]:
-            state["pending"] = True
-        else:
-            raise KeyboardInterrupt
-
-    def busy(flag: bool) -> None:
-        state["busy"] = flag
-        if not flag and state["pending"]:
-            raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGINT, handler)
-    except ValueError:  # not the main thread: Ctrl-C is the caller's
-        yield lambda flag: None
-        return
-    try:
-        yield busy
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> dict[str, Any]:
     """A decided frame's output: its episode, frame (and input time), class, probabilities and the model's lag."""
     line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
@@ -237,7 +216,7 @@ def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int
 def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn: Callable[[str], None]) -> StreamSummary:
     """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
-    bad lines through ``warn``."""
+    bad lines through ``warn``. SIGINT or SIGTERM: the frames read are answered, then `Stopped` is raised."""
     options.validate()
     model = Recognizer.load(options.model)
     notes = model.manifest.notes  # said in full by export, which made them, and shown by info; here one line
@@ -247,16 +226,17 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
         warn(f"note: the model holds {len(notes)} notes from its export (`mlnseq info {options.model}` shows them)")
     if model.decoding.decoder.offline:
         warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
-    before_wait: list[Callable[[], None]] = []  # _serve adds its answer to the frames it held back
-    lines = lines_of(source, options.max_line_bytes, options.strict, before_wait)
-    head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
-    for line in lines:
-        head.append(line)
-        if not isinstance(line, str) or line.strip():
-            break
-    if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
-        return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
-    return _serve(options, model, itertools.chain(head, lines), emit, warn, before_wait)
+    with StopSignals().installed() as stop:
+        before_wait: list[Callable[[], None]] = []  # _serve adds its answer to the frames it held back
+        lines = lines_of(source, options.max_line_bytes, options.strict, before_wait, stop.reading)
+        head = []  # the blank lines before the first, and the first (a `rostopic echo -p` header?)
+        for line in lines:
+            head.append(line)
+            if not isinstance(line, str) or line.strip():
+                break
+        if head and isinstance(head[-1], str) and rostopic.is_header(head[-1]):
+            return _echo(options, model, head[-1], enumerate(lines, start=len(head) + 1), emit, warn)
+        return _serve(options, model, itertools.chain(head, lines), emit, warn, before_wait)
 
 
 def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | InputLine], emit: Callable[[str], None],
@@ -274,17 +254,9 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
             emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
 
-    with answering_before_interrupt() as busy:
-
-        def answer_held() -> None:
-            busy(True)
-            answer(model.decide(), episode)
-            busy(False)
-
-        before_wait.append(answer_held)
+    with answering_held(before_wait, lambda: answer(model.decide(), episode)):
         try:
             for number, frame in frames_of(lines):
-                busy(True)
                 try:
                     if isinstance(frame, InputLine):
                         raise frame
@@ -307,40 +279,44 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
                     if options.strict:
                         raise
                     warn(f"error: {error}")
-                    busy(False)
                     continue
                 answer(prediction.final, episode)
-                busy(False)
-        except KeyboardInterrupt:  # Ctrl-C: the frames read so far are answered, the pending ones at once
+        except Stopped:  # SIGINT or SIGTERM: every frame read is decided and answered, then the signal's exit
             answer(model.finish(), episode)
             raise
-        busy(True)
         answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
-        busy(False)
     return summary
+
+
+@contextlib.contextmanager
+def answering_held(before_wait: list[Callable[[], None]], answer_held: Callable[[], None]) -> Iterator[None]:
+    """In this block, the decisions held back are answered before each read that may wait (``before_wait``)."""
+    before_wait.append(answer_held)
+    try:
+        yield
+    finally:
+        before_wait.remove(answer_held)
 
 
 def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterable[tuple[int, str | InputLine]],
           emit: Callable[[str], None], warn: Callable[[str], None]) -> StreamSummary:
     """A `rostopic echo -p` feed: its rows on the model's clock, one answer per tick with its time."""
-    live = ros_live.LiveRecognizer(model, warn)
+    live = ros_live.LiveRecognizer(model, warn, options.max_hold)
     topic = ros_live.echo_topic(live)
     summary = StreamSummary(episodes=1)
-    with answering_before_interrupt() as busy:
-        try:
-            for _, answer in ros_live.feed_echo(live, topic, lines, header):
-                busy(True)
-                if isinstance(answer, BadInput):
-                    summary.skipped += 1
-                    if options.strict:
-                        raise InputLine(str(answer))
-                    warn(f"error: {answer}")
-                else:
-                    emit(answer.json(model.classes))
-                    summary.frames += 1
-                busy(False)
-        except KeyboardInterrupt:  # Ctrl-C: the ticks up to the last message read are answered too
-            for frame in live.finish():
-                emit(frame.json(model.classes))
-            raise
+    try:
+        for _, answer in ros_live.feed_echo(live, topic, lines, header):
+            if isinstance(answer, BadInput):
+                summary.skipped += 1
+                if options.strict:
+                    raise InputLine(str(answer))
+                warn(f"error: {answer}")
+            else:
+                emit(answer.json(model.classes))
+                summary.frames += 1
+    except Stopped:  # SIGINT or SIGTERM: the ticks up to the last message read, and the frames held, answered
+        for frame in live.finish():
+            emit(frame.json(model.classes))
+        raise
+    summary.episodes = live.episode + 1  # time that jumped back started the others
     return summary

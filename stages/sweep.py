@@ -2,8 +2,10 @@
 
 :func:`plan` reads and checks the sweep file, the dataset's inputs and the cluster profile (nothing runs);
 :func:`run` writes OUT/Snakefile and OUT/sweep.json, runs Snakemake (locally, or through its SLURM executor
-with a profile) and gathers OUT/results.parquet. Snakemake's bookkeeping makes a rerun do only what is
-missing or stale, and an interrupted sweep resume.
+with a profile; its own output to OUT/sweep.log, the progress to a callback) and gathers OUT/results.parquet.
+Snakemake's bookkeeping makes a rerun do only what is missing or stale, and an interrupted sweep resume. A job that
+fails (killed, cancelled on the cluster, out of disk) fails its config alone: the others run on (``--keep-going``),
+the table marks it, and the next run redoes what is missing.
 """
 
 from __future__ import annotations
@@ -12,9 +14,9 @@ import enum
 import importlib.util
 import os
 import shutil
-import subprocess
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +24,7 @@ import polars as pl
 
 from mlnseq.catalog import artifacts, errors
 from mlnseq.catalog.errors import BadInput, MlnseqError
-from mlnseq.sweeps import grid, results, workflow
+from mlnseq.sweeps import grid, results, running, workflow
 
 PROFILE_FILES = ("config.v9+.yaml", "config.v8+.yaml", "config.yaml")  # the names Snakemake looks for
 
@@ -59,7 +61,23 @@ class SweepOptions:
 class Swept:
     path: Path  # OUT/results.parquet
     table: pl.DataFrame
-    best: dict[str, Any]
+    best: dict[str, Any] | None  # None when no config finished
+    failures: list[results.Failure] = field(default_factory=list)
+    log: Path | None = None  # OUT/sweep.log, Snakemake's own output
+    log_error: str | None = None  # the log could not be written (a full disk)
+    write_error: str | None = None  # results.parquet could not be written (then ``path`` is None): nothing half-written
+
+
+@dataclass(frozen=True)
+class Progress:
+    """How far a sweep is: configs done and failed of all, and Snakemake's jobs done of its plan for this run."""
+
+    done: int
+    failed: int
+    total: int
+    jobs: tuple[int, int]
+    log: Path  # where Snakemake's own output goes
+    starting: bool = False  # before Snakemake runs: ``done`` are the configs finished by an earlier run
 
 
 def plan(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> grid.Sweep:
@@ -113,7 +131,7 @@ def mlnseq_command() -> str:
 
 def snakemake_command(snakefile: Path, out: Path, options: SweepOptions) -> list[str]:
     command = [sys.executable, "-m", "snakemake", "--snakefile", str(snakefile.resolve()),
-               "--directory", str(out.resolve()), "--rerun-incomplete"]
+               "--directory", str(out.resolve()), "--rerun-incomplete", "--keep-going"]
     if options.executor is Executor.SLURM:
         command += ["--executor", "slurm", "--profile", str(Path(options.profile).resolve())]
         return command + (["--jobs", str(options.cores)] if options.cores else [])
@@ -128,19 +146,9 @@ def installed(module: str) -> bool:
         return False
 
 
-def run_snakemake(command: list[str]) -> int:
-    """Snakemake as a process, its output on stderr; on Ctrl-C (which reaches it too) wait while it stops its jobs
-    and unlocks the folder, so that the next run resumes."""
-    process = subprocess.Popen(command, stdout=sys.stderr)
-    try:
-        return process.wait()
-    except KeyboardInterrupt:
-        process.wait()
-        raise
-
-
-def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> Swept:
-    """Run the sweep (only what is missing or stale) and gather OUT/results.parquet."""
+def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions,
+        progress: Callable[[Progress], None] = lambda _: None) -> Swept:
+    """Run the sweep (only what is missing or stale) and gather OUT/results.parquet, the failed configs marked."""
     sweep = plan(sweep_file, options, stages)
     if not installed("snakemake"):
         raise BadInput("mlnseq sweep runs on Snakemake, which is not installed: "
@@ -149,10 +157,36 @@ def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> S
         raise BadInput(f"--executor slurm needs Snakemake's SLURM executor: {errors.install_hint('sweep')}")
     out = options.out_dir(sweep)
     snakefile = workflow.write(sweep, out, mlnseq_command())
-    code = run_snakemake(snakemake_command(snakefile, out, options))
-    if code != 0:
-        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {code}): see its output above and "
-                          f"the stage logs in {out / workflow.RUNS}/CONFIG/seed-N/logs/; rerun `mlnseq sweep` to "
-                          "resume")
-    table = results.gather(sweep, out)
-    return Swept(results.write(table, sweep, out), table, results.best(table))
+    done = Counting(sweep, out, progress)
+    ran = running.run_snakemake(snakemake_command(snakefile, out, options), out / running.LOG, done.heard)
+    if ran.code != 0 and not ran.errors:  # Snakemake itself failed: no job to blame
+        last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
+        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {ran.code}): {last}; see {out / running.LOG}"
+                          f"{'' if ran.log_error is None else f' ({ran.log_error})'}; rerun `mlnseq sweep` to resume")
+    table, failures = results.gather(sweep, out, ran.errors)
+    path, write_error = None, None
+    try:
+        path = results.write(table, sweep, out)
+    except BadInput as error:  # the disk is full (or the folder not writable): nothing half-written
+        write_error = str(error).replace("; choose a writable --workdir", ": nothing of it was written")
+    return Swept(path, table, results.best(table), failures, out / running.LOG, ran.log_error, write_error)
+
+
+class Counting:
+    """Turns what Snakemake says into `Progress`: configs whose every seed's metrics are written, configs a failed job
+    belongs to; the callback hears each change."""
+
+    def __init__(self, sweep: grid.Sweep, out: Path, progress: Callable[[Progress], None]):
+        self.sweep, self.out, self.progress = sweep, out, progress
+        self.said: tuple[int, int] | None = None
+        self.heard(running.Run(), starting=True)
+
+    def heard(self, ran: running.Run, starting: bool = False) -> None:
+        done = sum(all(workflow.run_dir(self.out, c.name, s).joinpath(artifacts.METRICS).exists()
+                       for s in self.sweep.seeds) for c in self.sweep.configs)
+        failed_logs = {log for error in ran.errors for log in error.logs}
+        failed = sum(any(log.startswith(f"{workflow.RUNS}/{c.name}/") for log in failed_logs)
+                     for c in self.sweep.configs)
+        if (done, failed) != self.said:
+            self.said = (done, failed)
+            self.progress(Progress(done, failed, len(self.sweep.configs), ran.jobs, self.out / running.LOG, starting))

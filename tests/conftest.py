@@ -183,4 +183,21 @@ def joint_state_model(tmp_path_factory, shared_data) -> dict:
         topics=("/joint_states",), label_topic="/phase")))
     train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
     model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
-    return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:]}
+    return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:], "workdir": workdir}
+
+
+@pytest.fixture(scope="session")
+def lagged_joint_state_model(tmp_path_factory, joint_state_model) -> Path:
+    """joint_state_model's lstm with a lagged decoder: a suggested spec, its formulas and weights, conflated with
+    smooth at lag 5 and exported as lstm+smooth@5 (a live feed holds 5 frames back); read-only."""
+    from mlnseq import binarize, conflate, export, formulas, learn_weights
+
+    folder = tmp_path_factory.mktemp("lagged-joint-states")
+    workdir = folder / "work"
+    shutil.copytree(joint_state_model["workdir"], workdir)
+    binarize.run(workdir, binarize.BinarizeOptions(suggest=workdir / "suggested.binarize.toml"))
+    formulas.run(workdir, formulas.FormulasOptions())
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
+    conflate.run(workdir, conflate.ConflateOptions(decode=("smooth",), lags=(5,)))
+    return export.run(workdir, export.ExportOptions(method="lstm", decode="smooth", lag=5,
+                                                    output=folder / "lstm-smooth.mlnseq")).path

@@ -1,6 +1,7 @@
 """The ROS 1 test's publisher and recorder (rospy), run as their own processes against the test's master.
 
-    python tests/ros_driver.py publish ROWS.npy SUBSCRIBERS  # /joint_states at 100 Hz, stamped, once they listen
+    python tests/ros_driver.py publish ROWS.npy SUBSCRIBERS [HZ]  # /joint_states at 100 Hz (or HZ), stamped, once
+                                                                  # they listen
     python tests/ros_driver.py record TOPIC FILE              # each std_msgs/String's data a line; "ready" on stdout
 """
 
@@ -17,7 +18,7 @@ import ros_episode
 WAIT_S = 30
 
 
-def publish(rows_file: str, subscribers: int) -> None:
+def publish(rows_file: str, subscribers: int, hz: float = 1e9 / ros_episode.STEP) -> None:
     from sensor_msgs.msg import JointState
 
     rospy.init_node("episode", anonymous=True, disable_signals=True)
@@ -27,10 +28,10 @@ def publish(rows_file: str, subscribers: int) -> None:
         if time.monotonic() > deadline:
             sys.exit(f"publish: {publisher.get_num_connections()} of {subscribers} subscribers after {WAIT_S} s")
         time.sleep(0.05)
-    rate = rospy.Rate(1e9 / ros_episode.STEP)
+    rate, step = rospy.Rate(hz), round(1e9 / hz)
     for k, row in enumerate(np.load(rows_file)):
         message = JointState(name=ros_episode.JOINTS, position=row[:7].tolist())
-        t = ros_episode.START + k * ros_episode.STEP
+        t = ros_episode.START + k * step
         message.header.stamp = rospy.Time(t // 10**9, t % 10**9)
         message.header.seq = k
         publisher.publish(message)
@@ -54,6 +55,6 @@ def record(topic: str, path: str) -> None:
 
 if __name__ == "__main__":
     if sys.argv[1] == "publish":
-        publish(sys.argv[2], int(sys.argv[3]))
+        publish(sys.argv[2], int(sys.argv[3]), *map(float, sys.argv[4:5]))
     else:
         record(sys.argv[2], sys.argv[3])

@@ -35,3 +35,27 @@ def refused(result, *words: str) -> str:
     return lines[0]
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def kill_a_job(group: int, config: str, stages: tuple[str, ...] = ("train", "conflate"), timeout: float = 600) -> str:
+    """SIGKILL the first `mlnseq STAGE ... --workdir runs/CONFIG/...` of the process group ``group`` (a sweep started
+    in a session of its own: only its jobs) once it runs; its command line."""
+    import os
+    import signal
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                words = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
+                if os.getpgid(int(pid)) != group:
+                    continue
+            except OSError:  # gone meanwhile
+                continue
+            if any(w.endswith("mlnseq") for w in words[:2]) and any(s in words[:3] for s in stages) \
+                    and any(w.startswith(f"runs/{config}/") for w in words):
+                os.kill(int(pid), signal.SIGKILL)
+                return " ".join(words)
+        time.sleep(0.02)
+    raise TimeoutError(f"no {' or '.join(stages)} job of {config} ran within {timeout:g} s")

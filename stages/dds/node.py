@@ -6,7 +6,11 @@ runs (recognition/live.py's `MessageFeed`: the header stamps' clock, the model's
 model's rule, a lagged decoder's wait), and publishes per decided frame the class name (std_msgs/String on the
 activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame). When ``stop`` is set
 (SIGINT, SIGTERM), the samples already arrived are read, the frames the feed holds are decided and published
-(`MessageFeed.finish`), and the writers wait for their readers' acknowledgements before the node leaves.
+(`MessageFeed.drain`), and the writers wait for their readers' acknowledgements before the node leaves.
+
+A taking thread subscribes as publishers appear and hands every sample to the feed's bounded queue
+(`MessageFeed.offer`: the oldest dropped first, counted and said), so a recogniser that falls behind a fast
+publisher drops what it cannot recognise in time, as the ROS 1 node does; the main thread recognises and publishes.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from pathlib import Path
 
 from mlnseq.dds import domain, require
 from mlnseq.dds.types import STRING, MessageTypes
-from mlnseq.recognition.live import LiveFrame, MessageFeed
+from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed
 from mlnseq.recognition.recognizer import Recognizer
 
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's (as the ROS 1 node)
@@ -36,17 +40,20 @@ class NodeOptions:
     node_name: str
     distro: str
     qos: domain.QosChoice
+    max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
+    queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
 
     @property
     def frame_topic(self) -> str:
         return self.activity_topic.rstrip("/") + FRAME_SUFFIX
 
 
-def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event) -> tuple[int, int]:
-    """Run the node until ``stop`` is set; the frames it answered and the bad messages it said."""
+def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event) -> tuple[int, int, int]:
+    """Run the node until ``stop`` is set; the frames it answered, the bad messages it said and the messages it
+    dropped."""
     require()
     model = Recognizer.load(options.model)
-    feed = MessageFeed(model, warn, time.monotonic)
+    feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size)
     types = MessageTypes(options.distro)
     String = types.get(STRING)
     participant = domain.Participant(options.distro, options.node_name)
@@ -59,18 +66,28 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
             activity.write(String(data=frame.prediction.name))
             framed.write(String(data=frame.json(feed.classes)))
 
-    def receive(seconds: float) -> None:
+    def take(seconds: float) -> None:
+        for made in subscriptions.discover():
+            warn(f"ros: subscribed to {made.describe()}")
         for topic, message, sent in subscriptions.take(seconds):
-            publish(feed.receive(topic, message, sent))
+            feed.offer(topic, message, sent)
+
+    taking = threading.Event()
+
+    def taker() -> None:
+        while not taking.is_set():
+            take(WAIT_S)
 
     warn(f"ros: {options.node_name} on ROS 2 {options.distro} (DDS domain {participant.domain_id}): listening to "
          f"{', '.join(feed.topics)} on the model's {feed.live.rate:g} Hz clock; publishing {options.activity_topic} "
          f"and {options.frame_topic}")
+    thread = threading.Thread(target=taker, name="mlnseq-dds-take", daemon=True)
+    thread.start()
     while not stop.is_set():
-        for made in subscriptions.discover():
-            warn(f"ros: subscribed to {made.describe()}")
-        receive(WAIT_S)
-    receive(0)
-    publish(feed.finish())
+        publish(feed.pending(WAIT_S))
+    taking.set()
+    thread.join()
+    take(0)
+    publish(feed.drain())
     participant.acknowledged((activity, framed), ACKS_S)
-    return feed.frames, feed.bad
+    return feed.frames, feed.bad, feed.dropped

@@ -10,6 +10,7 @@ refused in one line naming the extra to install.
 from __future__ import annotations
 
 import importlib
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -17,6 +18,7 @@ from typing import Any
 
 from mlnseq.catalog import errors
 from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.holds import MAX_HOLD_S
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 
 
@@ -67,6 +69,11 @@ class SourceOptions:
     label_topic: str | None = None  # rosbag: a std_msgs/String topic whose message holds until the next
     unlabelled: str | None = None  # jigsaws and --labels: class of frames outside any interval; default: dropped
     annotations: str | None = None  # lerobot: labels from the dataset's own annotations of this style (subtask)
+    max_hold: float = MAX_HOLD_S  # rosbag: the longest a tick holds a topic's or joint's value (s); None: no bound
+
+    def __post_init__(self) -> None:
+        if self.max_hold is None:  # a reading record's "no bound"
+            object.__setattr__(self, "max_hold", math.inf)
 
     def validate(self) -> None:
         if self.annotations is not None and self.annotations not in ANNOTATIONS:
@@ -75,6 +82,8 @@ class SourceOptions:
             raise BadInput(f"unknown --labels-unit {self.labels_unit!r}: choose seconds or frames")
         if self.rate is not None and not self.rate > 0:
             raise BadInput(f"--rate must be above 0 Hz, got {self.rate:g}")
+        if not self.max_hold > 0:
+            raise BadInput(f"--max-hold must be above 0 seconds (inf: hold without a bound), got {self.max_hold:g}")
 
     def unit(self, env: str) -> str:
         return self.labels_unit or ("seconds" if env == "rosbag" else "frames")
@@ -83,7 +92,8 @@ class SourceOptions:
         """The options a model keeps for predict to read new recordings the same way (not the labels file)."""
         record: dict[str, Any] = {"labels_unit": self.unit(env)}
         if env == "rosbag":
-            record.update(topics=list(self.topics), rate=self.rate, label_topic=self.label_topic)
+            record.update(topics=list(self.topics), rate=self.rate, label_topic=self.label_topic,
+                          max_hold=self.max_hold if math.isfinite(self.max_hold) else None)
         if env == "jigsaws" or self.labels is not None or self.annotations is not None:
             record["unlabelled"] = self.unlabelled
         if self.annotations is not None:

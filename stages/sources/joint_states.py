@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.holds import Arrivals
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
@@ -30,28 +31,38 @@ class JointState:
     """A ``sensor_msgs/JointState`` topic read by joint name: every (field, joint) that its messages carry is one
     feature, so publishers of other joints on one topic (an arm and a gripper) merge by name on the one clock;
     each message updates the joints it names, the others keep their last value. Joints are added as they come
-    until the clock starts (``freeze``), then ordered by field (position, velocity, effort), first seen first."""
+    until the clock starts (``freeze``), then ordered by field (position, velocity, effort), first seen first.
+    ``arrivals`` keeps when each column got its values (`update`), ``hold`` ns the longest a value is held."""
 
-    def __init__(self, topic: str, columns: list[tuple[str, str]]):
+    def __init__(self, topic: str, columns: list[tuple[str, str]], hold: float = float("inf")):
         self.topic, self.columns, self.names = topic, list(columns), [f"{topic}/{f}/{j}" for f, j in columns]
         self.index = {column: k for k, column in enumerate(self.columns)}
         self.values, self.seen = np.zeros(len(self.columns)), np.zeros(len(self.columns), dtype=bool)
+        self.arrivals = Arrivals(hold)  # a source per set of columns that messages set together
+        self.sources: dict[tuple[int, ...], int] = {}
         self.frozen = False
-        self.plans: dict[tuple, list[tuple[str, np.ndarray]]] = {}  # (names, array sizes) -> (field, columns)
+        # (names, array sizes) -> ((field, columns) of each non-empty array, every column the message sets)
+        self.plans: dict[tuple, tuple[list[tuple[str, np.ndarray]], np.ndarray]] = {}
 
     @property
     def complete(self) -> bool:
         return bool(self.seen.all())
 
     def __call__(self, message: Any) -> np.ndarray:
+        return self.update(message, None)
+
+    def update(self, message: Any, time: int | None) -> np.ndarray:
+        """The values after ``message``, received at ``time`` ns (None: not kept in ``arrivals``)."""
         key = (tuple(message.name), *(len(getattr(message, field)) for field in JOINT_FIELDS))
-        plan = self.plans.get(key) or self._plan(key)
+        plan, source = self.plans.get(key) or self._plan(key)
         for field, columns in plan:
             self.values[columns] = getattr(message, field)
             self.seen[columns] = True
+        if time is not None:
+            self.arrivals.update(source, time)
         return self.values
 
-    def _plan(self, key: tuple) -> list[tuple[str, np.ndarray]]:
+    def _plan(self, key: tuple) -> tuple[list[tuple[str, np.ndarray]], int]:
         """Where each non-empty array of messages that name ``key[0]`` goes (new joints added, until frozen)."""
         joints, sizes = key[0], key[1:]
         if len(set(joints)) != len(joints):
@@ -64,8 +75,11 @@ class JointState:
                 plan.append((field, np.array([self._column(field, joint) for joint in joints], dtype=np.int64)))
         if len(self.plans) >= MAX_PLANS:  # joint lists that change message after message: keep memory bounded
             self.plans.clear()
-        self.plans[key] = plan
-        return plan
+        touched = tuple(sorted(int(c) for _, columns in plan for c in columns))
+        if touched not in self.sources:
+            self.sources[touched] = self.arrivals.add()
+        self.plans[key] = plan, self.sources[touched]
+        return self.plans[key]
 
     def _column(self, field: str, joint: str) -> int:
         if (field, joint) not in self.index:
@@ -84,7 +98,13 @@ class JointState:
         self.names[:] = [self.names[k] for k in order]  # the same list read_bag holds
         self.index = {column: k for k, column in enumerate(self.columns)}
         self.values, self.seen, self.frozen, self.plans = self.values[order], self.seen[order], True, {}
+        position = {old: new for new, old in enumerate(order)}
+        self.sources = {tuple(sorted(position[c] for c in columns)): s for columns, s in self.sources.items()}
         return self.values
+
+    def sources_of(self, column: int) -> tuple[int, ...]:
+        """The sources (in ``arrivals``) of the messages that set ``column``."""
+        return tuple(s for columns, s in self.sources.items() if column in columns)
 
 
 def joint_columns(reader, path: Path) -> dict[str, list[tuple[str, str]]]:

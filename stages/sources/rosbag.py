@@ -6,7 +6,10 @@ Numeric fields are flattened into features named ``TOPIC/FIELD/PATH`` (array ele
 on one clock at ``rate`` Hz (default: the first topic's rate), starting when every topic has sent a message,
 each tick holding each topic's last value at or before it (causal: never a value from the future). A frame's
 time is seconds since the bag's first message, the bag's own record time. ``label_topic`` (std_msgs/String)
-labels every tick with its last message. Messages are streamed, never all held.
+labels every tick with its last message. A tick holds a value for at most ``max_hold`` seconds: a channel (a topic,
+or a JointState's joint) silent for longer leaves its ticks missing, and they are dropped; every channel that
+stops before the end, starts after the beginning or goes silent is a note (``mlnseq.sources.holds``). Messages are
+streamed, never all held.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.table import check_features
+from mlnseq.sources.holds import Arrivals, Channel, Clock, Held, hold_ns
 from mlnseq.sources.joint_states import JOINT_STATE, JointMismatch, JointState, NewJoints, joint_columns
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 
@@ -65,11 +69,11 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
                 label_topic = options.label_topic if label is not Labels.NONE else None
                 if label is Labels.OPTIONAL and label_topic not in reader.topics:
                     label_topic = None  # new recordings without their phases: unlabelled
+                reading = Reading(topics, rate, label_topic, options.unlabelled, options.max_hold, columns.features)
                 try:
-                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled, joints)
+                    recording = read_bag(reader, path, reading, joints)
                 except NewJoints:  # a second publisher's joints after the clock started: again, knowing them all
-                    recording = read_bag(reader, path, topics, rate, label_topic, options.unlabelled,
-                                         joint_columns(reader, path))
+                    recording = read_bag(reader, path, reading, joint_columns(reader, path))
         except BadInput:
             raise
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
@@ -77,31 +81,37 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
         joints = recording.resolved["joints"]
-        if columns.features:
-            missing = [n for n in columns.features if n not in recording.features.columns]
-            if missing:
-                raise BadInput(f"{path}: no feature {missing[0]!r}; its features are "
-                               f"{', '.join(recording.features.columns[:8])}")
-            recording = dataclasses.replace(recording, features=recording.features.select(columns.features))
         recordings.append(recording)
     return recordings
 
 
-def read_bag(reader, path: Path, topics: tuple[str, ...], rate: float | None, label_topic: str | None,
-             unlabelled: str | None = None, joints: dict[str, list[tuple[str, str]]] | None = None) -> Recording:
+@dataclasses.dataclass(frozen=True)
+class Reading:
+    """How a bag is read: its topics (empty: every topic with a numeric field), the clock's rate (None: the first
+    topic's), the label topic, the class of ticks before its first message, the longest hold (s), the features."""
+
+    topics: tuple[str, ...] = ()
+    rate: float | None = None
+    label_topic: str | None = None
+    unlabelled: str | None = None
+    max_hold: float = float("inf")
+    features: tuple[str, ...] = ()
+
+
+def read_bag(reader, path: Path, reading: Reading, joints: dict[str, list[tuple[str, str]]] | None = None) -> Recording:
     """One bag's frames; ticks before the label topic's first message are dropped, or labelled ``unlabelled``."""
+    topics, label_topic = reading.topics, reading.label_topic
     listed = _check_topics(reader, path, topics, label_topic)
     candidates = list(topics) or sorted(t for t, info in reader.topics.items() if info.msgcount and t != label_topic)
-    if rate is None:
-        rate = _rate_of(reader, path, candidates[0])
+    rate = reading.rate if reading.rate is not None else _rate_of(reader, path, candidates[0])
     wanted = set(candidates) | ({label_topic} if label_topic else set())
-    clock = _Clock(reader, path, candidates, 1e9 / rate, label_topic, named=bool(topics))
-    clock.joint_states = {c.topic: JointState(c.topic, (joints or {}).get(c.topic, []))
+    clock = _Clock(reader, path, candidates, 1e9 / rate, label_topic, bool(topics), hold_ns(reading.max_hold))
+    clock.joint_states = {c.topic: JointState(c.topic, (joints or {}).get(c.topic, []), clock.hold)
                           for c in reader.connections if c.topic in wanted and c.msgtype == JOINT_STATE}
     for connection, timestamp, raw in reader.messages(connections=[c for c in reader.connections if c.topic in wanted]):
         clock.message(connection, timestamp, raw)
     clock.finish(listed)
-    return _recording(clock, path, rate, label_topic, unlabelled)
+    return _recording(clock, path, dataclasses.replace(reading, rate=rate))
 
 
 def _check_topics(reader, path: Path, topics: tuple[str, ...], label_topic: str | None) -> str:
@@ -125,8 +135,12 @@ class _Clock:
     each topic's last values at or before it (causal); the label topic's messages mark the ticks they label."""
 
     def __init__(self, reader, path: Path, candidates: list[str], period: float, label_topic: str | None,
-                 named: bool):
+                 named: bool, hold: float = float("inf")):
         self.reader, self.path, self.period, self.label_topic = reader, path, period, label_topic
+        self.hold = hold  # ns a tick holds a value at most
+        self.arrivals = Arrivals(hold)  # when each topic that is not a JointState got its values
+        self.slots: dict[str, int] = {}  # its channel in ``arrivals``
+        self.begin: int | None = None  # the first message of a topic read
         self.candidates = candidates  # the topics read; an unnamed topic without a numeric field is skipped
         self.named = named  # topics named by the user: one without a numeric field is an error
         self.start = reader.start_time
@@ -152,6 +166,8 @@ class _Clock:
             return
         if topic in self.skipped:
             return
+        if self.begin is None:
+            self.begin = timestamp
         if topic not in self.extractors:
             self._discover(topic, connection.msgtype, message)
         if topic in self.extractors:
@@ -187,6 +203,7 @@ class _Clock:
         if fields:
             self.names[topic] = [name for group, _, _ in fields for name in group]
             self.extractors[topic] = _extractor(fields)
+            self.slots[topic] = self.arrivals.add()
         elif self.named:
             raise BadInput(f"{self.path}: topic {topic!r} ({msgtype}) has no numeric field")
         else:
@@ -195,7 +212,11 @@ class _Clock:
 
     def _values(self, topic: str, message: Any, timestamp: int) -> np.ndarray:
         try:
-            return self.extractors[topic](message)
+            if topic in self.joint_states:
+                return self.joint_states[topic].update(message, timestamp)
+            values = self.extractors[topic](message)
+            self.arrivals.update(self.slots[topic], timestamp)
+            return values
         except JointMismatch as error:
             raise BadInput(f"{self.path}: topic {topic!r} at {(timestamp - self.start) / 1e9:.6f} s: {error}") from None
         except ValueError:
@@ -225,37 +246,55 @@ class _Clock:
             self.tick += 1
 
 
-def _recording(clock: _Clock, path: Path, rate: float, label_topic: str | None,
-               unlabelled: str | None) -> Recording:
-    """The ticks as a recording: times, labels, and the features column by column."""
+def _recording(clock: _Clock, path: Path, reading: Reading) -> Recording:
+    """The ticks as a recording: times, labels, and the features column by column; ticks where a feature read was
+    held past ``max_hold`` are dropped, and every channel that stops, starts late or goes silent is a note."""
     n = clock.tick
     times = clock.clock0 + np.round(np.arange(n) * clock.period).astype(np.int64)
     labels = np.full(n, None, dtype=object)
     for (first, name), (after, _) in zip(clock.label_changes, [*clock.label_changes[1:], (n, None)]):
         labels[first:after] = name
-    rows = np.arange(n)
-    if label_topic:
-        if unlabelled is not None:
-            labels[labels == None] = unlabelled  # noqa: E711
-        keep = labels != None  # noqa: E711
-        times, labels, rows = times[keep], labels[keep], rows[keep]
-        if not len(rows):
-            raise BadInput(f"{path}: --label-topic {label_topic} sends its first message after the last frame")
-    feature_names = [name for t in clock.candidates for name in clock.names[t]]
-    columns = {}
-    for i, name in enumerate(feature_names):  # one column at a time: the blocks and the frames, never a third copy
-        column = clock.frames.column(i)
-        columns[name] = column[keep] if label_topic else column
+    all_names = [name for t in clock.candidates for name in clock.names[t]]
+    wanted = list(reading.features) or all_names
+    missing = [name for name in wanted if name not in all_names]
+    if missing:
+        raise BadInput(f"{path}: no feature {missing[0]!r}; its features are {', '.join(all_names[:8])}")
+    held = Held(wanted, [_channel(clock, name) for name in wanted],
+                Clock(times, clock.begin, max(clock.last_time.values()), clock.start, clock.period), reading.max_hold)
+    keep = held.keep()
+    if reading.label_topic:
+        if reading.unlabelled is not None:
+            labels[labels == None] = reading.unlabelled  # noqa: E711
+        if not (labels != None).any():  # noqa: E711
+            raise BadInput(f"{path}: --label-topic {reading.label_topic} sends its first message after the last frame")
+        keep &= labels != None  # noqa: E711
+    if not keep.any():
+        why = next((note.split(": ", 1)[1] for note in held.notes(path.name) if "missing" in note), "")
+        raise BadInput(f"{path}: no frame has a value of every feature within --max-hold {reading.max_hold:g} s "
+                       f"({why}): read fewer --topics or --features, or hold longer with --max-hold")
+    rows = np.flatnonzero(keep)
+    index = {name: i for i, name in enumerate(all_names)}
+    columns = {name: clock.frames.column(index[name])[keep] for name in wanted}  # a column at a time, no third copy
     clock.frames = None
     features = check_features(pl.DataFrame(columns), path, "{file} frame {row}", pl.Series(rows))
     return Recording(
         path=path, features=features, episode=pl.Series([path.stem if path.is_file() else path.name] * len(rows)),
-        time=pl.Series((times - clock.start) / 1e9),
-        label=pl.Series("label", labels.tolist(), dtype=pl.String) if label_topic else None,
+        time=pl.Series((times[keep] - clock.start) / 1e9),
+        label=pl.Series("label", labels[keep].tolist(), dtype=pl.String) if reading.label_topic else None,
         row=pl.Series(rows), where="{file} frame {row}",
-        resolved={"topics": list(clock.candidates), "rate": rate, "skipped_topics": clock.skipped,
-                  "joints": {topic: state.columns for topic, state in clock.joint_states.items()}},
+        resolved={"topics": list(clock.candidates), "rate": reading.rate, "skipped_topics": clock.skipped,
+                  "joints": {topic: state.columns for topic, state in clock.joint_states.items()},
+                  "notes": held.notes(path.name)},
     )
+
+
+def _channel(clock: _Clock, name: str) -> Channel:
+    """Where feature ``name``'s arrivals are kept: its JointState's column, or its topic."""
+    topic = next(t for t in clock.candidates if name in clock.names[t])
+    state = clock.joint_states.get(topic)
+    if state is not None:
+        return Channel(topic, state.arrivals, state.sources_of(state.names.index(name)))
+    return Channel(topic, clock.arrivals, (clock.slots[topic],))
 
 
 class _Blocks:

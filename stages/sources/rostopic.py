@@ -12,6 +12,7 @@ topic's last value at or before it: a tick is known once a later message arrives
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -182,13 +183,17 @@ class OutOfOrder(BadInput):
 
 class HoldLast:
     """collect's bag clock, online: ticks every 1/rate s from the message that completes every topic, each
-    holding every topic's last values at or before it (``width`` features; ``slots[topic]``: its positions)."""
+    holding every topic's last values at or before it (``width`` features; ``slots[topic]``: its positions), for
+    at most ``max_hold`` s: a topic silent for longer is missing (NaN) in the ticks after that, as collect drops
+    those frames (stages/sources/holds.py); a topic that sent one message only (latched) is held throughout."""
 
-    def __init__(self, slots: Mapping[str, Sequence[int]], width: int, rate: float):
+    def __init__(self, slots: Mapping[str, Sequence[int]], width: int, rate: float, max_hold: float = math.inf):
         self.slots = {topic: np.asarray(positions, dtype=np.int64) for topic, positions in slots.items()}
         self.period = 1e9 / rate
+        self.hold = max_hold * 1e9
         self.row = np.full(width, np.nan)
         self.seen: dict[str, int] = {}  # topic -> its last message's time
+        self.sent: dict[str, int] = {}  # topic -> how many messages
         self.clock0: int | None = None
         self.tick = 0
         self.late: set[str] = set()  # topics that sent a message older than a tick already given
@@ -205,6 +210,7 @@ class HoldLast:
         if self.clock0 is not None and self.tick and time < self.clock0 + round((self.tick - 1) * self.period):
             self.late.add(topic)
         self.seen[topic] = time
+        self.sent[topic] = self.sent.get(topic, 0) + 1
         self.row[self.slots[topic]] = values
         if self.clock0 is None and len(self.seen) == len(self.slots):
             self.clock0 = time
@@ -212,8 +218,15 @@ class HoldLast:
 
     def _ticks_before(self, time: int) -> Iterator[tuple[int, np.ndarray]]:
         while self.clock0 is not None and self.next_time() < time:
-            yield self.next_time(), self.row.copy()
+            tick, row = self.next_time(), self.row.copy()
+            for topic in self.stale(tick):
+                row[self.slots[topic]] = np.nan
+            yield tick, row
             self.tick += 1
+
+    def stale(self, tick: int) -> list[str]:
+        """The topics whose last value is older than the hold at ``tick`` (ns)."""
+        return [topic for topic, seen in self.seen.items() if tick - seen > self.hold and self.sent[topic] > 1]
 
     def finish(self) -> list[tuple[int, np.ndarray]]:
         """The ticks up to the last message, once the feed has ended."""

@@ -2,10 +2,12 @@
 seeds), the test figures beside them for display only, and the best config by cross-validation.
 
 Everything is read from the artifacts: ``predictions.parquet``'s metadata (the figures conflate recorded on the
-training split's folds) and ``metrics.parquet`` (eval's test figures)."""
+training split's folds) and ``metrics.parquet`` (eval's test figures). A config whose job failed (or never ran) is a
+row of its own, ``status`` failed with the ``failure`` in words and no figures, and is never ranked."""
 
 from __future__ import annotations
 
+import os
 import shlex
 import statistics
 from dataclasses import dataclass, replace
@@ -19,9 +21,12 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import decoded_name
 from mlnseq.recognition.cross_validation import choice_score
 from mlnseq.sweeps.grid import Config, Sweep, flags
-from mlnseq.sweeps.workflow import run_dir
+from mlnseq.sweeps.running import JobError
+from mlnseq.sweeps.workflow import FORMULAS_DIR, run_dir, spec_names
 
 RESULTS = "results.parquet"
+DONE, FAILED = "done", "failed"  # a config's status
+LAST_LINES = 5  # of a failed job's log, shown under its line
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit")  # accuracies in %
 TEST_METRICS = {"segment_accuracy": ("segment_accuracy", 100.0), "frame_accuracy": ("frame_accuracy", 100.0),
                 "edit": ("edit", 1.0)}
@@ -78,12 +83,101 @@ def deploy_command(config: Config, result: SeedResult, workdir: Path) -> str:
                        "--workdir", str(workdir)])
 
 
+@dataclass(frozen=True)
+class Failure:
+    """A config that did not finish: the first of its jobs that failed (or did not run), and its log."""
+
+    config: str
+    seed: int | None  # None: a job before the seeds (the formulas file's)
+    stage: str
+    log: Path
+    reason: str
+    tail: tuple[str, ...] = ()  # the last lines of its log, then of the cluster's
+    others: tuple[Path, ...] = ()  # the other logs Snakemake named for it (the cluster job's)
+
+    def line(self) -> str:
+        seed = "" if self.seed is None else f" of seed {self.seed}"
+        others = f" (the cluster's: {', '.join(map(str, self.others))})" if self.others else ""
+        return f"config {self.config} failed: {self.stage}{seed} {self.reason}; its log: {self.log}{others}"
+
+
+def config_jobs(sweep: Sweep, config: Config, out: Path, seed: int) -> list[tuple[str, Path, Path]]:
+    """A config's jobs for one seed, in order: (stage, its output, its log)."""
+    jobs = []
+    if config.formulas is not None:
+        folder = out / FORMULAS_DIR / spec_names(sweep)[config.formulas]
+        jobs += [("formulas", folder / artifacts.FORMULAS, folder / "logs" / "formulas.log"),
+                 ("learn-weights", folder / artifacts.FOLD_WEIGHTS, folder / "logs" / "learn-weights.log")]
+    workdir, network = run_dir(out, config.name, seed), config.options["train"].method
+    return jobs + [("train", workdir / "models" / f"{network}.pt", workdir / "logs" / f"train-{network}.log"),
+                   ("conflate", workdir / artifacts.PREDICTIONS, workdir / "logs" / "conflate.log"),
+                   ("eval", workdir / artifacts.METRICS, workdir / "logs" / "eval.log")]
+
+
+def failure(sweep: Sweep, config: Config, out: Path, errors: list[JobError]) -> Failure | None:
+    """The config's failed job: of each seed's first job whose output is missing, the first Snakemake reported
+    failed (else the first), with its reason; None when every output is there."""
+    missing = []
+    for seed in sweep.seeds:
+        first = next(((stage, log) for stage, output, log in config_jobs(sweep, config, out, seed)
+                      if not output.exists()), None)
+        if first is not None:
+            relative = str(first[1].relative_to(out))
+            missing.append((seed, *first, next((e for e in errors if relative in e.logs), None)))
+    if not missing:
+        return None
+    seed, stage, log, error = next((m for m in missing if m[3] is not None), missing[0])
+    reason = error.reason() if error else "did not run (a job it needs failed, or the sweep stopped)"
+    others = [Path(out, p) for p in (error.logs if error else []) if p != str(log.relative_to(out))]
+    tail = last_lines(log) + tuple(line for other in others for line in last_lines(other))
+    full = None if tail or error is None else disk_full(log.parent)
+    if full:
+        reason += f" and its log is empty: {full}"
+    return Failure(config.name, None if stage in ("formulas", "learn-weights") else seed, stage, log, reason, tail,
+                   tuple(others))
+
+
+def disk_full(folder: Path, size: int = 64 * 1024) -> str | None:
+    """Why ``folder`` cannot take ``size`` bytes more (a full disk), or None when it can: a probe file written and
+    removed."""
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".disk-probe.", suffix=".tmp") as probe:
+            probe.write(b"\0" * size)
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as error:
+        return f"{error.strerror or error} in {folder}"
+    return None
+
+
+def last_lines(path: Path, count: int = LAST_LINES) -> tuple[str, ...]:
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return ()
+    return tuple(line for line in lines if line.strip())[-count:]
+
+
+def failed_row(sweep: Sweep, config: Config, failed: Failure) -> dict[str, Any]:
+    row: dict[str, Any] = {"config": config.name, **{key: config.values[key] for key in sweep.keys},
+                           "status": FAILED, "failure": failed.line(), "method": None, "seeds": len(sweep.seeds)}
+    for figure in FIGURES:
+        row[f"cv_{figure}"] = row[f"cv_{figure}_std"] = None
+    row["cv_score"] = None
+    for figure in FIGURES:
+        row[f"test_{figure}"] = None
+    return {**row, "best_seed": None, "deploy": None}
+
+
 def config_row(sweep: Sweep, config: Config, out: Path) -> dict[str, Any]:
     results = [seed_result(config, seed, run_dir(out, config.name, seed)) for seed in sweep.seeds]
     decode = config.options["export"].decode
     best = max(results, key=lambda r: choice_score(r.cv, decode))
     row: dict[str, Any] = {"config": config.name, **{key: config.values[key] for key in sweep.keys},
-                           "method": ", ".join(sorted({r.method for r in results})), "seeds": len(results)}
+                           "status": DONE, "failure": None, "method": ", ".join(sorted({r.method for r in results})),
+                           "seeds": len(results)}
     for figure in FIGURES:
         values = [r.cv[figure] for r in results]
         row[f"cv_{figure}"] = statistics.fmean(values)
@@ -96,20 +190,30 @@ def config_row(sweep: Sweep, config: Config, out: Path) -> dict[str, Any]:
     return row
 
 
-def gather(sweep: Sweep, out: Path) -> pl.DataFrame:
-    """One row per config, in the grid's order; a grid key whose values mix types is a text column."""
-    rows = [config_row(sweep, config, out) for config in sweep.configs]
+def gather(sweep: Sweep, out: Path, errors: list[JobError] = ()) -> tuple[pl.DataFrame, list[Failure]]:
+    """One row per config, in the grid's order (a failed config marked, without figures), and the failures; a grid
+    key whose values mix types is a text column."""
+    rows, failures = [], []
+    for config in sweep.configs:
+        failed = failure(sweep, config, out, list(errors))
+        if failed is not None:
+            failures.append(failed)
+        rows.append(config_row(sweep, config, out) if failed is None else failed_row(sweep, config, failed))
     for key in sweep.keys:
         if len({type(row[key]) for row in rows}) > 1:
             for row in rows:
                 row[key] = str(row[key])
-    return pl.DataFrame(rows)
+    schema = {"status": pl.String, "failure": pl.String, "method": pl.String, "deploy": pl.String,
+              "best_seed": pl.Int64, **{c: pl.Float64 for c in rows[0] if c.startswith(("cv_", "test_"))}}
+    return pl.DataFrame(rows, schema_overrides=schema), failures
 
 
-def best(table: pl.DataFrame) -> dict[str, Any]:
-    """The config with the highest cross-validated score (the first in the grid's order among equals)."""
-    index = max(range(table.height), key=lambda i: (table["cv_score"][i], -i))
-    return table.row(index, named=True)
+def best(table: pl.DataFrame) -> dict[str, Any] | None:
+    """The finished config with the highest cross-validated score (the first in the grid's order among equals)."""
+    done = [i for i in range(table.height) if table["status"][i] == DONE]
+    if not done:
+        return None
+    return table.row(max(done, key=lambda i: (table["cv_score"][i], -i)), named=True)
 
 
 def write(table: pl.DataFrame, sweep: Sweep, out: Path) -> Path:

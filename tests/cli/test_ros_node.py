@@ -142,3 +142,71 @@ def test_start_up_errors_are_one_line_and_exit_2(joint_state_model, tmp_path):
     missing = subprocess.run([MLNSEQ, "ros", str(tmp_path / "none.mlnseq")], env=env, capture_output=True, text=True,
                              timeout=WAIT_S)
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "none.mlnseq" in missing.stderr
+
+
+def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_holds_on_sigterm(
+        joint_state_model, lagged_joint_state_model, tmp_path):
+    """A real rosmaster killed (SIGKILL) and started again on its port: the node says so, registers again, and a
+    recorder and a publisher that come after the restart find it (its publications and its subscription restored).
+    Its model decodes with a lag of 5: on SIGTERM the 5 frames it holds, and the last tick, are decided and
+    published before it exits 0: every message's frame, equal to predict on a bag of the same messages."""
+    ros_or_skip()
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}"
+    path = os.pathsep.join(filter(None, [str(DRIVER.parent), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "ROS_MASTER_URI": uri, "ROS_IP": "127.0.0.1", "ROS_HOME": str(tmp_path / "ros"),
+           "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
+    rows = joint_state_model["live"][:100]
+    np.save(tmp_path / "rows.npy", rows)
+    started: list[subprocess.Popen] = []
+    logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("master", "again", "node", "driver")}
+    node_log = lambda: (tmp_path / "node.log").read_text()  # noqa: E731
+    frames = lambda: (tmp_path / "node.jsonl").read_text().splitlines()  # noqa: E731
+
+    def start(args, **kwargs) -> subprocess.Popen:
+        started.append(subprocess.Popen(args, env=env, start_new_session=True, **kwargs))
+        return started[-1]
+
+    try:
+        master = start(["rosmaster", "--core", "-p", str(port)], stdout=logs["master"], stderr=subprocess.STDOUT)
+        wait_for(lambda: master_up(uri), "the master")
+        node = start([MLNSEQ, "ros", str(lagged_joint_state_model)], stdout=logs["node"], stderr=subprocess.STDOUT)
+        wait_for(lambda: "listening to /joint_states" in node_log(), "the node")
+        os.kill(master.pid, signal.SIGKILL)
+        master.wait()
+        wait_for(lambda: "is gone" in node_log(), "the node to see the master gone")
+        start(["rosmaster", "--core", "-p", str(port)], stdout=logs["again"], stderr=subprocess.STDOUT)
+        wait_for(lambda: "is back" in node_log(), "the node to register again")
+        recorder = start([sys.executable, str(DRIVER), "record", "/mlnseq/activity/frame", str(tmp_path / "node.jsonl")],
+                         stdout=subprocess.PIPE, text=True)
+        assert recorder.stdout.readline().strip() == "ready"  # the new master knows the node's publication
+        publisher = start([sys.executable, str(DRIVER), "publish", str(tmp_path / "rows.npy"), "1"],
+                          stdout=logs["driver"], stderr=subprocess.STDOUT)
+        assert publisher.wait(WAIT_S) == 0, (tmp_path / "driver.log").read_text()  # ... and its subscription
+        wait_for(lambda: len(frames()) >= len(rows) - 6, "the frames decided while the feed runs", 10)
+        time.sleep(0.5)
+        assert len(frames()) == len(rows) - 6  # the last tick waits for a later message, 5 more for the lag
+        node.send_signal(signal.SIGTERM)
+        assert node.wait(WAIT_S) == 0, node_log()
+        wait_for(lambda: len(frames()) == len(rows), "the drained frames", 10)
+    finally:
+        for process in reversed(started):
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+        for handle in logs.values():
+            handle.close()
+    lines = node_log().splitlines()
+    gone = [line for line in lines if "is gone" in line]
+    back = [line for line in lines if "is back" in line]
+    assert gone == [f"ros: the master at {uri} is gone; the node goes on with the connections it has, and registers "
+                    "again when a master answers"]
+    assert len(back) == 1 and back[0].startswith(f"ros: the master at {uri} is back (process ")
+    assert back[0].endswith("registered again 3 publications and 1 subscriptions")  # /rosout beside the node's two
+    assert lines[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
+    expected = predict.run(predict.PredictOptions(
+        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows),
+        output=tmp_path / "p.parquet")).table
+    answers = [json.loads(line) for line in frames()]
+    assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {5}
+    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]

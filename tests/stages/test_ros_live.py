@@ -61,7 +61,9 @@ def test_bad_rows_are_one_line_each_and_the_stream_goes_on(joint_state_model, ex
     no_time = good[1].split(",")
     no_time[0] = no_time[2] = "0"
     other_joint = good[2].replace("panda_joint3", "elbow")
-    back = good[0]  # the first message again, after the fourth: back in time
+    back = good[3].split(",")  # the fourth message again, 5 ms earlier: back in time by less than a frame
+    back[0] = back[2] = str(int(back[2]) - 5_000_000)
+    back = ",".join(back)
     text = good[3].split(",")
     text[-1] = "nan?"
     feed = [header, good[0], ",".join(no_time), good[1], other_joint, good[2], good[3], back, ",".join(text),
@@ -168,3 +170,92 @@ def test_two_topics_on_the_clock_as_collect_reads_their_bag(joint_state_model, t
         assert times[0] == start + 55_000_000 and len(ticks) == len(expected) + fast  # 1 kHz: 14 ms more, one tick
         np.testing.assert_array_equal(got[:len(expected)], expected)
         np.testing.assert_allclose(times[:len(expected)], start + recording.time.to_numpy() * 1e9, rtol=0, atol=1)
+
+
+def test_a_feed_replayed_in_a_loop_is_a_new_episode_each_time_it_jumps_back(joint_state_model, expected):
+    rows = joint_state_model["live"][:60]
+    lines = ros_episode.echo_csv(rows)
+    answers, notes = run_stream(joint_state_model["model"], lines + lines[1:] + lines[1:31])
+    assert [(a["episode"], a["frame"]) for a in answers] == [(e, k) for e, n in ((0, 60), (1, 60), (2, 30))
+                                                             for k in range(n)]
+    for episode, first in ((0, 0), (1, 60), (2, 120)):
+        n = 30 if episode == 2 else 60
+        assert [a["class"] for a in answers[first:first + n]] == expected["class"].to_list()[:n]
+        assert [a["time"] for a in answers[first:first + n]] == [a["time"] for a in answers[:n]]
+    jumps = [n for n in notes if "goes back" in n]
+    assert jumps == [f"note: /joint_states goes back 0.590 s in time (to {ros_episode.START / 1e9:.3f} s, a bag "
+                     f"replayed in a loop?): episode {e} starts, the frames before it decided" for e in (1, 2)]
+
+
+def test_a_feed_silent_past_the_hold_skips_those_frames_as_predict_drops_them_from_its_bag(joint_state_model,
+                                                                                          tmp_path):
+    """Rows 0-49, then 3 s of silence, then rows 50-99: the 2 s after row 49 hold it, the rest are skipped; predict
+    on a bag of the same messages drops the same frames and gives the same classes and probabilities."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = joint_state_model["live"][:100]
+    stamps = [ros_episode.START + k * ros_episode.STEP + (3 * 10**9 if k >= 50 else 0) for k in range(100)]
+    lines = ros_episode.echo_csv(rows)
+    lines = [lines[0]] + [line.replace(str(ros_episode.START + k * ros_episode.STEP), str(stamps[k]))
+                          for k, line in enumerate(lines[1:])]
+    answers, notes = run_stream(joint_state_model["model"], lines)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Header, Time = (store.types[n] for n in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
+                                                         "builtin_interfaces/msg/Time"))
+    with Writer(tmp_path / "silent.bag") as writer:
+        connection = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        for t, row in zip(stamps, rows):
+            message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=""),
+                                 name=ros_episode.JOINTS, position=row[:7].copy(), velocity=np.zeros(0),
+                                 effort=np.zeros(0))
+            writer.write(connection, t, store.serialize_ros1(message, JointState.__msgtype__))
+    table = predict.run(predict.PredictOptions(model=joint_state_model["model"], source=tmp_path / "silent.bag",
+                                               output=tmp_path / "p.parquet")).table
+    assert len(answers) == table.height == 100 + 200  # the rows, and 2 s at 100 Hz held; 100 ticks skipped
+    assert [a["class"] for a in answers] == table["class"].to_list()
+    classes = list(answers[0]["probabilities"])
+    np.testing.assert_allclose([[a["probabilities"][c] for c in classes] for a in answers],
+                               table.select(artifacts.class_probability_column(c) for c in classes).to_numpy(),
+                               atol=1e-5)
+    start = ros_episode.START / 1e9
+    assert [n for n in notes if n.startswith("note: /joint_states")] == [
+        f"note: /joint_states sent nothing for over 2 s (--max-hold): the frames from {start + 2.5:.3f} s are skipped "
+        "until it sends again", f"note: /joint_states sent again: 100 frames skipped ({start + 3.5:.3f} s)"]
+
+
+class Joints:
+    """A sensor_msgs/JointState as a client library hands it over (fields by __slots__, a sec/nanosec stamp)."""
+
+    __slots__ = ("header", "name", "position", "velocity", "effort")
+
+    def __init__(self, t: int, row: np.ndarray):
+        from types import SimpleNamespace
+
+        self.header = SimpleNamespace(stamp=SimpleNamespace(sec=t // 10**9, nanosec=t % 10**9))
+        self.name, self.position, self.velocity, self.effort = list(ros_episode.JOINTS), row[:7].tolist(), [], []
+
+
+def test_the_node_core_queue_drops_the_oldest_counts_them_and_drains_what_it_holds(joint_state_model):
+    from mlnseq.recognition.recognizer import Recognizer
+
+    rows = joint_state_model["live"][:200]
+    messages = [Joints(ros_episode.START + k * ros_episode.STEP, row) for k, row in enumerate(rows)]
+    notes: list[str] = []
+    feed = live.MessageFeed(Recognizer.load(joint_state_model["model"]), notes.append, lambda: 0.0, queue_size=50)
+    for message in messages[:120]:
+        feed.offer("/joint_states", message, 0)
+    first = feed.pending(0)
+    for message in messages[120:]:
+        feed.offer("/joint_states", message, 0)
+    assert feed.dropped == 70 + 30 and len(feed.queue) == 50
+    rest = feed.drain()
+    alone = live.MessageFeed(Recognizer.load(joint_state_model["model"]), print, lambda: 0.0)
+    one_by_one = [f for m in messages[70:120] + messages[150:] for f in alone.receive("/joint_states", m, 0)]
+    one_by_one += alone.finish()
+    assert [f.time for f in first + rest] == [f.time for f in one_by_one]
+    assert [f.prediction.name for f in first + rest] == [f.prediction.name for f in one_by_one]
+    assert [n for n in notes if n.startswith("warning")] == [
+        "warning: the recogniser falls behind the feed: 70 messages dropped so far, the oldest first (the queue holds "
+        "50)"]  # said once, then at most every 10 s
+    assert feed.frames == len(one_by_one) and feed.drain() == []

@@ -33,14 +33,17 @@ def tiny_desk_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
 @pytest.fixture(scope="session")
 def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
     """The tiny sweep (2 cells x 2 seeds, 1 epoch) run locally with --cores 2: interrupted with Ctrl-C (SIGINT to
-    its process group) once its first network is trained, then run again to the end; read-only."""
+    its process group) once its first network is trained; resumed, and one of cell-tcn's jobs killed (SIGKILL) as
+    it runs; then run again to the end; read-only."""
     import os
     import signal
     import subprocess
     import sys
     import time
 
-    from sweep_files import TINY_GRID, mlnseq, write_sweep
+    import polars as pl
+
+    from sweep_files import TINY_GRID, kill_a_job, mlnseq, write_sweep
 
     folder = tmp_path_factory.mktemp("local-sweep")
     path = write_sweep(folder, tiny_desk_workdir, TINY_GRID)
@@ -59,10 +62,19 @@ def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
     interrupted_out, interrupted_err = process.communicate(timeout=120)
     finished = {out / p: (out / p).stat().st_mtime_ns for p in finished_trainings(out)}
     started = time.monotonic()
-    resumed = mlnseq("sweep", str(path), "--cores", "2", cwd=folder)
+    resumed = subprocess.Popen(command, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    try:
+        killed_job = kill_a_job(resumed.pid, "cell-tcn")
+    finally:
+        killed_out, killed_err = resumed.communicate(timeout=600)
+    killed = {"code": resumed.returncode, "stdout": killed_out, "stderr": killed_err, "job": killed_job,
+              "table": pl.read_parquet(out / "results.parquet"), "log": (out / "sweep.log").read_text(),
+              "files": {p: p.stat().st_mtime_ns for p in out.glob("runs/*/seed-*/**/*") if p.is_file()}}
+    again = mlnseq("sweep", str(path), "--cores", "2", cwd=folder)
     return {"folder": folder, "path": path, "out": folder / "sweep", "interrupted": process.returncode,
-            "interrupted_stderr": interrupted_err, "finished_before": finished, "result": resumed,
-            "seconds": time.monotonic() - started}
+            "interrupted_stderr": interrupted_err, "finished_before": finished, "killed": killed, "result": again,
+            "log": (out / "sweep.log").read_text(), "seconds": time.monotonic() - started}
 
 
 def finished_trainings(out: Path) -> list[str]:

@@ -1,5 +1,6 @@
-"""The tiny sweep (2 cells x 2 seeds, 1 epoch, tiny DESK) run locally through Snakemake: interrupted and resumed,
-its table read back against the artifacts, its winner deployed, a rerun that does nothing, and a stale file redone."""
+"""The tiny sweep (2 cells x 2 seeds, 1 epoch, tiny DESK) run locally through Snakemake: interrupted and resumed, a
+job killed (its config failed alone, the rerun redoing only it), its table read back against the artifacts, its winner
+deployed, a rerun that does nothing, and a stale file redone."""
 
 from __future__ import annotations
 
@@ -81,15 +82,15 @@ def test_a_rerun_does_nothing_and_a_stale_file_is_redone_alone(local_sweep):
     before = {p: p.stat().st_mtime_ns for p in out.glob("runs/*/seed-*/**/*.p*") if p.is_file()}
     table = pl.read_parquet(out / "results.parquet")
     again = mlnseq("sweep", str(path), "--cores", "2", cwd=local_sweep["folder"])
-    assert again.returncode == 0 and "Nothing to be done" in again.stderr, again.stderr[-2000:]
+    assert again.returncode == 0 and "Nothing to be done" in (out / "sweep.log").read_text(), again.stderr[-2000:]
     assert {p: p.stat().st_mtime_ns for p in before} == before
     assert pl.read_parquet(out / "results.parquet").equals(table)
     stale = out / "runs" / "cell-tcn" / "seed-1" / "metrics.parquet"
     stale.unlink()
     redone = mlnseq("sweep", str(path), "--cores", "2", cwd=local_sweep["folder"])
     assert redone.returncode == 0, redone.stderr[-2000:]
-    assert "rule eval:" in redone.stderr
-    assert "rule train:" not in redone.stderr and "rule conflate:" not in redone.stderr
+    log = (out / "sweep.log").read_text()
+    assert "rule eval:" in log and "rule train:" not in log and "rule conflate:" not in log
     assert stale.exists() and pl.read_parquet(out / "results.parquet").equals(table)
     print(f"resumed sweep: {local_sweep['seconds']:.1f} s", file=sys.stderr)
 
@@ -110,3 +111,31 @@ def test_a_formulas_file_of_the_grid_is_learned_with_the_datasets_folds(tmp_path
     for name in ("weights.parquet", "weights.folds.parquet"):
         assert (out / "runs" / "default" / "seed-0" / name).resolve() == (learned / name).resolve()
         assert pl.read_parquet(learned / name).equals(pl.read_parquet(tiny_desk_workdir / name))
+
+
+def test_a_killed_job_fails_its_config_alone_in_one_line_and_the_rerun_redoes_only_it(local_sweep):
+    """SIGKILL to one of cell-tcn's train or conflate jobs: cell-lstm finishes (--keep-going), results.parquet holds it
+    and cell-tcn marked failed without figures, the terminal shows progress and one error line naming the config, the
+    job and its log, Snakemake's output is in OUT/sweep.log alone; the next run redoes cell-tcn's jobs only."""
+    import re
+
+    out, killed = local_sweep["out"], local_sweep["killed"]
+    assert killed["code"] == 1, killed["stderr"][-3000:]
+    stage, seed = re.search(r"mlnseq (train|conflate) .*--workdir runs/cell-tcn/seed-(\d)", killed["job"]).groups()
+    errors = [line for line in killed["stderr"].splitlines() if line.startswith("error: config")]
+    log = out / "runs" / "cell-tcn" / f"seed-{seed}" / "logs" / ("train-lstm.log" if stage == "train" else "conflate.log")
+    assert errors == [f"error: config cell-tcn failed: {stage} of seed {seed} was killed (SIGKILL); its log: {log}"]
+    assert all(line.startswith(("sweep: ", "error: ", "    | ")) for line in killed["stderr"].splitlines())
+    assert "sweep: 1 of 2 configs done, 1 failed" in killed["stderr"] and "Error in rule" in killed["log"]
+    table = killed["table"]
+    assert table["config"].to_list() == ["cell-lstm", "cell-tcn"] and table["status"].to_list() == ["done", "failed"]
+    assert table["failure"][1] == errors[0].removeprefix("error: ") and table["failure"][0] is None
+    assert table["cv_score"][1] is None and table["cv_score"][0] > 0 and table["deploy"][1] is None
+    final = pl.read_parquet(out / "results.parquet")
+    assert final["status"].to_list() == ["done", "done"] and final.row(0) == table.row(0)
+    assert killed["stdout"].strip().splitlines()[-1].startswith("best by cross-validation: cell-lstm (")
+    reran = re.findall(r"wildcards: config=([\w-]+)", local_sweep["log"])
+    assert reran and set(reran) == {"cell-tcn"}, reran
+    for path, mtime in killed["files"].items():
+        if "cell-lstm" in path.parts:
+            assert path.stat().st_mtime_ns == mtime, f"{path} was made again"

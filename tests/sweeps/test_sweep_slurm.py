@@ -1,5 +1,7 @@
 """The tiny sweep through a real one-node SLURM cluster (Snakemake's SLURM executor, one cluster job per rule, the
-example profile's settings) gives the same results table as the same sweep run locally.
+example profile's settings): one of cell-tcn's jobs cancelled with scancel as it runs fails that config alone, in one
+line naming it and its log, the rest finishing; the rerun submits only what is missing, and gives the same results
+table as the same sweep run locally.
 
 In `make test`, and alone in `make test-slurm` (about a minute on a free machine, several when loaded: the
 executor's status checks wait 2 s, then 10 s more at a time while no job has finished; marker slurm). Without
@@ -8,6 +10,10 @@ slurm-wlm, munge or root it skips with the reason, except under CI (CI=true), wh
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import polars as pl
 import pytest
@@ -42,17 +48,53 @@ def cluster(tmp_path_factory):
         pytest.skip(f"no SLURM cluster here: {reason}")
 
 
-def test_the_tiny_sweep_through_slurm_gives_the_local_table(cluster, local_sweep, tiny_desk_workdir, tmp_path):
+def cancel_a_job(env: dict[str, str], config: str, rules: tuple[str, ...] = ("train", "conflate"),
+                 timeout: float = 600) -> tuple[str, str]:
+    """scancel the first running cluster job of one of ``rules`` for ``config`` (the executor's comment names the
+    rule and the wildcards); its (job id, rule)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        listed = subprocess.run(["squeue", "-h", "-o", "%i|%k|%T"], env=env, capture_output=True, text=True).stdout
+        for line in listed.splitlines():
+            job, comment, state = line.split("|")
+            rule = comment.removeprefix("rule_").split("_wildcards_")[0]
+            if state == "RUNNING" and rule in rules and f"_{config}_" in f"{comment}_":
+                subprocess.run(["scancel", job], env=env, check=True)
+                return job, rule
+        time.sleep(0.2)
+    raise TimeoutError(f"no {' or '.join(rules)} job of {config} ran on the cluster within {timeout:g} s")
+
+
+def test_the_tiny_sweep_through_slurm_fails_a_cancelled_config_alone_and_the_rerun_gives_the_local_table(
+        cluster, local_sweep, tiny_desk_workdir, tmp_path):
     path = write_sweep(tmp_path, tiny_desk_workdir, TINY_GRID)
     profile = tmp_path / "profile"
     profile.mkdir()
     (profile / "config.yaml").write_text(PROFILE)
-    done = mlnseq("sweep", str(path), "--executor", "slurm", "--profile", str(profile), cwd=tmp_path, env=cluster,
-                  timeout=900)
-    assert done.returncode == 0, done.stderr[-3000:]
-    jobs = list((tmp_path / "sweep" / ".snakemake" / "slurm_logs").glob("rule_*/*/*.log"))
-    assert {p.parts[-3] for p in jobs} == {"rule_train", "rule_conflate", "rule_eval"} and len(jobs) == 12
+    command = [str(Path(sys.executable).with_name("mlnseq")), "sweep", str(path), "--executor", "slurm", "--profile",
+               str(profile)]
+    sweep = subprocess.Popen(command, cwd=tmp_path, env=cluster, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+    try:
+        job, rule = cancel_a_job(cluster, "cell-tcn", ("conflate", "eval"))
+    finally:
+        out, err = sweep.communicate(timeout=900)
+    assert sweep.returncode == 1, err[-3000:]
+    errors = [line for line in err.splitlines() if line.startswith("error: config")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: config cell-tcn failed: {rule} of seed "), err
+    assert f"ended on the cluster with status CANCELLED (SLURM job {job}); its log: {tmp_path}/sweep/runs/" in errors[0]
+    assert f"(the cluster's: {tmp_path}/sweep/.snakemake/slurm_logs/rule_{rule}/" in errors[0]
+    assert any(line.startswith("    | ") and f"JOB {job} " in line and "CANCELLED" in line for line in err.splitlines())
+    cancelled = pl.read_parquet(tmp_path / "sweep" / "results.parquet")
+    assert cancelled["status"].to_list() == ["done", "failed"]
     local = pl.read_parquet(local_sweep["out"] / "results.parquet").drop("deploy")
+    assert cancelled.drop("deploy").row(0) == local.row(0)
+    before = set((tmp_path / "sweep" / ".snakemake" / "slurm_logs").glob("rule_*/*/*.log"))
+    done = mlnseq(*command[1:], cwd=tmp_path, env=cluster, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    jobs = set((tmp_path / "sweep" / ".snakemake" / "slurm_logs").glob("rule_*/*/*.log"))
+    assert {p.parts[-3] for p in jobs} == {"rule_train", "rule_conflate", "rule_eval"} and len(before) < 12
+    assert all("cell-tcn" in p.parts[-2] for p in jobs - before) and len(jobs - before) <= 2  # its missing jobs alone
     through_slurm = pl.read_parquet(tmp_path / "sweep" / "results.parquet")
     assert through_slurm.drop("deploy").equals(local)
     assert through_slurm["deploy"].str.contains(str(tmp_path / "sweep" / "runs")).all()

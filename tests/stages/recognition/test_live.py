@@ -233,3 +233,35 @@ def test_the_ros_live_recogniser_answers_a_frame_once_final_with_its_lag(lagged_
     assert answered[0].record(model.classes)["lag"] == 3
     batch = Recognizer.load(lagged_model.path).predict(rows)[1]
     assert [a.prediction.label for a in answered] == batch.tolist()
+
+
+@pytest.mark.parametrize("signum, code", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_a_signal_decides_and_writes_every_frame_the_stream_holds_then_exits_with_its_code(lagged_model, recording,
+                                                                                           tmp_path, signum, code):
+    """200 frames in, the stdin left open: 197 are answered (each has 3 after it), the stream waits; then SIGTERM or
+    SIGINT: the 3 frames it holds are decided and written as at the end of the input, and it exits 143 or 130."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    frames = recording[1].head(200)
+    text = frames.select(Recognizer.load(lagged_model.path).features).write_csv()
+    source = tmp_path / "head.csv"
+    source.write_text(text)
+    process = subprocess.Popen([str(Path(sys.executable).parent / "mlnseq"), "stream", str(lagged_model.path)],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        process.stdin.write(text)
+        process.stdin.flush()
+        answers = [json.loads(process.stdout.readline()) for _ in range(197)]
+        process.send_signal(getattr(signal, signum))
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    answers += [json.loads(line) for line in out.splitlines()]
+    assert process.returncode == code, err
+    assert [a["frame"] for a in answers] == list(range(200))
+    predicted = predict.run(predict.PredictOptions(model=lagged_model.path, source=source, output=tmp_path / "p.parquet"))
+    assert [a["class"] for a in answers] == predicted.table["class"].to_list()
+    assert err.strip().splitlines()[-1].endswith("every frame read so far was answered")
