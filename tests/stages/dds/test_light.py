@@ -41,4 +41,4 @@ def test_the_ros2_node_runs_without_torch_and_scipy(joint_state_model, tmp_path)
     done = subprocess.run([sys.executable, "-c", NODE_WITHOUT_TORCH, str(joint_state_model["model"])], env=env,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines()[-2:] == ["(0, 0)", "[]"], done.stdout
+    assert done.stdout.splitlines()[-2:] == ["(0, 0, 0)", "[]"], done.stdout
