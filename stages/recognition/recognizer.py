@@ -349,8 +349,8 @@ class Recognizer:
         factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight, self.start)
         decoded = decode_chain(decode, factors)
         self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
-        return Scores(evidence, log_p_network, log_p_mln, factors, decoded.path, decoded.probabilities, decode, episodes,
-                      frame_of)
+        return Scores(evidence, log_p_network, log_p_mln, factors, decoded.path, decoded.probabilities, decode,
+                      episodes, frame_of)
 
     def explain(self, frame: int | Mapping[str, Any] | Sequence[float] | np.ndarray, versus: str | None = None,
                 episodes: np.ndarray | None = None, decode: str | None = None) -> Any:
