@@ -10,7 +10,6 @@ scored as a stream: segment, frame, edit and F1@k).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,9 +22,9 @@ from mlnseq.timeline import metrics
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
+from mlnseq.recognition.reading import reading_of
 from mlnseq.recognition.recognizer import Recognizer
-from mlnseq.sources import RECORDING_ENVS, SourceOptions, intervals
-from mlnseq.sources.recording import Labels, TableColumns
+from mlnseq.sources import RECORDING_ENVS, intervals
 from mlnseq.sources.table import prediction_frames
 
 
@@ -82,24 +81,6 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
         *(pl.Series(artifacts.class_probability_column(name), probabilities[:, k], dtype=pl.Float32)
           for k, name in enumerate(model.classes)),
     ), predicted
-
-
-def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
-    """The env, columns and source options to read new recordings with: the model's, overridden by options;
-    and whether labels are required (a named label column) or optional."""
-    kept = model.manifest.reading or {}
-    env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
-    same = env == kept.get("env")
-    pick = lambda given, key, default=None: (  # noqa: E731
-        given if given is not None else (kept.get(key, default) if same else default))
-    columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
-                           episode=pick(options.episode_column, "episode_column"),
-                           time=pick(options.time_column, "time_column"),
-                           features=tuple(model.features), classes=tuple(model.classes))
-    names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
-    known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
-    recordings = SourceOptions(**{**known, **options.overrides})
-    return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
 
 
 def check_outputs(options: PredictOptions, inputs: list) -> None:

@@ -21,7 +21,7 @@ decision's margin splits into its parts. Nothing here changes a decoder's number
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +42,9 @@ def combine(values: np.ndarray, axis: int, semiring: str) -> np.ndarray:
 
 def _less_top(values: np.ndarray, semiring: str) -> np.ndarray:
     """Rows less their log-sum-exp (sum: log-probabilities) or their max (max); a row of -inf as it is."""
+    if values.ndim == 1 and np.isfinite(values).all():  # a forward vector with every class possible
+        top = values.max()
+        return values - top if semiring == MAX else values - (np.log(np.exp(values - top).sum()) + top)
     top = combine(values, -1, semiring)[..., None]
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(top), values - np.where(np.isfinite(top), top, 0.0), values)
@@ -59,11 +62,10 @@ class Messages:
     joined: np.ndarray  # [T] bool: the frame's past counts (neither a chain's first frame nor a dead end)
     restarted: np.ndarray  # [T] bool: a dead end, or a frame no class is possible at from its unary alone
     reach: np.ndarray  # [T] int64: the last frame the decision of frame t reads
+    scores: np.ndarray = field(init=False)  # [T, C] each frame's decision scores, up to a constant per frame
 
-    @property
-    def scores(self) -> np.ndarray:
-        """[T, C] each frame's decision scores, up to a constant per frame."""
-        return self.unary + self.past + self.future
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "scores", self.unary + self.past + self.future)
 
 
 def messages(factors: ChainFactors, semiring: str, lag: int | None) -> Messages:
@@ -89,21 +91,33 @@ def _forward(factors: ChainFactors, semiring: str):
     unary, past = factors.unary.copy(), np.zeros((n_frames, n_classes))
     before = np.full((n_frames, n_classes), np.nan)
     joined, restarted = np.zeros(n_frames, dtype=bool), np.zeros(n_frames, dtype=bool)
+    link, pairwise = factors.link.tolist(), factors.pairwise
     last = None  # the previous frame's normalised forward vector
-    for t in range(n_frames):
-        total = unary[t]
-        if factors.link[t] >= 0 and last is not None:
-            came = combine(last[:, None] + factors.pairwise[factors.link[t]], 0, semiring)
-            with np.errstate(invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for t in range(n_frames):
+            total = unary[t]
+            if link[t] >= 0 and last is not None:
+                came = _into(last, pairwise[link[t]], semiring)
                 moved = total + came
-            if (moved > -np.inf).any():
-                past[t], before[t], joined[t], total = came, last, True, moved
-            else:
-                restarted[t] = True
-        if not (total > -np.inf).any():  # no class possible from the unary alone: uniform
-            unary[t], total, restarted[t] = 0.0, np.zeros(n_classes), True
-        last = _less_top(total, semiring)
+                if moved.max() > -np.inf:
+                    past[t], before[t], joined[t], total = came, last, True, moved
+                else:
+                    restarted[t] = True
+            if not total.max() > -np.inf:  # no class possible from the unary alone: uniform
+                unary[t], total, restarted[t] = 0.0, np.zeros(n_classes), True
+            last = _less_top(total, semiring)
     return unary, past, before, joined, restarted
+
+
+def _into(last: np.ndarray, transition: np.ndarray, semiring: str) -> np.ndarray:
+    """[C] what a forward vector [C] carries into the next frame through ``transition`` [C, C]."""
+    moved = last[:, None] + transition
+    top = moved.max(axis=0)
+    if semiring == MAX:
+        return top
+    if np.isfinite(top).all():
+        return np.log(np.exp(moved - top).sum(axis=0)) + top
+    return combine(moved, 0, semiring)
 
 
 def _moved_back(pairwise: np.ndarray, values: np.ndarray, semiring: str) -> np.ndarray:

@@ -28,14 +28,20 @@ def explain(explainer: Explainer, scores: Scores, rows: list[int], versus: int |
         explainer.messages = chain_messages.messages(scores.factors, decoder.semiring,
                                                      None if decoder.offline else scoring.decoding.lag)
         explainer.scored = scores
+    if scores.evidence is not None and len(rows) > 1:
+        wanted = np.unique(np.clip(np.r_[rows, np.asarray(rows) - 1], 0, None))
+        link = None if scores.factors is None else np.where(np.isin(np.arange(len(scores.path)), rows),
+                                                            scores.factors.link, -1)
+        explainer.prepare(scores.evidence[wanted] if link is None else scores.evidence, link)
     explained = undecoded if scoring.decoding is None else decoded
     out = []
     for t in rows:
         chosen, other, margin, gathered = explained(explainer, scores, t, versus)
         episode, frame, time = (None, t, None) if keys is None else keys.at(t)
         classes = scoring.classes
+        terms = tuple(sorted(gathered.terms, key=lambda term: -term.size))  # largest first, hard rules first of all
         out.append(Explanation(t, episode, frame, classes[chosen], None if other is None else classes[other], margin,
-                               tuple(gathered.terms), how(scoring), time, tuple(gathered.notes)))
+                               terms, how(scoring), time, tuple(gathered.notes)))
     return out
 
 

@@ -29,6 +29,7 @@ from mlnseq.catalog.decoders import Decoding
 from mlnseq.catalog.methods import FUSED, Method, MLNMode, PaperFloor
 from mlnseq.mln import chain_messages, classifier
 from mlnseq.mln.chain_factors import ChainFactors
+from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.factors import LearnedFormula, frame_space
 from mlnseq.mln.formula_sources import Written
 from mlnseq.mln.formula_truths import Truths, frame_truths, pair_truths
@@ -99,10 +100,33 @@ class Explainer:
                                           for i in self.temporal])
         self._frames: dict[bytes, Truths] = {}
         self._pairs: dict[bytes, Truths] = {}
+        self._terms: dict[tuple, list[Term]] = {}
+        self.shares: dict[tuple, tuple[float, list]] = {}  # undecoded: the formulas' score differences, by row
+        self.said: dict[tuple, tuple[str, int | None]] = {}  # the texts of sum-product pasts, by what they read
         self.messages: chain_messages.Messages | None = None
         self.scored: Scores | None = None  # the recording the messages are of
 
     # -- formula truths --------------------------------------------------------------------------------
+
+    def prepare(self, evidence: np.ndarray, link: np.ndarray | None) -> None:
+        """Count the truths of every distinct evidence row (and consecutive pair joined by ``link``) at once."""
+        rows = {row.tobytes(): row for row in distinct_rows(evidence)[0] if row.tobytes() not in self._frames}
+        if rows and self.per_frame:
+            found = frame_truths([self.scoring.formulas[i].formula for i in self.per_frame], np.array(list(rows.values())),
+                                 self.space)
+            self._frames.update({key: Truths(found.true[i], found.broken[i]) for i, key in enumerate(rows)})
+        joined = np.flatnonzero(link >= 0) if link is not None and self.temporal else np.zeros(0, dtype=np.int64)
+        pairs = {}
+        for pair in distinct_rows(np.concatenate([evidence[joined - 1], evidence[joined]], axis=1))[0]:
+            key = pair.tobytes()
+            if key not in self._pairs:
+                pairs[key] = pair
+        if pairs:
+            both = np.array(list(pairs.values()))
+            width = evidence.shape[1]
+            found = pair_truths([self.scoring.formulas[i].formula for i in self.temporal], both[:, :width],
+                                both[:, width:], self.space)
+            self._pairs.update({key: Truths(found.true[i], found.broken[i]) for i, key in enumerate(pairs)})
 
     def frame_truths(self, row: np.ndarray) -> Truths:
         """The per-frame formulas' truths [C, F] on one evidence row."""
@@ -120,6 +144,18 @@ class Explainer:
                                 current[None], self.space)
             self._pairs[key] = Truths(found.true[0], found.broken[0])
         return self._pairs[key]
+
+    def formula_terms(self, row: np.ndarray, a: int, b: int) -> list[Term]:
+        """The per-frame formulas' terms of a chain's unary on one evidence row, ``a`` against ``b`` (cached)."""
+        key = (row.tobytes(), a, b)
+        if key not in self._terms:
+            truths = self.frame_truths(row)
+            differences = truths.true[a] - truths.true[b]
+            self._terms[key] = [self.formula_term(self.per_frame[j], float(self.chain_weights[j] * differences[j]),
+                                                  (int(truths.true[a, j]), int(truths.true[b, j])),
+                                                  float(self.chain_weights[j]))
+                                for j in np.flatnonzero(differences * self.chain_weights).tolist()]
+        return list(self._terms[key])
 
     def formula_term(self, index: int, contribution: float, truth: tuple[int, int], weight: float) -> Term:
         """A term of formula ``index`` of the Scoring's formulas."""

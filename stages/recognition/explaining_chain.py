@@ -48,12 +48,7 @@ def unary_terms(explainer: Explainer, scores: Scores, t: int, a: int, b: int, ga
                               "uniform, the chain restarting here")
         return
     if scoring.method == Method.MLN or scoring.method in FUSED:
-        truths = explainer.frame_truths(scores.evidence[t])
-        differences = truths.true[a] - truths.true[b]
-        for j in np.flatnonzero(differences * explainer.chain_weights).tolist():
-            weight = float(explainer.chain_weights[j])
-            gathered.terms.append(explainer.formula_term(explainer.per_frame[j], weight * float(differences[j]),
-                                                         (int(truths.true[a, j]), int(truths.true[b, j])), weight))
+        gathered.terms += explainer.formula_terms(scores.evidence[t], a, b)
     if scoring.network is not None and scoring.method != Method.MLN:
         log_p, weight = scores.log_p_network[t], scoring.network_weight
         gathered.terms.append(Term(TermKind.NETWORK, f"network ({scoring.network}) x {weight:.3g}: log p "
@@ -75,22 +70,25 @@ def message_terms(explainer: Explainer, scores: Scores, t: int, a: int, b: int, 
     if messages.joined[t]:
         contribution = float(messages.past[t, a] - messages.past[t, b])
         text, line = past_text(explainer, scores, t, a, b, contribution >= 0)
-        gathered.terms.append(Term(TermKind.PAST, f"frames before ({semiring}): {text}", contribution, line))
+        gathered.terms.append(Term(TermKind.PAST, f"frames before (forward message, {semiring}); {text}", contribution,
+                                   line))
     reach = int(messages.reach[t])
     if reach > t:
         contribution = float(messages.future[t, a] - messages.future[t, b])
-        what = "best path on through" if messages.semiring == "max" else "backward message over"
-        gathered.terms.append(Term(TermKind.FUTURE, f"frames after ({semiring}): {what} the next {reach - t} "
-                                   f"frame{'s' if reach - t > 1 else ''}, to {names[int(scores.path[reach])]}",
-                                   contribution))
+        count = f"{reach - t} frame{'s' if reach - t > 1 else ''}"
+        gathered.terms.append(Term(TermKind.FUTURE, f"frames after (backward message, {semiring}): the next {count}, "
+                                   f"to {names[int(scores.path[reach])]}", contribution))
 
 
 def past_text(explainer: Explainer, scores: Scores, t: int, a: int, b: int, upper: bool) -> tuple[str, int | None]:
     """The transition that bounds the past: sum-product, the one from the previous frame's class that favours ``a``
     over ``b`` most (``upper``) or least; max-product, the best ones into each."""
     names, messages = explainer.scoring.classes, explainer.messages
-    pairwise = scores.factors.pairwise[scores.factors.link[t]]
-    before = messages.before[t]
+    link = int(scores.factors.link[t])
+    pairwise, before = scores.factors.pairwise[link], messages.before[t]
+    key = (link, a, b, upper, (before > -np.inf).tobytes())  # a sum-product bound reads only which classes were possible
+    if messages.semiring == "sum" and key in explainer.said:
+        return explainer.said[key]
     if messages.semiring == "max":
         into_a, into_b = int(np.argmax(before + pairwise[:, a])), int(np.argmax(before + pairwise[:, b]))
         line = transition_line(explainer, scores, t, into_a, a, b)
@@ -101,9 +99,9 @@ def past_text(explainer: Explainer, scores: Scores, t: int, a: int, b: int, uppe
     if np.isnan(gain).all():
         return "no previous class allows both", None
     source = int(np.nanargmax(gain) if upper else np.nanargmin(gain))
-    bound = "at most" if upper else "at least"
-    line = transition_line(explainer, scores, t, source, a, b)
-    return f"{bound} {gain[source]:+.2f}, as {names[source]} -> {names[a]} vs -> {names[b]}", line
+    explainer.said[key] = (f"bound {gain[source]:+.2f} by {names[source]} -> {names[a]} vs {names[source]} -> "
+                           f"{names[b]}", transition_line(explainer, scores, t, source, a, b))
+    return explainer.said[key]
 
 
 def transition_line(explainer: Explainer, scores: Scores, t: int, source: int, a: int, b: int) -> int | None:

@@ -4,6 +4,8 @@ network's and the MLN's shares of the log-odds difference it adds up."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mlnseq.catalog.methods import NETWORKS, Method
@@ -54,14 +56,17 @@ def formula_terms(explainer: Explainer, scores: Scores, t: int, a: int, b: int, 
                   gathered: Gathered) -> None:
     """The per-frame formulas' shares of ``share``, each by its share of the MLN's score difference (its weight x
     its truth difference; a hard formula counted with the classifier's weight for it)."""
-    truths = explainer.frame_truths(scores.evidence[t])
-    differences = explainer.classifier_weights * (truths.true[a] - truths.true[b])
-    total = float(differences.sum())
+    key = (scores.evidence[t].tobytes(), a, b)
+    if key not in explainer.shares:
+        truths = explainer.frame_truths(scores.evidence[t])
+        differences = explainer.classifier_weights * (truths.true[a] - truths.true[b])
+        explainer.shares[key] = (float(differences.sum()), [
+            (explainer.formula_term(explainer.per_frame[j], 0.0, (int(truths.true[a, j]), int(truths.true[b, j])),
+                                    float(explainer.classifier_weights[j])), float(differences[j]))
+            for j in np.flatnonzero(differences).tolist()])
+    total, terms = explainer.shares[key]
     if abs(total) <= TINY:
         if share:
             gathered.notes.append("the formulas do not tell the two classes apart")
         return
-    for j in np.flatnonzero(differences).tolist():
-        weight = float(explainer.classifier_weights[j])
-        gathered.terms.append(explainer.formula_term(explainer.per_frame[j], float(differences[j]) * share / total,
-                                                     (int(truths.true[a, j]), int(truths.true[b, j])), weight))
+    gathered.terms += [replace(term, contribution=difference * share / total) for term, difference in terms]
