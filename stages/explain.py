@@ -52,7 +52,8 @@ class ExplainOptions:
         given = [name for name, value in (("--frame", self.frame), ("--time", self.time), ("--segment", self.segment))
                  if value is not None]
         if len(given) != 1:
-            raise BadInput(f"give one of --frame T, --time S or --segment K{', not ' + ' and '.join(given) if given else ''}")
+            both = f", not {' and '.join(given)}" if given else ""
+            raise BadInput(f"give one of --frame T, --time S or --segment K{both}")
         for name, value in (("--frame", self.frame), ("--segment", self.segment)):
             if value is not None and value < 0:
                 raise BadInput(f"{name} {value}: frames and segments count from 0")

@@ -112,8 +112,8 @@ class Explainer:
         """Count the truths of every distinct evidence row (and consecutive pair joined by ``link``) at once."""
         rows = {row.tobytes(): row for row in distinct_rows(evidence)[0] if row.tobytes() not in self._frames}
         if rows and self.per_frame:
-            found = frame_truths([self.scoring.formulas[i].formula for i in self.per_frame], np.array(list(rows.values())),
-                                 self.space)
+            formulas = [self.scoring.formulas[i].formula for i in self.per_frame]
+            found = frame_truths(formulas, np.array(list(rows.values())), self.space)
             self._frames.update({key: Truths(found.true[i], found.broken[i]) for i, key in enumerate(rows)})
         joined = np.flatnonzero(link >= 0) if link is not None and self.temporal else np.zeros(0, dtype=np.int64)
         pairs = {}

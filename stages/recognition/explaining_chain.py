@@ -86,7 +86,7 @@ def past_text(explainer: Explainer, scores: Scores, t: int, a: int, b: int, uppe
     names, messages = explainer.scoring.classes, explainer.messages
     link = int(scores.factors.link[t])
     pairwise, before = scores.factors.pairwise[link], messages.before[t]
-    key = (link, a, b, upper, (before > -np.inf).tobytes())  # a sum-product bound reads only which classes were possible
+    key = (link, a, b, upper, (before > -np.inf).tobytes())  # a sum-product bound reads which classes were possible
     if messages.semiring == "sum" and key in explainer.said:
         return explainer.said[key]
     if messages.semiring == "max":

@@ -15,7 +15,8 @@ from mlnseq.recognition.explaining import Explainer, Keys, Scores
 from mlnseq.recognition.explanation import Explanation, Term, TermKind
 
 
-MESSAGES = {TermKind.PAST: "frames before (the forward message)", TermKind.FUTURE: "frames after (the backward message)",
+MESSAGES = {TermKind.PAST: "frames before (the forward message)",
+            TermKind.FUTURE: "frames after (the backward message)",
             TermKind.NETWORK: "the network", TermKind.START: "the start distribution"}
 
 
@@ -74,7 +75,7 @@ def held_by(explanations: list[Explanation]) -> tuple[Term, ...]:
             entry[1] += term.contribution
     count = max(len(explanations), 1)
     means = [Term(term.kind, term.text, total / count, term.line, term.file, term.weight, None, term.written)
-             if term.kind is TermKind.FORMULA else Term(term.kind, MESSAGES.get(term.kind, str(term.kind)), total / count)
+             if term.kind is TermKind.FORMULA else Term(term.kind, MESSAGES[term.kind], total / count)
              for term, total in totals.values()]
     return tuple(sorted(means, key=lambda t: -t.contribution))
 
