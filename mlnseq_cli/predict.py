@@ -29,12 +29,13 @@ def predict(
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
     intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities (needs rerun-sdk).", dir_okay=False)] = None,
+    explain: Annotated[int, typer.Option(help="Explain every frame: a why column of its N largest terms (JSON: kind, text, line, contribution; docs/explain.md), and each segment's why (what held it, what ended it) in --intervals and --rerun.")] = 0,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). An existing output is kept unless --force."""
     given = dict(labels=labels, labels_unit=labels_unit, topics=_names(topics), rate=rate, label_topic=label_topic)
     options = stage.PredictOptions(
         model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
-        episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
+        episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun, explain=explain,
         overrides={k: v for k, v in given.items() if v not in (None, ())},
     )
     with reported_errors():

@@ -44,8 +44,11 @@ class PredictOptions:
     force: bool = False  # overwrite an existing output
     intervals: Path | None = None  # also write the predicted segments as episode,start,end,label
     rerun: Path | None = None  # also write a Rerun recording
+    explain: int = 0  # N > 0: a why column of each frame's N largest terms, each segment's why in intervals and Rerun
 
     def validate(self) -> None:
+        if self.explain < 0:
+            raise BadInput(f"--explain {self.explain}: give how many terms each frame shows (0: none)")
         if self.decode is not None:
             parse_decoding(self.decode)
         if self.env is not None:
@@ -120,6 +123,13 @@ def _run(options: PredictOptions, stage) -> Predicted:
     if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
         table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
     table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
+    found = None
+    if options.explain:  # each frame's largest terms and each segment's why (stages/recognition/reasons.py)
+        from mlnseq.recognition.explaining import Keys
+        from mlnseq.recognition.reasons import reasons
+
+        found = reasons(model, Keys(table["episode"].to_list(), table["frame"].to_numpy(), times), options.explain)
+        table = table.with_columns(pl.Series("why", found.frames, dtype=pl.String))
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
@@ -146,6 +156,8 @@ def _run(options: PredictOptions, stage) -> Predicted:
     if options.intervals is not None:
         segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
                                       table["class"].to_list(), source_options.unit(env))
+        if found is not None:
+            segments = segments.with_columns(pl.Series("why", found.why(), dtype=pl.String))
         # seconds to the nanosecond, never 1e-06
         segments.with_columns(pl.col(pl.Float64).round(9)).write_csv(stage(options.intervals), float_scientific=False)
         written.append(Path(options.intervals))
@@ -153,6 +165,6 @@ def _run(options: PredictOptions, stage) -> Predicted:
         from mlnseq.sources import rerun
 
         rerun.write(stage(options.rerun), table["episode"].to_list(), frames, times, table, list(model.features),
-                    list(model.classes))
+                    list(model.classes), None if found is None else found.logged(times))
         written.append(Path(options.rerun))
     return Predicted(path, table, scores, len(names), reading, tuple(written), restarts)

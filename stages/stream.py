@@ -52,8 +52,11 @@ class StreamOptions:
     model: Path
     strict: bool = False
     max_line_bytes: int = MAX_LINE_BYTES
+    explain: int = 0  # N > 0: each line carries "why", its frame's N largest terms (docs/explain.md)
 
     def validate(self) -> None:
+        if self.explain < 0:
+            raise BadInput(f"--explain {self.explain}: give how many terms each line shows (0: none)")
         if self.max_line_bytes < 1:
             raise BadInput(f"--max-line-bytes {self.max_line_bytes}: a line limit is at least 1 byte")
 
@@ -219,6 +222,8 @@ def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> 
             "lag": model.lag if model.decoding.decoder.lagged else 0}
     if time is not None:
         line["time"] = time
+    if prediction.why is not None:
+        line["why"] = prediction.why
     return line
 
 
@@ -240,6 +245,8 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``."""
     options.validate()
     model = Recognizer.load(options.model)
+    if options.explain:
+        model.explain_steps(options.explain)
     for note in model.manifest.notes:
         warn(f"note: {note}")
     if model.decoding.decoder.offline:

@@ -40,7 +40,7 @@ def combine(values: np.ndarray, axis: int, semiring: str) -> np.ndarray:
         return np.squeeze(np.log(np.exp(values - safe).sum(axis=axis, keepdims=True)) + safe, axis=axis)
 
 
-def _less_top(values: np.ndarray, semiring: str) -> np.ndarray:
+def less_top(values: np.ndarray, semiring: str) -> np.ndarray:
     """Rows less their log-sum-exp (sum: log-probabilities) or their max (max); a row of -inf as it is."""
     if values.ndim == 1 and np.isfinite(values).all():  # a forward vector with every class possible
         top = values.max()
@@ -97,7 +97,7 @@ def _forward(factors: ChainFactors, semiring: str):
         for t in range(n_frames):
             total = unary[t]
             if link[t] >= 0 and last is not None:
-                came = _into(last, pairwise[link[t]], semiring)
+                came = carried_in(last, pairwise[link[t]], semiring)
                 moved = total + came
                 if moved.max() > -np.inf:
                     past[t], before[t], joined[t], total = came, last, True, moved
@@ -105,11 +105,11 @@ def _forward(factors: ChainFactors, semiring: str):
                     restarted[t] = True
             if not total.max() > -np.inf:  # no class possible from the unary alone: uniform
                 unary[t], total, restarted[t] = 0.0, np.zeros(n_classes), True
-            last = _less_top(total, semiring)
+            last = less_top(total, semiring)
     return unary, past, before, joined, restarted
 
 
-def _into(last: np.ndarray, transition: np.ndarray, semiring: str) -> np.ndarray:
+def carried_in(last: np.ndarray, transition: np.ndarray, semiring: str) -> np.ndarray:
     """[C] what a forward vector [C] carries into the next frame through ``transition`` [C, C]."""
     moved = last[:, None] + transition
     top = moved.max(axis=0)
@@ -120,9 +120,9 @@ def _into(last: np.ndarray, transition: np.ndarray, semiring: str) -> np.ndarray
     return combine(moved, 0, semiring)
 
 
-def _moved_back(pairwise: np.ndarray, values: np.ndarray, semiring: str) -> np.ndarray:
+def moved_back(pairwise: np.ndarray, values: np.ndarray, semiring: str) -> np.ndarray:
     """[N, C]: combine over the next class of pairwise [N, C, C] + values [N, 1, C], less each row's top."""
-    return _less_top(combine(pairwise + values[:, None, :], 2, semiring), semiring)
+    return less_top(combine(pairwise + values[:, None, :], 2, semiring), semiring)
 
 
 def _rest_of_chain(factors: ChainFactors, unary: np.ndarray, cut: np.ndarray, semiring: str) -> np.ndarray:
@@ -131,7 +131,7 @@ def _rest_of_chain(factors: ChainFactors, unary: np.ndarray, cut: np.ndarray, se
     future = np.zeros_like(unary)
     for t in range(n_frames - 2, -1, -1):
         if not cut[t + 1]:
-            future[t] = _moved_back(factors.pairwise[factors.link[t + 1]][None], (unary[t + 1] + future[t + 1])[None],
+            future[t] = moved_back(factors.pairwise[factors.link[t + 1]][None], (unary[t + 1] + future[t + 1])[None],
                                     semiring)[0]
     return future
 
@@ -144,6 +144,6 @@ def _window(factors: ChainFactors, unary: np.ndarray, cut: np.ndarray, semiring:
     pairwise = factors.pairwise[factors.link[going_on + 1]]
     for _ in range(lag):
         moved = np.zeros_like(window)
-        moved[going_on] = _moved_back(pairwise, unary[going_on + 1] + window[going_on + 1], semiring)
+        moved[going_on] = moved_back(pairwise, unary[going_on + 1] + window[going_on + 1], semiring)
         window = moved
     return window

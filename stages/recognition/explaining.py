@@ -31,9 +31,9 @@ from mlnseq.mln import chain_messages, classifier
 from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.factors import LearnedFormula, frame_space
+from mlnseq.mln.features import PairColumns, read_columns
 from mlnseq.mln.formula_sources import Written
 from mlnseq.mln.formula_truths import Truths, frame_truths, pair_truths
-from mlnseq.mln.lag import allowed
 from mlnseq.recognition.explanation import Term, TermKind
 
 TINY = 1e-12  # a score difference this small is no difference: the rescale rule gives it nothing
@@ -89,8 +89,8 @@ class Explainer:
 
     def __init__(self, scoring: Scoring):
         self.scoring = scoring
+        self.semiring = "sum" if scoring.decoding is None else scoring.decoding.decoder.semiring
         self.n_classes = len(scoring.classes)
-        self.space = frame_space(list(scoring.columns), self.n_classes)
         self.per_frame = [i for i, f in enumerate(scoring.formulas) if not f.temporal]
         self.temporal = [i for i, f in enumerate(scoring.formulas) if f.temporal]
         frame_formulas = [scoring.formulas[i] for i in self.per_frame]
@@ -98,6 +98,13 @@ class Explainer:
         self.classifier_weights = np.array([classifier.HARD_WEIGHT if f.hard else f.weight for f in frame_formulas])
         self.temporal_weights = np.array([0.0 if scoring.formulas[i].hard else scoring.formulas[i].weight
                                           for i in self.temporal])
+        columns = list(scoring.columns)
+        self._frame_formulas = [f.formula for f in frame_formulas]
+        self._temporal_formulas = [scoring.formulas[i].formula for i in self.temporal]
+        self._frame_columns = read_columns(self._frame_formulas, columns)
+        self._frame_space = frame_space([columns[i] for i in self._frame_columns], self.n_classes)
+        self._pair_columns = PairColumns.of(self._temporal_formulas, columns)
+        self._pair_space = frame_space([columns[i] for i in self._pair_columns.read], self.n_classes)
         self._frames: dict[bytes, Truths] = {}
         self._pairs: dict[bytes, Truths] = {}
         self._terms: dict[tuple, list[Term]] = {}
@@ -106,44 +113,45 @@ class Explainer:
         self.messages: chain_messages.Messages | None = None
         self.scored: Scores | None = None  # the recording the messages are of
 
-    # -- formula truths --------------------------------------------------------------------------------
+    # -- formula truths: per distinct evidence (over the columns the formulas read) -----------------------
 
     def prepare(self, evidence: np.ndarray, link: np.ndarray | None) -> None:
         """Count the truths of every distinct evidence row (and consecutive pair joined by ``link``) at once."""
-        rows = {row.tobytes(): row for row in distinct_rows(evidence)[0] if row.tobytes() not in self._frames}
-        if rows and self.per_frame:
-            formulas = [self.scoring.formulas[i].formula for i in self.per_frame]
-            found = frame_truths(formulas, np.array(list(rows.values())), self.space)
-            self._frames.update({key: Truths(found.true[i], found.broken[i]) for i, key in enumerate(rows)})
+        if self.per_frame:
+            rows = distinct_rows(evidence[:, self._frame_columns])[0]
+            fresh = [row for row in rows if row.tobytes() not in self._frames]
+            if fresh:
+                found = frame_truths(self._frame_formulas, np.array(fresh), self._frame_space)
+                self._frames.update({row.tobytes(): Truths(found.true[i], found.broken[i])
+                                     for i, row in enumerate(fresh)})
         joined = np.flatnonzero(link >= 0) if link is not None and self.temporal else np.zeros(0, dtype=np.int64)
-        pairs = {}
-        for pair in distinct_rows(np.concatenate([evidence[joined - 1], evidence[joined]], axis=1))[0]:
-            key = pair.tobytes()
-            if key not in self._pairs:
-                pairs[key] = pair
-        if pairs:
-            both = np.array(list(pairs.values()))
-            width = evidence.shape[1]
-            found = pair_truths([self.scoring.formulas[i].formula for i in self.temporal], both[:, :width],
-                                both[:, width:], self.space)
-            self._pairs.update({key: Truths(found.true[i], found.broken[i]) for i, key in enumerate(pairs)})
+        if len(joined):
+            keys = distinct_rows(self._pair_columns.keys(evidence[joined - 1], evidence[joined]))[0]
+            fresh = np.array([key for key in keys if key.tobytes() not in self._pairs])
+            if len(fresh):
+                found = pair_truths(self._temporal_formulas, *self._pair_columns.rows(fresh), self._pair_space)
+                self._pairs.update({key.tobytes(): Truths(found.true[i], found.broken[i])
+                                    for i, key in enumerate(fresh)})
+
+    def frame_key(self, row: np.ndarray) -> bytes:
+        """What tells evidence rows apart for the per-frame formulas."""
+        return row[self._frame_columns].tobytes()
 
     def frame_truths(self, row: np.ndarray) -> Truths:
         """The per-frame formulas' truths [C, F] on one evidence row."""
-        key = row.tobytes()
+        key = self.frame_key(row)
         if key not in self._frames:
-            found = frame_truths([self.scoring.formulas[i].formula for i in self.per_frame], row[None], self.space)
+            found = frame_truths(self._frame_formulas, row[self._frame_columns][None], self._frame_space)
             self._frames[key] = Truths(found.true[0], found.broken[0])
         return self._frames[key]
 
     def pair_truths(self, previous: np.ndarray, current: np.ndarray) -> Truths:
         """The temporal formulas' truths [C, C, F] on one pair of consecutive evidence rows."""
-        key = previous.tobytes() + current.tobytes()
-        if key not in self._pairs:
-            found = pair_truths([self.scoring.formulas[i].formula for i in self.temporal], previous[None],
-                                current[None], self.space)
-            self._pairs[key] = Truths(found.true[0], found.broken[0])
-        return self._pairs[key]
+        key = self._pair_columns.keys(previous[None], current[None])
+        if key.tobytes() not in self._pairs:
+            found = pair_truths(self._temporal_formulas, *self._pair_columns.rows(key), self._pair_space)
+            self._pairs[key.tobytes()] = Truths(found.true[0], found.broken[0])
+        return self._pairs[key.tobytes()]
 
     def formula_terms(self, row: np.ndarray, a: int, b: int) -> list[Term]:
         """The per-frame formulas' terms of a chain's unary on one evidence row, ``a`` against ``b`` (cached)."""
@@ -177,11 +185,6 @@ class Keys:
     def at(self, row: int) -> tuple[object, int, float | None]:
         return (self.episode[row], int(self.frame[row]),
                 None if self.time is None else float(self.time[row]))
-
-
-def allowed_after(factors: ChainFactors, t: int, emitted: int) -> np.ndarray:
-    """bool [C]: the classes a legal decoder may emit at t after ``emitted`` (stages/mln/lag.py's rule)."""
-    return allowed(factors.pairwise[factors.link[t]])[emitted]
 
 
 def how(scoring: Scoring) -> str:

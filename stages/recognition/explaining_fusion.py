@@ -56,7 +56,7 @@ def formula_terms(explainer: Explainer, scores: Scores, t: int, a: int, b: int, 
                   gathered: Gathered) -> None:
     """The per-frame formulas' shares of ``share``, each by its share of the MLN's score difference (its weight x
     its truth difference; a hard formula counted with the classifier's weight for it)."""
-    key = (scores.evidence[t].tobytes(), a, b)
+    key = (explainer.frame_key(scores.evidence[t]), a, b)
     if key not in explainer.shares:
         truths = explainer.frame_truths(scores.evidence[t])
         differences = explainer.classifier_weights * (truths.true[a] - truths.true[b])

@@ -40,6 +40,10 @@ class Term:
     truth: tuple[int, int] | None = None  # a formula's true groundings with the chosen class and with the other
     written: str | None = None  # the line as written in its file
     removed: str | None = None  # a hard rule: the class it removed
+    size: float = field(init=False, repr=False, compare=False)  # |contribution|, a hard rule's inf: for sorting
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "size", float("inf") if self.contribution is None else abs(self.contribution))
 
     def record(self) -> dict[str, Any]:
         """The term as JSON: kind, text, line, contribution, and what else it has."""
@@ -49,10 +53,6 @@ class Term:
                  "written": self.written, "removed": self.removed}
         out.update({key: value for key, value in extra.items() if value is not None})
         return out
-
-    @property
-    def size(self) -> float:
-        return float("inf") if self.contribution is None else abs(self.contribution)
 
 
 @dataclass(frozen=True)
@@ -91,5 +91,5 @@ class Explanation:
 
 def brief(terms: list[Term]) -> list[dict[str, Any]]:
     """Terms as the short JSON a per-frame column or line carries: kind, text, line, contribution."""
-    return [{"kind": str(t.kind), "text": t.text, "line": t.line,
+    return [{"kind": t.kind.value, "text": t.text, "line": t.line,
              "contribution": None if t.contribution is None else round(t.contribution, 6)} for t in terms]

@@ -126,6 +126,7 @@ class Prediction:
     probabilities: np.ndarray
     restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
     final: tuple[Prediction, ...] = ()  # the frames of the episode decided by this step (a lagged decoder: t - lag)
+    why: list | None = None  # its largest terms as JSON-ready dicts, when it was decided (``explain_steps``)
 
 
 class Recognizer:
@@ -175,6 +176,7 @@ class Recognizer:
                 self.mln = MLNFactors(formulas, self.columns, len(self.classes))
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
         self.restarts: list[tuple[Any, int]] = []  # where the last ``predict`` restarted its chain: (episode, frame)
+        self._explaining = None  # explain_steps: a LiveExplainer
         self.reset()
 
     @classmethod
@@ -195,6 +197,15 @@ class Recognizer:
             self._online = Online(len(self.classes), self.decoding)
         if self.spec is not None:
             self.binarizer.reset()
+        if self._explaining is not None:
+            self._explaining.reset()
+
+    def explain_steps(self, count: int) -> None:
+        """From now on each frame a step decides (a Prediction, or one of its ``final``) carries ``why``: the
+        ``count`` largest terms of its margin (as ``explain`` gives them); 0 stops."""
+        from mlnseq.recognition.explaining_live import LiveExplainer
+
+        self._explaining = LiveExplainer(self, count, EPSILON) if count else None
 
     @property
     def next_frame(self) -> int:
@@ -234,27 +245,40 @@ class Recognizer:
         if evidence is not None:
             p_mln, prior, unary = self._mln_row(evidence.tobytes())
         log_p_network = None if self._network is None else self._network.step(x, prior)
+        explaining = self._explaining
         if self._filter is None:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
+            if explaining is not None:
+                explaining.record_undecoded(self._frame, evidence, log_p_network, p_mln)
         else:
             factor = frame_factor(self.method, unary, log_p_network, self.network_weight)
             if self._evidence is None and self.start is not None:  # an episode's first frame: the start distribution
                 factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            if explaining is not None:
+                explaining.record(self._frame, evidence, log_p_network, factor, pairwise)
             if self._online is not None:
                 return self._step_online(evidence, factor, pairwise, decide)
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
         restarted = self._filter is not None and self._filter.restarted
-        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
+        why = None
+        if explaining is not None:
+            if self._filter is not None:
+                explaining.stepped(self._frame, probabilities, restarted)
+            why = explaining.decided(self._frame, label, probabilities)
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted, why=why)
         self._frame += 1
         return replace(prediction, final=(prediction,))
 
     def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None,
                      decide: bool) -> Prediction:
         """A lagged or legal decoder's step: the current frame's filtered belief, and the frames decided by it."""
-        final = self._finals(self._online.step(factor, pairwise, decide))
+        decided = self._online.step(factor, pairwise, decide)
+        if self._explaining is not None:  # the belief after this frame, before its decisions are explained
+            self._explaining.stepped(self._frame, self._online.current, self._online.restarted)
+        final = self._finals(decided)
         self._evidence = evidence
         probabilities = self._online.current
         label = int(np.argmax(probabilities))
@@ -264,7 +288,11 @@ class Recognizer:
         return prediction
 
     def _finals(self, finals: list) -> tuple[Prediction, ...]:
-        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted) for f in finals)
+        explaining = self._explaining
+        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted,
+                                why=None if explaining is None else explaining.decided(f.index, f.label,
+                                                                                       f.probabilities))
+                     for f in finals)
 
     def decide(self) -> tuple[Prediction, ...]:
         """The frames that ``step(..., decide=False)`` held back and whose lag has passed, decided."""

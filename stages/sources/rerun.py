@@ -13,8 +13,9 @@ from mlnseq.catalog import artifacts
 
 
 def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, predictions: pl.DataFrame,
-          features: list[str], classes: list[str]) -> Path:
-    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row."""
+          features: list[str], classes: list[str], why: list[tuple] | None = None) -> Path:
+    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row; ``why``: (episode,
+    time, frame, text) of each segment's first frame, logged as text (`predict --explain`)."""
     try:
         import rerun as rr
     except ImportError as error:
@@ -41,6 +42,12 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
             for entity, values in series.items():
                 recording.send_columns(f"{base}/{entity}", indexes=index,
                                        columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+            logged = [entry for entry in why or () if str(entry[0]) == episode]
+            if logged:
+                recording.send_columns(f"{base}/why", indexes=[
+                    rr.TimeColumn("time", duration=[entry[1] for entry in logged]),
+                    rr.TimeColumn("frame", sequence=[entry[2] for entry in logged])],
+                    columns=rr.TextLog.columns(text=[entry[3] for entry in logged]))
         recording.flush()
         handle.write(stream.read() or b"")  # at once: reading it in parts breaks the file's checksums (rerun 0.41)
         recording.disconnect()
