@@ -70,7 +70,7 @@ class LiveExplainer:
             key = pairwise.tobytes()
             with np.errstate(divide="ignore", invalid="ignore"):
                 before = np.log(self.last)
-                if self.explainer.semiring == "sum":  # log sum_y' alpha(y') exp(pairwise(y', y)), the matrix scaled once
+                if self.explainer.semiring == "sum":  # log sum_y' alpha(y') exp(pairwise(y', y)), the matrix once
                     if key not in self._transitions:
                         top = float(pairwise.max())
                         self._transitions[key] = (np.exp(pairwise - top), top)

@@ -14,8 +14,8 @@ from mlnseq.catalog import artifacts
 
 def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, predictions: pl.DataFrame,
           features: list[str], classes: list[str], why: list[tuple] | None = None) -> Path:
-    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row; ``why``: (episode,
-    time, frame, text) of each segment's first frame, logged as text (`predict --explain`)."""
+    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row; ``why``:
+    (episode, time, frame, text) of each segment's first frame, logged as text (`predict --explain`)."""
     try:
         import rerun as rr
     except ImportError as error:
