@@ -61,8 +61,10 @@ def pair_truths(formulas: Sequence[Formula], previous: np.ndarray, current: np.n
     after)."""
     n_classes, pairs = len(space.classes), len(previous)
     before = np.repeat(_with_class(previous, n_classes), n_classes, axis=0)
-    after = np.tile(_with_class(current, n_classes).reshape(pairs, n_classes, -1), (1, n_classes, 1))
-    rows = np.concatenate([before, after.reshape(pairs * n_classes ** 2, -1)], axis=1)
+    later = _with_class(current, n_classes)
+    width = later.shape[1]  # not -1: there may be no pair
+    after = np.tile(later.reshape(pairs, n_classes, width), (1, n_classes, 1))
+    rows = np.concatenate([before, after.reshape(pairs * n_classes ** 2, width)], axis=1)
     counted = _counted(formulas, rows, [space_of(f, space) for f in formulas])
     shape = (pairs, n_classes, n_classes, len(formulas))
     return Truths(counted.true.reshape(shape), counted.broken.reshape(shape))
