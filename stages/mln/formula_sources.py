@@ -64,7 +64,7 @@ def formulas_of(weights_path: Path, meta: dict[str, Any]) -> Path | None:
     """The formulas file a weights table was learned from (its recorded input ending in .mln), if it is there."""
     for name in meta.get("inputs", {}):
         if name.endswith(".mln"):
-            path = Path(name) if Path(name).is_absolute() else Path(weights_path).parent / name
+            path = Path(name) if Path(name).is_absolute() else Path(weights_path).resolve().parent / name
             return path if path.is_file() else None
     return None
 
