@@ -5,10 +5,13 @@ learned on the training split, lstm and priorlayer trained 3 epochs in stream mo
 ``combined`` method exported with ``--decode filter``. Then, side by side in this run, alternating, ROUNDS times:
 
 - CLI: ``mlnseq stream MODEL`` and ``mlnseq stream MODEL --explain 3`` fed the 20,924-frame DESK test recording as CSV
-  through a pipe; the cost of a frame's explanation is the difference of the two wall times over the frames (the same
-  start-up on both sides), median of the rounds (target < 50 us a frame);
-- API: ``Recognizer.step`` over the recording with and without ``explain_steps(3)``, caches warm: the same difference;
-- CLI: ``mlnseq predict MODEL --source REC`` with and without ``--explain 3`` (a why column and the intervals' why).
+  through a pipe; the cost of a frame's explanation is the difference of the two processes' CPU times (user + system:
+  steadier than wall time on a loaded machine; the same start-up on both sides) over the frames, median of the
+  rounds (target < 50 us a frame);
+- API: ``Recognizer.step`` over the recording with and without ``explain_steps(3)``, caches warm, CPU time: the same
+  difference;
+- CLI: ``mlnseq predict MODEL --source REC`` with and without ``--explain 3`` (a why column and the intervals' why),
+  CPU seconds.
 
 ``BENCH_QUICK=1``: one round.
 """
@@ -16,6 +19,7 @@ learned on the training split, lstm and priorlayer trained 3 epochs in stream mo
 from __future__ import annotations
 
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -50,11 +54,13 @@ def build_model(folder: Path) -> tuple[Path, pl.DataFrame]:
 
 
 def timed(command: list[str], stdin: str | None = None) -> float:
-    started = time.perf_counter()
+    """The command's CPU seconds (user + system of the child: steadier than wall time on a loaded machine)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     done = subprocess.run(command, input=stdin, capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(done.stderr[-500:])
-    return time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def api_difference(model: Path, features) -> tuple[float, float]:
@@ -70,10 +76,10 @@ def api_difference(model: Path, features) -> tuple[float, float]:
     for _ in range(3):
         for name, recognizer in (("plain", plain), ("explained", explained)):
             recognizer.reset()
-            started = time.perf_counter()
+            started = time.process_time()
             for frame in features:
                 recognizer.step(frame)
-            best[name] = min(best.get(name, float("inf")), (time.perf_counter() - started) / len(features) * 1e6)
+            best[name] = min(best.get(name, float("inf")), (time.process_time() - started) / len(features) * 1e6)
     return best["plain"], best["explained"]
 
 
@@ -102,7 +108,7 @@ def main() -> None:
         plain = timed([mlnseq, "predict", str(model), "--source", str(recording), "-o", f"{out}.a.parquet"])
         explained = timed([mlnseq, "predict", str(model), "--source", str(recording), "-o", f"{out}.b.parquet",
                            "--explain", "3", "--intervals", f"{out}.csv"])
-        print(f"CLI predict, combined+filter, {frames.height:,} frames: {plain:.2f} s, {explained:.2f} s with "
+        print(f"CLI predict, combined+filter, {frames.height:,} frames: {plain:.2f} s, {explained:.2f} s of CPU with "
               f"--explain 3 and --intervals (every frame and segment explained)", flush=True)
 
 

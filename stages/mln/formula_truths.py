@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -36,12 +37,18 @@ def _with_class(evidence: np.ndarray, n_classes: int) -> np.ndarray:
                            np.tile(np.eye(n_classes, dtype=bool), (rows, 1))], axis=1)
 
 
+@lru_cache(maxsize=4096)
+def _groundings(formula: Formula, space) -> tuple[Formula, ...]:
+    """A formula's groundings in a space, made once: a stream counts truths on each new evidence row."""
+    return tuple(ground(formula, space))
+
+
 def _counted(formulas: Sequence[Formula], rows: np.ndarray, spaces: Sequence) -> Truths:
     """Truths of each formula (evaluated in its own space) on the configuration ``rows``."""
     true = np.zeros((len(rows), len(formulas)), dtype=np.int64)
     broken = np.zeros((len(rows), len(formulas)), dtype=bool)
     for column, (formula, space) in enumerate(zip(formulas, spaces)):
-        for grounding in ground(formula, space):
+        for grounding in _groundings(formula, space):
             holds = truth(grounding, rows, space)
             true[:, column] += holds
             broken[:, column] |= ~holds

@@ -90,6 +90,7 @@ class Explainer:
     def __init__(self, scoring: Scoring):
         self.scoring = scoring
         self.semiring = "sum" if scoring.decoding is None else scoring.decoding.decoder.semiring
+        self.network_text = f"network ({scoring.network}) x {scoring.network_weight:.3g}: log p "
         self.n_classes = len(scoring.classes)
         self.per_frame = [i for i, f in enumerate(scoring.formulas) if not f.temporal]
         self.temporal = [i for i, f in enumerate(scoring.formulas) if f.temporal]

@@ -94,10 +94,9 @@ def unary_terms(explainer: Explainer, parts: FrameParts, a: int, b: int, gathere
     if scoring.method == Method.MLN or scoring.method in FUSED:
         gathered.terms += explainer.formula_terms(parts.row, a, b)
     if scoring.network is not None and scoring.method != Method.MLN:
-        log_p, weight = parts.log_p_network, scoring.network_weight
-        gathered.terms.append(Term(TermKind.NETWORK, f"network ({scoring.network}) x {weight:.3g}: log p "
-                                   f"{log_p[a]:.2f} vs {log_p[b]:.2f}", weight * float(log_p[a] - log_p[b]),
-                                   weight=weight))
+        log_p, weight = parts.log_p_network.tolist(), scoring.network_weight
+        gathered.terms.append(Term(TermKind.NETWORK, f"{explainer.network_text}{log_p[a]:.2f} vs {log_p[b]:.2f}",
+                                   weight * (log_p[a] - log_p[b]), weight=weight))
     if parts.first and scoring.start is not None:
         start = scoring.start
         gathered.terms.append(Term(TermKind.START, f"start distribution: log p {start[a]:.2f} vs {start[b]:.2f}",
