@@ -227,6 +227,15 @@ def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> 
     return line
 
 
+def encoded(line: dict[str, Any]) -> str:
+    """A line as JSON; its ``why``, last, as the explainer encoded it (the same text as json.dumps, made once per
+    formula term)."""
+    why = line.get("why")
+    if why is None or not hasattr(why, "json"):
+        return json.dumps(line)
+    return f'{json.dumps({k: v for k, v in line.items() if k != "why"})[:-1]}, "why": {why.json}}}'
+
+
 def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
     """One frame through the model, its input time kept until its frame is answered; a bad frame names its line.
     A lagged decoder's decisions wait for ``model.decide()``."""
@@ -275,7 +284,7 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
 
     def answer(predictions: Iterable[Any], episode: Any) -> None:
         for prediction in predictions:
-            emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
+            emit(encoded(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
 
     with answering_before_interrupt() as busy:

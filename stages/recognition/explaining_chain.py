@@ -63,8 +63,15 @@ def parts_of(explainer: Explainer, scores: Scores, t: int) -> FrameParts:
 
 def terms_of(explainer: Explainer, parts: FrameParts, chosen: int, versus: int | None):
     """(chosen, versus, margin, terms) of a frame from its parts."""
-    score = parts.scores.tolist()  # a handful of classes: plain Python is quicker than numpy here
     gathered = Gathered()
+    if versus is None and parts.emitted is None and np.isfinite(parts.scores).all():  # every class possible, no rule
+        others = parts.scores.copy()
+        others[chosen] = -np.inf
+        versus = int(others.argmax())
+        unary_terms(explainer, parts, chosen, versus, gathered)
+        message_terms(explainer, parts, chosen, versus, gathered)
+        return chosen, versus, float(parts.scores[chosen] - parts.scores[versus]), gathered
+    score = parts.scores.tolist()  # a handful of classes: plain Python is quicker than numpy here
     possible = [value > -np.inf for value in score]
     ok = possible if parts.emitted is None else [
         p and a for p, a in zip(possible, allowed(parts.pairwise)[parts.emitted].tolist())]

@@ -11,6 +11,7 @@ the same numbers. The decoders offline (posterior, Viterbi) stream as the filter
 from __future__ import annotations
 
 from dataclasses import replace
+from json.encoder import encode_basestring_ascii as encode_text
 from operator import attrgetter
 from typing import Any
 
@@ -22,10 +23,11 @@ from mlnseq.recognition.explained import scoring_of
 from mlnseq.recognition.explaining import Explainer, Scores
 from mlnseq.recognition.explaining_chain import FrameParts, terms_of
 from mlnseq.recognition.explaining_fusion import undecoded
-from mlnseq.recognition.explanation import brief
+from mlnseq.recognition.explanation import TermKind, Why, brief
 
 
 SIZE = attrgetter("size")
+MAX_ENCODED = 100_000  # formula terms whose JSON is kept (a stream's distinct evidence rows and class pairs)
 
 
 class LiveExplainer:
@@ -53,6 +55,7 @@ class LiveExplainer:
         self.row: np.ndarray | None = None  # the last frame's evidence
         self.emitted: int | None = None
         self._transitions: dict[bytes, tuple[np.ndarray, float]] = {}  # pairwise -> exp(pairwise - max), max
+        self._encoded: dict[int, tuple[Any, dict, str]] = {}  # a formula term's id -> (the term, its dict, its JSON)
 
     def record_undecoded(self, index: int, row: np.ndarray | None, log_p_network: np.ndarray | None,
                          p_mln: np.ndarray | None) -> None:
@@ -68,16 +71,15 @@ class LiveExplainer:
         past = before = key = None
         if pairwise is not None and self.last is not None:
             key = pairwise.tobytes()
-            with np.errstate(divide="ignore", invalid="ignore"):
-                before = np.log(self.last)
-                if self.explainer.semiring == "sum":  # log sum_y' alpha(y') exp(pairwise(y', y)), the matrix once
-                    if key not in self._transitions:
-                        top = float(pairwise.max())
-                        self._transitions[key] = (np.exp(pairwise - top), top)
-                    scaled, top = self._transitions[key]
-                    past = np.log(self.last @ scaled) + top
-                else:
-                    past = carried_in(before, pairwise, "max")
+            before = _log(self.last)
+            if self.explainer.semiring == "sum":  # log sum_y' alpha(y') exp(pairwise(y', y)), the matrix once
+                if key not in self._transitions:
+                    top = float(pairwise.max())
+                    self._transitions[key] = (np.exp(pairwise - top), top)
+                scaled, top = self._transitions[key]
+                past = _log(self.last @ scaled) + top
+            else:
+                past = carried_in(before, pairwise, "max")
         self.held[index] = (row, unary, log_p_network, pairwise, past, before, self.row, key)
         self.row = row
 
@@ -106,7 +108,24 @@ class LiveExplainer:
                                emitted=self.emitted if self.legal and not held.first else None)
             _, _, _, gathered = terms_of(self.explainer, held, label, None)
             self.emitted = label
-        return brief(sorted(gathered.terms, key=SIZE, reverse=True)[:self.count])
+        return self._why(sorted(gathered.terms, key=SIZE, reverse=True)[:self.count])
+
+    def _why(self, terms: list) -> Why:
+        """The terms' short dicts and their JSON text; a cached formula term's made once (kept with the term, so that
+        its id is never another's)."""
+        records, fragments = [], []
+        for term in terms:
+            cached = self._encoded.get(id(term))
+            if cached is None or cached[0] is not term:
+                [record] = brief([term])
+                cached = (term, record, _encoded(record))
+                if term.kind is TermKind.FORMULA and len(self._encoded) < MAX_ENCODED:
+                    self._encoded[id(term)] = cached
+            records.append(cached[1])
+            fragments.append(cached[2])
+        found = Why(records)
+        found.json = "[" + ", ".join(fragments) + "]"
+        return found
 
     def _window(self, index: int) -> list[FrameParts]:
         """The held frames after ``index`` that its decision reads (up to its lag, and a chain start or dead end)."""
@@ -127,3 +146,18 @@ class LiveExplainer:
             vector = moved_back(frame.pairwise[None], (frame.unary + vector)[None], self.explainer.semiring)[0]
         return vector
 
+
+def _log(values: np.ndarray) -> np.ndarray:
+    """log of non-negative values, -inf for 0 (without numpy's warning, whose guard costs more than the log)."""
+    if values.min() > 0:
+        return np.log(values)
+    with np.errstate(divide="ignore"):
+        return np.log(values)
+
+
+def _encoded(record: dict) -> str:
+    """json.dumps of a term's short dict (kind, text, line, contribution), the same text made without its overhead."""
+    line, contribution = record["line"], record["contribution"]
+    return (f'{{"kind": "{record["kind"]}", "text": {encode_text(record["text"])}, '
+            f'"line": {"null" if line is None else line}, '
+            f'"contribution": {"null" if contribution is None else float.__repr__(contribution)}}}')

@@ -93,3 +93,10 @@ def brief(terms: list[Term]) -> list[dict[str, Any]]:
     """Terms as the short JSON a per-frame column or line carries: kind, text, line, contribution."""
     return [{"kind": t.kind.value, "text": t.text, "line": t.line,
              "contribution": None if t.contribution is None else round(t.contribution, 6)} for t in terms]
+
+
+class Why(list):
+    """A frame's largest terms as the short JSON dicts of ``brief``, with ``json``: their JSON text (a stream line
+    carries it as it is)."""
+
+    json: str = "[]"
