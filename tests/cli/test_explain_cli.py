@@ -104,6 +104,13 @@ def test_predict_and_stream_give_the_same_explanations(model, desk_test_recordin
     assert all(len(terms) == 3 for terms in why)
     intervals = pl.read_csv(spans)
     assert intervals.columns == ["episode", "start", "end", "label", "why"] and intervals["why"].str.contains("held by").all()
+    rr = pytest.importorskip("rerun", reason="the [recordings] extra is not installed")
+    recording = tmp_path / "view.rrd"
+    done = runner.invoke(app, ["predict", str(model), "--source", str(head), "-o", str(tmp_path / "q.parquet"),
+                               "--explain", "2", "--rerun", str(recording)])
+    assert done.exit_code == 0, done.output
+    logged = sum(chunk.num_rows for chunk in rr.chunk.RrdReader(recording).stream() if chunk.entity_path.endswith("/why"))
+    assert logged == intervals.height  # one text log entry per segment
     features = pl.read_csv(head).drop("frame", "label").write_csv()
     streamed = runner.invoke(app, ["stream", str(model), "--explain", "3"], input=features)
     assert streamed.exit_code == 0, streamed.output
@@ -127,6 +134,12 @@ def test_the_python_api_explains_a_row_a_recording_or_a_frame(model, desk_test_r
     assert [e.chosen for e in every] == [recognizer.classes[k] for k in predicted]
     alone = recognizer.explain(dict(zip(recognizer.features, features[0])))
     assert alone.frame == 0 and any(t.kind == "start" for t in alone.terms)
+    for decode in ("smooth-legal@5", "lagviterbi@3", "posterior", "viterbi"):  # the class explained is predict's
+        _, predicted = recognizer.predict(features, decode=decode)
+        every = recognizer.explain(features, decode=decode)
+        assert [e.chosen for e in every] == [recognizer.classes[k] for k in predicted]
+        assert all(abs(e.total() - e.margin) < 1e-6 for e in every if e.margin is not None)
+        assert any(t.kind == "future" for t in every[0].terms)
 
 
 @pytest.mark.parametrize(("args", "needle"), [
