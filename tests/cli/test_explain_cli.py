@@ -58,7 +58,8 @@ def test_each_formula_as_written_and_its_contribution_by_hand(model, desk_stream
                     if line.startswith("0.0 Has(+w, p)"))
     for text, term in formulas.items():
         assert abs(term["contribution"] - by_hand[text]) < 1e-9
-        assert term["text"] in weight and term["line"] == template and term["written"] == "0.0 Has(+w, p) => Topic(+c, p)"
+        assert term["text"] in weight and term["line"] == template
+        assert term["written"] == "0.0 Has(+w, p) => Topic(+c, p)"
         assert Path(term["file"]).name == "temporal.mln" and HAS.match(text)
     per_word = {}
     for text, value in by_hand.items():
@@ -103,13 +104,15 @@ def test_predict_and_stream_give_the_same_explanations(model, desk_test_recordin
     why = [json.loads(text) for text in table["why"]]
     assert all(len(terms) == 3 for terms in why)
     intervals = pl.read_csv(spans)
-    assert intervals.columns == ["episode", "start", "end", "label", "why"] and intervals["why"].str.contains("held by").all()
+    assert intervals.columns == ["episode", "start", "end", "label", "why"]
+    assert intervals["why"].str.contains("held by").all()
     rr = pytest.importorskip("rerun", reason="the [recordings] extra is not installed")
     recording = tmp_path / "view.rrd"
     done = runner.invoke(app, ["predict", str(model), "--source", str(head), "-o", str(tmp_path / "q.parquet"),
                                "--explain", "2", "--rerun", str(recording)])
     assert done.exit_code == 0, done.output
-    logged = sum(chunk.num_rows for chunk in rr.chunk.RrdReader(recording).stream() if chunk.entity_path.endswith("/why"))
+    logged = sum(chunk.num_rows for chunk in rr.chunk.RrdReader(recording).stream()
+                 if chunk.entity_path.endswith("/why"))
     assert logged == intervals.height  # one text log entry per segment
     features = pl.read_csv(head).drop("frame", "label").write_csv()
     streamed = runner.invoke(app, ["stream", str(model), "--explain", "3"], input=features)
