@@ -191,6 +191,9 @@ class Keys:
 def how(scoring: Scoring) -> str:
     """The decoder and the messages its explanation takes."""
     if scoring.decoding is None:
-        return scoring.name + ("" if scoring.method not in FUSED else " (eq. 16: shares of the log-odds)")
+        if scoring.method in FUSED:
+            return f"{scoring.name} (eq. 16: shares of the log-odds)"
+        return scoring.name + (" (the formulas' shares of the score difference)" if scoring.method == Method.MLN
+                               else "")
     semiring = "max-product: the best paths" if scoring.decoding.decoder.semiring == "max" else "sum-product"
     return f"{scoring.name} ({semiring})"
