@@ -145,6 +145,34 @@ def test_the_python_api_explains_a_row_a_recording_or_a_frame(model, desk_test_r
         assert any(t.kind == "future" for t in every[0].terms)
 
 
+def test_a_lagged_stream_explains_each_frame_when_it_decides_it_as_a_whole_recording_does(model, desk_test_recording):
+    from mlnseq.model import model_file
+
+    entries = model_file.read_model(model)
+    manifest = json.loads(entries.pop("manifest.json"))
+    manifest.update(decode="smooth-legal", lag=3, latency_s=None)
+    for key in ("members", "format"):
+        manifest.pop(key)
+    recognizer = Recognizer(model_file.seal(manifest, entries))
+    features = pl.read_csv(desk_test_recording).select(recognizer.features).to_numpy()[:400]
+    whole = recognizer.explain(features)
+    recognizer.reset()
+    recognizer.explain_steps(4)
+    decided = []
+    for start in range(0, len(features), 7):  # frames read together, decided together
+        for frame in features[start:start + 7]:
+            recognizer.step(frame, decide=False)
+        decided += recognizer.decide()
+    decided += recognizer.finish()
+    assert [p.frame for p in decided] == list(range(len(features)))
+    for prediction, found in zip(decided, whole):
+        assert prediction.name == found.chosen
+        assert [t["text"] for t in prediction.why] == [t.text for t in found.largest(4)]
+        assert np.allclose([t["contribution"] or 0.0 for t in prediction.why],
+                           [t.contribution or 0.0 for t in found.largest(4)], atol=2e-6)  # a hard rule's: None
+    assert any(t.kind == "future" for t in whole[100].terms)
+
+
 @pytest.mark.parametrize(("args", "needle"), [
     (["--frame", "1", "--time", "2"], "give one of --frame T, --time S or --segment K, not --frame and --time"),
     ([], "give one of --frame T, --time S or --segment K"),
