@@ -45,6 +45,7 @@ COMMANDS = {
     "export": Command("export", "export", "Gather a trained method into one model file: WORKDIR/METHOD.mlnseq."),
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
+    "explain": Command("explain", "explain", "Why a model decided what it did at a frame: its margin, term by term."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),
     "ros": Command("ros", "ros", "A ROS 2 (DDS) or ROS 1 node recognising the model's topics live: the activity on a "
                    "topic."),

@@ -34,6 +34,7 @@ def predict(
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
     write_lerobot_probabilities: Annotated[bool, typer.Option(help="With --write-lerobot: the class probabilities as a per-frame feature too (mlnseq.subtask_probabilities).")] = False,
     replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
+    explain: Annotated[int, typer.Option(help="Explain every frame: a why column of its N largest terms (JSON: kind, text, line, contribution; docs/explain.md), and each segment's why (what held it, what ended it) in --intervals and --rerun.")] = 0,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
     given = dict(**labels_option(labels), labels_unit=labels_unit, topics=_names(topics), rate=rate,
@@ -42,7 +43,7 @@ def predict(
         model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
         episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
         write_lerobot=write_lerobot, lerobot_probabilities=write_lerobot_probabilities,
-        replace_subtasks=replace_subtasks,
+        replace_subtasks=replace_subtasks, explain=explain,
         overrides={k: v for k, v in given.items() if v not in (None, ())},
     )
     with reported_errors():

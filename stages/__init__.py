@@ -12,6 +12,7 @@ polars, pyarrow: no torch)::
     recognizer.reset()                                     # the next frame starts a new episode
     probabilities, classes = recognizer.predict(features)  # a whole recording [frames, features], offline
     recognizer.restarts                                    # (episode, frame) where that predict restarted its chain
+    recognizer.explain(1234)                               # why frame 1234 of it got its class, term by term
 
 ``recognizer.features`` names the values a frame holds (``step`` also takes them in that order) and
 ``recognizer.classes`` the classes. A frame with a missing, non-numeric or non-finite value raises

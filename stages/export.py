@@ -21,6 +21,7 @@ from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import (ALIASES, METHODS, MLN_MODES, Method, MLNMode, PaperFloor, decoded_name, member,
                                     needs_mln, network_of)
 from mlnseq.catalog.notes import Note
+from mlnseq.mln import formula_sources
 from mlnseq.model import model_file
 from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
 from mlnseq.model.manifest import Manifest, NetworkEntry
@@ -110,8 +111,12 @@ def _mln(workdir: Path, inputs: list[Path]) -> tuple[str, Any, list[str]]:
     """The predicate spec's text, the MLN's weights and the predicate columns (their files added to ``inputs``)."""
     predicates_path, weights_path = workdir / artifacts.PREDICATES, workdir / artifacts.WEIGHTS
     predicates_meta = artifacts.read_metadata(predicates_path, "predicates")
-    weights, _ = artifacts.read_table(weights_path, "weights")
+    weights, weights_meta = artifacts.read_table(weights_path, "weights")
     inputs += [predicates_path, weights_path]
+    formulas = formula_sources.formulas_of(weights_path, weights_meta)
+    if formulas is not None:  # each formula's file, line and text as written, for explanations
+        text = formulas.read_text(encoding="utf-8")
+        weights = formula_sources.annotated(weights, formula_sources.written_lines(text, formulas))
     columns = [c for group in predicates_meta["predicates"].values() for c in group]
     return predicates_meta["spec"]["text"], weights, columns
 

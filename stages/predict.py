@@ -10,7 +10,6 @@ scored as a stream: segment, frame, edit and F1@k).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,9 +22,9 @@ from mlnseq.timeline import metrics
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
+from mlnseq.recognition.reading import reading_of
 from mlnseq.recognition.recognizer import Recognizer
-from mlnseq.sources import RECORDING_ENVS, SourceOptions, intervals
-from mlnseq.sources.recording import Labels, TableColumns
+from mlnseq.sources import RECORDING_ENVS, intervals
 from mlnseq.sources.table import prediction_frames
 
 
@@ -48,8 +47,11 @@ class PredictOptions:
     write_lerobot: Path | None = None  # also write a copy of the LeRobot dataset with the predicted subtasks
     lerobot_probabilities: bool = False  # with write_lerobot: the class probabilities as a feature too
     replace_subtasks: bool = False  # with write_lerobot: over episodes' own subtask annotations too
+    explain: int = 0  # N > 0: a why column of each frame's N largest terms, each segment's why in intervals and Rerun
 
     def validate(self) -> None:
+        if self.explain < 0:
+            raise BadInput(f"--explain {self.explain}: give how many terms each frame shows (0: none)")
         if self.decode is not None:
             parse_decoding(self.decode)
         if self.env is not None:
@@ -97,26 +99,6 @@ def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) 
     ), predicted
 
 
-def reading_of(model: Recognizer, options: PredictOptions) -> tuple[str, TableColumns, SourceOptions, str]:
-    """The env, columns and source options to read new recordings with: the model's, overridden by options;
-    and whether labels are required (a named label column) or optional."""
-    kept = model.manifest.reading or {}
-    env = options.env or (kept.get("env") if kept.get("env") in RECORDING_ENVS else "table")
-    same = env == kept.get("env")
-    pick = lambda given, key, default=None: (  # noqa: E731
-        given if given is not None else (kept.get(key, default) if same else default))
-    columns = TableColumns(label=pick(options.label_column, "label_column", "label"),
-                           episode=pick(options.episode_column, "episode_column"),
-                           time=pick(options.time_column, "time_column"),
-                           features=tuple(model.features), classes=tuple(model.classes))
-    names = {f.name for f in dataclasses.fields(SourceOptions)} - {"labels"}
-    known = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kept.items() if k in names} if same else {}
-    if options.label_column is not None:  # a label column named: not the annotations the model's labels came from
-        known.pop("annotations", None)
-    recordings = SourceOptions(**{**known, **options.overrides})
-    return env, columns, recordings, Labels.REQUIRED if options.label_column is not None else Labels.OPTIONAL
-
-
 def check_outputs(options: PredictOptions, inputs: list) -> None:
     """Refuse an output path that is another output or one of the inputs (even with --force)."""
     outputs = [(flag, Path(path)) for flag, path in (("-o", options.output_path()), ("--intervals", options.intervals),
@@ -157,12 +139,18 @@ def _run(options: PredictOptions, stage) -> Predicted:
     if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
         table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
     table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
+    found = None
+    if options.explain:  # each frame's largest terms and each segment's why (stages/recognition/reasons.py)
+        from mlnseq.recognition.explaining import Keys
+        from mlnseq.recognition.reasons import reasons
+
+        found = reasons(model, Keys(table["episode"].to_list(), table["frame"].to_numpy(), times), options.explain)
+        table = table.with_columns(pl.Series("why", found.frames, dtype=pl.String))
     scores = None
     if meta["labelled"]:
         scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
                                       frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
     decoding = parse_decoding(options.decode) if options.decode else model.decoding
-    decode = decoding.name
     reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
                "time_column": columns.time, **source_options.record(env),
                **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
@@ -173,16 +161,26 @@ def _run(options: PredictOptions, stage) -> Predicted:
     path = options.output_path()
     artifacts.write_table(
         table, stage(path), "predicted",
-        {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decode,
+        {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decoding.name,
          "lag": decoding.lag,
          "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading,
          "restarts": [[str(episode), frame] for episode, frame in restarts]},
         inputs=inputs,
     )
+    written, lerobot = _write_beside(options, stage, model, frames, times, table, found, source_options.unit(env))
+    notes = tuple(note for r in recordings for note in r.resolved.get("notes", []))
+    return Predicted(path, table, scores, len(names), reading, written, restarts, lerobot=lerobot, notes=notes)
+
+
+def _write_beside(options: PredictOptions, stage, model: Recognizer, frames: pl.DataFrame, times: Any,
+                  table: pl.DataFrame, found: Any, unit: str) -> tuple[tuple[Path, ...], Any]:
+    """The outputs asked for beside the predictions: intervals, a Rerun recording, a LeRobot copy."""
     written = []
     if options.intervals is not None:
         segments = intervals.segments(table["episode"].to_list(), table["frame"].to_numpy(), times,
-                                      table["class"].to_list(), source_options.unit(env))
+                                      table["class"].to_list(), unit)
+        if found is not None:
+            segments = segments.with_columns(pl.Series("why", found.why(), dtype=pl.String))
         # seconds to the nanosecond, never 1e-06
         segments.with_columns(pl.col(pl.Float64).round(9)).write_csv(stage(options.intervals), float_scientific=False)
         written.append(Path(options.intervals))
@@ -190,12 +188,11 @@ def _run(options: PredictOptions, stage) -> Predicted:
         from mlnseq.sources import rerun
 
         rerun.write(stage(options.rerun), table["episode"].to_list(), frames, times, table, list(model.features),
-                    list(model.classes))
+                    list(model.classes), None if found is None else found.logged(times))
         written.append(Path(options.rerun))
     lerobot = _write_lerobot(options, stage, table, list(model.classes)) if options.write_lerobot else None
     written += [Path(options.write_lerobot)] if lerobot else []
-    notes = tuple(note for r in recordings for note in r.resolved.get("notes", []))
-    return Predicted(path, table, scores, len(names), reading, tuple(written), restarts, lerobot=lerobot, notes=notes)
+    return tuple(written), lerobot
 
 
 def _write_lerobot(options: PredictOptions, stage, table: pl.DataFrame, classes: list[str]) -> Any:

@@ -30,6 +30,7 @@ from mlnseq.reporting.latency import FIGURE as LATENCY_FIGURE, figure_latency, w
 from mlnseq.reporting.loading import PAPER_DATASETS, Run, load_run, present, timeline
 from mlnseq.reporting.rendering import render
 from mlnseq.reporting.tables import deploy_choices, efficiency_points, method_name, summary
+from mlnseq.reporting.worked_examples import worked_examples
 
 SUMMARY = "summary.json"
 
@@ -80,7 +81,9 @@ def run(options: ReportOptions) -> ReportResult:
             figure.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
         plt.close(figure)
         written.append(out / name)
-    path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines))
+    stream = loaded.metrics.filter(pl.col("mode") == "stream").group_by("dataset").agg(pl.col("seed").min())
+    examples = worked_examples(Path(options.runs), list(PAPER_DATASETS), dict(stream.iter_rows()))
+    path = artifacts.write_text(out / "REPORT.md", render(loaded, FIGURES, timelines, examples))
     artifacts.write_text(out / SUMMARY, json.dumps(with_live(loaded, summary(loaded)), indent=1, sort_keys=True) + "\n")
     n_seed_runs = loaded.metrics.select("dataset", "mode", "seed").unique().height
     return ReportResult(path, written, sorted(loaded.datasets), n_seed_runs)

@@ -53,8 +53,11 @@ class StreamOptions:
     strict: bool = False
     max_line_bytes: int = MAX_LINE_BYTES
     max_hold: float | None = None  # `rostopic echo -p`: seconds a tick holds the feed's last row; default: the model's
+    explain: int = 0  # N > 0: each line carries "why", its frame's N largest terms (docs/explain.md)
 
     def validate(self) -> None:
+        if self.explain < 0:
+            raise BadInput(f"--explain {self.explain}: give how many terms each line shows (0: none)")
         if self.max_line_bytes < 1:
             raise BadInput(f"--max-line-bytes {self.max_line_bytes}: a line limit is at least 1 byte")
         if self.max_hold is not None and not self.max_hold > 0:
@@ -198,7 +201,18 @@ def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> 
             "lag": model.lag if model.decoding.decoder.lagged else 0}
     if time is not None:
         line["time"] = time
+    if prediction.why is not None:
+        line["why"] = prediction.why
     return line
+
+
+def encoded(line: dict[str, Any]) -> str:
+    """A line as JSON; its ``why``, last, as the explainer encoded it (the same text as json.dumps, made once per
+    formula term)."""
+    why = line.get("why")
+    if why is None or not hasattr(why, "json"):
+        return json.dumps(line)
+    return f'{json.dumps({k: v for k, v in line.items() if k != "why"})[:-1]}, "why": {why.json}}}'
 
 
 def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
@@ -219,6 +233,8 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``. SIGINT or SIGTERM: the frames read are answered, then `Stopped` is raised."""
     options.validate()
     model = Recognizer.load(options.model)
+    if options.explain:
+        model.explain_steps(options.explain)
     notes = model.manifest.notes  # said in full by export, which made them, and shown by info; here one line
     if len(notes) == 1:
         warn(f"note: {notes[0]}")
@@ -251,7 +267,7 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
 
     def answer(predictions: Iterable[Any], episode: Any) -> None:
         for prediction in predictions:
-            emit(json.dumps(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
+            emit(encoded(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
             summary.frames += 1
 
     with answering_held(before_wait, lambda: answer(model.decide(), episode)):

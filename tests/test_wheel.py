@@ -248,6 +248,23 @@ def test_info_predict_and_stream_on_the_base_install_equal_the_whole_install(ins
     assert "macro F1 (segments)" in base[1] and "S1 approach peg" in base[0]
 
 
+def test_explain_on_the_base_install_equals_the_whole_install(installed, light, model, desk_test_recording, tmp_path):
+    recording = tmp_path / "head.csv"
+    recording.write_text("".join(desk_test_recording.read_text().splitlines(keepends=True)[:RECORDED + 1]))
+    outputs = {}
+    for install, deps in (("base", light), ("whole", installed["deps"])):
+        found = [mlnseq(installed, "explain", model, "--source", recording, *args, deps=deps)
+                 for args in (("--frame", "1000", "--json"), ("--segment", "3"),
+                              ("--frame", "1000", "--what-if", "left_gripper=closed"))]
+        for done in found:
+            assert done.returncode == 0, f"{install}: {done.stderr}"
+        outputs[install] = [done.stdout for done in found]
+    assert outputs["base"] == outputs["whole"]
+    terms = json.loads(outputs["base"][0])["terms"]
+    assert {"formula", "network", "past"} <= {term["kind"] for term in terms}
+    assert "held by" in outputs["base"][1] and "what if left_gripper=closed?" in outputs["base"][2]
+
+
 @pytest.mark.parametrize(("args", "extra", "library"), [
     (("learn-weights",), "train", "scipy"),
     (("train", "--epochs", "1"), "train", "torch"),

@@ -100,7 +100,9 @@ def pair_counts(formulas: Sequence[Formula], hard: Sequence[bool], previous: np.
     before, before_none = _configurations(previous.astype(bool), n_classes)
     after, after_none = _configurations(current.astype(bool), n_classes)
     pairs = len(previous)
-    after_each = np.tile(after.reshape(pairs, n_classes, -1), (1, n_classes, 1)).reshape(pairs * n_classes ** 2, -1)
+    width = after.shape[1]  # not -1: a recording of one frame has no pair
+    after_each = np.tile(after.reshape(pairs, n_classes, width), (1, n_classes, 1)).reshape(pairs * n_classes ** 2,
+                                                                                           width)
     rows = np.concatenate([np.repeat(before, n_classes, axis=0), after_each], axis=1)
     baseline = np.concatenate([before_none, after_none], axis=1)
     if not formulas:

@@ -10,7 +10,7 @@ stages/model/model_file.py and its manifest in stages/model/manifest.py.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
@@ -32,6 +32,7 @@ from mlnseq.mln.lag_online import Online
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
+    from mlnseq.recognition.explaining import Scores
     from mlnseq.mln.factors import MLNFactors
 
 EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other exactly 1
@@ -125,6 +126,7 @@ class Prediction:
     probabilities: np.ndarray
     restarted: bool = False  # the frame was a dead end (no class possible given the previous): the chain started anew
     final: tuple[Prediction, ...] = ()  # the frames of the episode decided by this step (a lagged decoder: t - lag)
+    why: list | None = None  # its largest terms as JSON-ready dicts, when it was decided (``explain_steps``)
 
 
 class Recognizer:
@@ -161,16 +163,20 @@ class Recognizer:
         self.spec: PredicateSpec | None = None
         self.weights: pl.DataFrame | None = None
         self.mln: MLNFactors | None = None
+        self.formulas: tuple = ()
+        self.last: Scores | None = None  # the recording the last ``predict`` scored, for ``explain``
         if needs_mln(self.method, self.decode):
             self.spec, self.weights = model.spec, model.weights
             self.columns = [c for columns in self.spec.columns().values() for c in columns]
             self.binarizer = StreamingBinarizer(self.spec, self.features)
             formulas = parse_weights(self.weights, self.columns, self.classes)
+            self.formulas = tuple(formulas)  # the formulas that count, in the weights' order
             self._per_frame = [f for f in formulas if not f.temporal]
             if self.decode != "none":
                 self.mln = MLNFactors(formulas, self.columns, len(self.classes))
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
         self.restarts: list[tuple[Any, int]] = []  # where the last ``predict`` restarted its chain: (episode, frame)
+        self._explaining = None  # explain_steps: a LiveExplainer
         self.reset()
 
     @classmethod
@@ -191,6 +197,15 @@ class Recognizer:
             self._online = Online(len(self.classes), self.decoding)
         if self.spec is not None:
             self.binarizer.reset()
+        if self._explaining is not None:
+            self._explaining.reset()
+
+    def explain_steps(self, count: int) -> None:
+        """From now on each frame a step decides (a Prediction, or one of its ``final``) carries ``why``: the
+        ``count`` largest terms of its margin (as ``explain`` gives them); 0 stops."""
+        from mlnseq.recognition.explaining_live import LiveExplainer
+
+        self._explaining = LiveExplainer(self, count, EPSILON) if count else None
 
     @property
     def next_frame(self) -> int:
@@ -230,27 +245,40 @@ class Recognizer:
         if evidence is not None:
             p_mln, prior, unary = self._mln_row(evidence.tobytes())
         log_p_network = None if self._network is None else self._network.step(x, prior)
+        explaining = self._explaining
         if self._filter is None:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
+            if explaining is not None:
+                explaining.record_undecoded(self._frame, evidence, log_p_network, p_mln)
         else:
             factor = frame_factor(self.method, unary, log_p_network, self.network_weight)
             if self._evidence is None and self.start is not None:  # an episode's first frame: the start distribution
                 factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            if explaining is not None:
+                explaining.record(self._frame, evidence, log_p_network, factor, pairwise)
             if self._online is not None:
                 return self._step_online(evidence, factor, pairwise, decide)
             probabilities = np.exp(self._filter.step(factor, pairwise))
         self._evidence = evidence
         label = int(np.argmax(probabilities))
         restarted = self._filter is not None and self._filter.restarted
-        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted)
+        why = None
+        if explaining is not None:
+            if self._filter is not None:
+                explaining.stepped(self._frame, probabilities, restarted)
+            why = explaining.decided(self._frame, label, probabilities)
+        prediction = Prediction(self._frame, label, self.classes[label], probabilities, restarted, why=why)
         self._frame += 1
         return replace(prediction, final=(prediction,))
 
     def _step_online(self, evidence: np.ndarray, factor: np.ndarray, pairwise: np.ndarray | None,
                      decide: bool) -> Prediction:
         """A lagged or legal decoder's step: the current frame's filtered belief, and the frames decided by it."""
-        final = self._finals(self._online.step(factor, pairwise, decide))
+        decided = self._online.step(factor, pairwise, decide)
+        if self._explaining is not None:  # the belief after this frame, before its decisions are explained
+            self._explaining.stepped(self._frame, self._online.current, self._online.restarted)
+        final = self._finals(decided)
         self._evidence = evidence
         probabilities = self._online.current
         label = int(np.argmax(probabilities))
@@ -260,7 +288,11 @@ class Recognizer:
         return prediction
 
     def _finals(self, finals: list) -> tuple[Prediction, ...]:
-        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted) for f in finals)
+        explaining = self._explaining
+        return tuple(Prediction(f.index, f.label, self.classes[f.label], f.probabilities, f.restarted,
+                                why=None if explaining is None else explaining.decided(f.index, f.label,
+                                                                                       f.probabilities))
+                     for f in finals)
 
     def decide(self) -> tuple[Prediction, ...]:
         """The frames that ``step(..., decide=False)`` held back and whose lag has passed, decided."""
@@ -278,17 +310,18 @@ class Recognizer:
 
         row = np.frombuffer(evidence, dtype=bool)[None]
         scores = frame_scores(self._per_frame, row, self.columns, len(self.classes), classifier.HARD_WEIGHT)
-        p_mln, prior = self._mln_outputs(scores)
+        log_p_mln, prior = self._mln_outputs(scores)
         unary = self.mln.unary(row)[0] if self.mln is not None else None
-        return p_mln[0], None if prior is None else prior[0], unary
+        return np.exp(log_p_mln[0]), None if prior is None else prior[0], unary
 
     def _mln_outputs(self, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """The MLN's class probabilities [n, C] from its class scores, and PriorLayer's input if the network has one."""
+        """The MLN's class log-probabilities [n, C] from its class scores, and PriorLayer's input if the network has
+        one."""
         from mlnseq.mln import classifier
 
         floor = self.manifest.paper_floor
-        p_mln = np.exp(classifier.class_log_probs(scores, self.manifest.mln_mode, floor))
-        return p_mln, None if self.prior is None else prior_input(scores, self.prior, floor)
+        log_p_mln = classifier.class_log_probs(scores, self.manifest.mln_mode, floor)
+        return log_p_mln, None if self.prior is None else prior_input(scores, self.prior, floor)
 
     # -- whole recordings --------------------------------------------------------------------------
 
@@ -305,7 +338,16 @@ class Recognizer:
         model's feature order, rows grouped by ``episodes`` (default: one episode). ``decode`` overrides the
         model's decoding (e.g. viterbi for a filter model: the same factors, decoded offline). Where a frame is a
         dead end (no class possible given the previous ones), the chain restarts there, as ``step`` does:
-        ``restarts`` then lists (episode, frame within it) of each."""
+        ``restarts`` then lists (episode, frame within it) of each. ``explain`` then explains its frames."""
+        self.last = self.scored(features, episodes, decode)
+        return self.last.probabilities, self.last.path
+
+    def scored(self, features: np.ndarray, episodes: np.ndarray | None = None, decode: str | None = None,
+               edit: Callable[[np.ndarray], np.ndarray] | None = None) -> Scores:
+        """:meth:`predict`'s classes and probabilities with what they were scored from (``explaining.Scores``);
+        ``edit`` changes the evidence (predicate values [T, W]) before it is scored (a what-if)."""
+        from mlnseq.recognition.explaining import Scores
+
         decode = self.decoding.name if decode is None else decode
         if decode != self.decoding.name and decode != "none" and self.mln is None:
             raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
@@ -316,21 +358,34 @@ class Recognizer:
         spans = sequences.runs(episodes)
         frame_of = np.concatenate([np.arange(s.stop - s.start) for s in spans]) if spans else np.zeros(0, np.int64)
         starts = chain.chain_starts(episodes)
-        p_mln = prior = evidence = None
+        log_p_mln = prior = evidence = None
         if self.spec is not None:
             from mlnseq.predicates import rules as predicate_rules
             from mlnseq.mln import classifier
 
             # binarized as frames.parquet holds them: float32
             evidence = predicate_rules.features_evidence(self.spec, self.features, features.astype(np.float32), starts)
+            evidence = evidence if edit is None else edit(evidence)
             predicates = pl.DataFrame({column: evidence[:, i] for i, column in enumerate(self.columns)})
-            p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, self.classes))
+            log_p_mln, prior = self._mln_outputs(classifier.class_scores(predicates, self.weights, self.classes))
         log_p_network = None if self.network is None else self.network.log_probs(spans, features, prior)
         if decode == "none":
-            probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
-            return probabilities, probabilities.argmax(1)
+            probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network),
+                                 None if log_p_mln is None else np.exp(log_p_mln))
+            return Scores(evidence, log_p_network, log_p_mln, None, probabilities.argmax(1), probabilities, decode,
+                          episodes, frame_of)
         factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight, self.start)
         decoded = decode_chain(decode, factors)
         self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
-        return decoded.probabilities, decoded.path
+        return Scores(evidence, log_p_network, log_p_mln, factors, decoded.path, decoded.probabilities, decode,
+                      episodes, frame_of)
 
+    def explain(self, frame: int | Mapping[str, Any] | Sequence[float] | np.ndarray, versus: str | None = None,
+                episodes: np.ndarray | None = None, decode: str | None = None) -> Any:
+        """Why a frame got its class: an ``Explanation`` (its margin over the runner-up, or over the class
+        ``versus``, as terms that add up to it; docs/explain.md). ``frame``: a row of the recording the last
+        :meth:`predict` was given; or a whole recording's features [T, F] (rows grouped by ``episodes``): then a
+        list, one per frame; or one frame's features: a recording of that frame alone."""
+        from mlnseq.recognition.explained import explain_recognized
+
+        return explain_recognized(self, frame, versus, episodes, decode, EPSILON)

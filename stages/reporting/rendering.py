@@ -22,9 +22,10 @@ def markdown_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None = None) -> str:
-    """REPORT.md: every section, its numbers from ``run``; ``figures`` maps a figure key to its file name and
-    ``timelines`` a dataset to what its timeline figure shows."""
+def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None = None,
+           examples: list[str] | None = None) -> str:
+    """REPORT.md: every section, its numbers from ``run``; ``figures`` maps a figure key to its file name,
+    ``timelines`` a dataset to what its timeline figure shows, ``examples`` the worked examples' lines."""
     datasets = present(run, PAPER_DATASETS)
     out = _title(run, [d for d in PAPER_DATASETS if d not in datasets])
     out += _paper_tables(run, datasets)
@@ -33,6 +34,7 @@ def render(run: Run, figures: dict[str, str], timelines: dict[str, str] | None =
     out += _weights_and_specs(run, datasets)
     out += _stream_mode(run)
     out += sequential_logic(run, figures, timelines or {})
+    out += examples or []
     out += _timings(run)
     out += _hyper_parameters(run)
     out.append("## Differences from the paper\n")

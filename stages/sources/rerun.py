@@ -28,8 +28,9 @@ def _send_segments(recording, entity: str, names: np.ndarray, times: np.ndarray,
 
 
 def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, predictions: pl.DataFrame,
-          features: list[str], classes: list[str]) -> Path:
-    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row."""
+          features: list[str], classes: list[str], why: list[tuple] | None = None) -> Path:
+    """``frames`` and ``predictions`` row by row (the same order); ``episodes`` the user's id per row; ``why``:
+    (episode, time, frame, text) of each segment's first frame, logged as text (`predict --explain`)."""
     try:
         import rerun as rr
     except ImportError as error:
@@ -62,6 +63,12 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
                 if names is not None:
                     _send_segments(recording, f"{base}/segments/{lane}", names, times[rows],
                                    frames["frame"].to_numpy()[rows])
+            logged = [entry for entry in why or () if str(entry[0]) == episode]
+            if logged:
+                recording.send_columns(f"{base}/why", indexes=[
+                    rr.TimeColumn("time", duration=[entry[1] for entry in logged]),
+                    rr.TimeColumn("frame", sequence=[entry[2] for entry in logged])],
+                    columns=rr.TextLog.columns(text=[entry[3] for entry in logged]))
         recording.flush()
         handle.write(stream.read() or b"")  # at once: reading it in parts breaks the file's checksums (rerun 0.41)
         recording.disconnect()

@@ -211,11 +211,24 @@ def test_run_writes_the_report_and_its_figures(desk_run, tmp_path):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
     assert "desk: stream mode, seed 0, test episode 1 (the first wholly in the test split), frames 0–599" in text
     assert "- desk: deploy **" in text and "- desk, online choice (" in text
+    assert "## Why: worked examples" in text and "### desk: a segment the MLN got" in text
     summary = json.loads((tmp_path / report.SUMMARY).read_text())
     assert {"online", "offline", "lstm"} <= set(summary["desk"]) <= {"online", "offline", "lstm", "live"}
     assert summary["desk"]["online"]["decoder"] == "filter" and "forbidden_transitions" in summary["desk"]["online"]
     assert set(summary["desk"]["online"]["cv"]) == {"segment_accuracy", "frame_accuracy", "edit", "f1_50"}
     assert result.n_seed_runs == 3
+
+
+def test_the_worked_examples_explain_desk_segments_as_conflate_decided_them(desk_run):
+    from mlnseq.reporting import worked_examples
+
+    run = worked_examples.decided(desk_run / "desk-temporal" / "stream" / "seed-0")
+    predictions = pl.read_parquet(desk_run / "desk-temporal" / "stream" / "seed-0" / artifacts.PREDICTIONS)
+    assert (run.scores.path == predictions[artifacts.pred_column(worked_examples.METHOD)].to_numpy()).all()
+    text = "\n".join(worked_examples.worked_examples(desk_run, ["desk"], {"desk-temporal": 0}))
+    assert "### desk: a segment the MLN got wrong" in text and "the margin" in text and "line " in text
+    blocks = text.split("```")[1::2]  # the explanations, as `mlnseq explain` prints them
+    assert blocks and max(len(line) for block in blocks for line in block.splitlines()) <= 80
 
 
 def test_a_folder_without_results_is_bad_input(tmp_path):
