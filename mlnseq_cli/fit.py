@@ -83,7 +83,7 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
     k = own["folds"] if own["folds"] is not None else folding.suggested(frames["episode"].to_numpy(),
                                                                           frames["split"].to_numpy())
     if k:
-        folds = folding.assign(frames["episode"].to_numpy(), frames["split"].to_numpy(), k)
+        folds = folding.assign(frames["episode"].to_numpy(), frames["split"].to_numpy(), frames["label"].to_numpy(), k)
         episodes = frames.filter(frames["split"] == "train")["episode"].n_unique()
         console.print(f"folds: {folds.describe()} ({counted(episodes, 'training episode')}"
                       + ("" if own["folds"] is not None else "; fit's default: one per episode, at most 5")

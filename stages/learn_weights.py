@@ -303,7 +303,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     if options.folds:
         from mlnseq.recognition import folds as folding
 
-        folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
+        folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(),
+                               predicates["label"].to_numpy(), options.folds)
     named = with_episode_names(predicates, workdir)  # messages name episodes as the recordings do
     learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes),
                     options.max_formulas)

@@ -194,7 +194,7 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
         raise BadInput(f"the networks were trained with different folds ({records}); retrain them with the same "
                        "`train --folds K`")
     first = next(iter(records.values()))
-    folds = folding.assign(inputs.data.episodes, inputs.data.splits, first["k"])
+    folds = folding.assign(inputs.data.episodes, inputs.data.splits, inputs.data.labels, first["k"])
     log_probs = {}
     train = folds.fold >= 0
     for network, trained in folded.items():
