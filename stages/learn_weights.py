@@ -314,8 +314,12 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     per_fold = []
     if folds is not None:
+        from mlnseq.recognition.folds import fold_predicates
+
+        tables, read = fold_predicates(workdir, folds, named, meta)
         for k in range(folds.k):
-            held_out = named.with_columns(pl.Series("split", folds.splits(k)))
+            held_out = tables[k].with_columns(pl.Series("episode", named["episode"]),
+                                              pl.Series("split", folds.splits(k)))
             fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
                          list(classes), options.max_formulas)
             fold.warnings[:] = source_lines.located(fold.warnings, where)
@@ -327,7 +331,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                                      inputs=[predicates_path, formulas_path])
         if folds is not None:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
-                                  {**table_meta, "folds": folds.record(), "training_episodes": int(
+                                  {**table_meta, "folds": folds.record(), "fold_predicates": bool(read),
+                                   "training_episodes": int(
                                       predicates.filter(pl.col("split") == "train")["episode"].n_unique())},
-                                  inputs=[predicates_path, formulas_path, path])
+                                  inputs=[predicates_path, formulas_path, path, *read])
     return path, learned

@@ -23,6 +23,7 @@ GRIPPER_WORDS = re.compile(r"gripper|finger|claw|jaw")
 NOT_A_LEVEL = re.compile(r"vel|speed|acc|effort|force|torque|current")  # rates and loads, not an opening
 NOT_A_POINT = re.compile(r"rot|quat|orient|ang|vel|acc|rel|force|torque|effort")  # triples that are not positions
 AXIS = re.compile(r"^(?P<prefix>.*?)[/_.]?(?P<axis>[xyz])$", re.IGNORECASE)
+GENERIC_FIELDS = {"data", "value"}  # a message's field that names nothing: std_msgs/Float64's data
 END_SHARE = 0.7  # a gripper spends at least this share of frames near its two extreme levels
 MAX_DISTANCES = 3  # distance channels between the first points found
 
@@ -51,6 +52,7 @@ def identifier(column: str) -> str:
 def names_for(columns: list[str]) -> dict[str, str]:
     """Short unique predicate names: each column's last path part, more parts where two would collide."""
     parts = {c: [p for p in re.split(r"[/.]", c) if p] or [c] for c in columns}
+    parts = {c: p[:-1] if len(p) > 1 and p[-1] in GENERIC_FIELDS else p for c, p in parts.items()}
     depth = {c: 1 for c in columns}
     while True:
         named = {c: identifier("_".join(parts[c][-depth[c]:])) for c in columns}

@@ -188,12 +188,28 @@ def out_of_fold_table(keys: pl.DataFrame, folds: Folds, log_probs: np.ndarray) -
 
 
 def fold_mln_scores(workdir: Path, folds: Folds, classes: Sequence[str]) -> tuple[list[np.ndarray], list[Path]]:
-    """Each fold's per-frame MLN class scores, from weights.folds.parquet (checked to hold the same folds)."""
+    """Each fold's per-frame MLN class scores, from weights.folds.parquet (checked to hold the same folds) and each
+    fold's predicates (:func:`fold_predicates`)."""
     from mlnseq.mln import classifier
 
     weights, path = fold_weights(workdir, folds)
-    predicates, _ = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
-    return [classifier.class_scores(predicates, w, classes) for w in weights], [path]
+    predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
+    tables, read = fold_predicates(workdir, folds, predicates, meta)
+    return [classifier.class_scores(t, w, classes) for t, w in zip(tables, weights)], [path, *read]
+
+
+def fold_predicates(workdir: Path, folds: Folds, predicates: pl.DataFrame,
+                    meta: dict) -> tuple[list[pl.DataFrame], list[Path]]:
+    """Each fold's predicates: where binarize --suggest learned them (predicates.folds.parquet, of these folds and
+    this spec), the learned predicates learned again without the fold, so that what their thresholds learn is
+    cross-validated too; else the workdir's predicates for every fold (a spec that nothing learned). And the file
+    read, if any."""
+    path = Path(workdir) / artifacts.FOLD_PREDICATES
+    if path.exists():
+        table, made = artifacts.read_table(path, "fold_predicates")
+        if made.get("folds") == folds.record() and made.get("spec_text") == meta.get("spec", {}).get("text"):
+            return [table.filter(pl.col("fold") == k).drop("fold") for k in range(folds.k)], [path]
+    return [predicates] * folds.k, []
 
 
 def fold_weights(workdir: Path, folds: Folds) -> tuple[list[pl.DataFrame], Path]:
