@@ -42,10 +42,15 @@ POOL = 12
 PER_CHANNEL = 2
 MAX_PREDICATES = 8
 VERIFIED = 3  # moves of best quick score scored exactly at each step of the forward selection
-MIN_STEP = 0.25  # points of SCORE a further predicate or conjunction must add
-SCORE = "frame_accuracy"  # of mln+filter, cross-validated: what a set of predicates and formulas is chosen by
+MIN_STEP = 0.25  # points of SCORE a further predicate or conjunction must add (chosen by frame accuracy rather
+# than the criterion fit chooses methods by: the edit score punishes a few flickering frames the decoders smooth)
+SCORE = "frame_accuracy"  # of the MLN, cross-validated, by the better of DECODERS: what a set is chosen by
+DECODERS = ("filter", "lagviterbi@0")  # the MLN's decoders at lag 0 a set is scored with: the better one counts
 PAIRS = 3
 MIN_SUPPORT = 0.01  # share of training frames a conjunction's body must hold in (and at least 10 frames)
+
+
+Scored = tuple[dict[str, float], list[dict[str, float]]]  # exact figures, and each fold's weights by formula
 
 
 @dataclass(frozen=True)
@@ -109,19 +114,19 @@ def training(frames: pl.DataFrame, n_classes: int) -> Training | None:
 
 
 def pool(found: list[Candidate], data: Training) -> list[Candidate]:
-    """The POOL candidates whose chain alone scores best (quick_chain.score), at most PER_CHANNEL of one channel,
-    from the PRESELECT of best out-of-fold gain and every gripper (a gripper's per-frame gain may mislead: two arms
-    that take turns)."""
+    """Every gripper (its per-frame gain may mislead: two arms that take turns), and up to POOL in all of the others
+    whose chain alone scores best (quick_chain.score), at most PER_CHANNEL of one channel, from the PRESELECT of best
+    out-of-fold gain."""
     ranked = sorted(found, key=lambda c: -c.oof)
     tried = [c for c in ranked[:PRESELECT]] + [c for c in ranked[PRESELECT:] if c.kind == "gripper"]
     scored = sorted(tried, key=lambda c: quick_chain.score(fold_evidence([c], data), data.split), reverse=True)
     taken: dict[str, int] = {}
-    chosen = []
+    chosen = [c for c in scored if c.kind == "gripper"]
     for candidate in scored:
-        if taken.get(candidate.channel, 0) < PER_CHANNEL:
+        if candidate.kind != "gripper" and taken.get(candidate.channel, 0) < PER_CHANNEL and len(chosen) < POOL:
             taken[candidate.channel] = taken.get(candidate.channel, 0) + 1
             chosen.append(candidate)
-    return chosen[:POOL]
+    return chosen
 
 
 def evidence_of(chosen: list[Candidate], rows: np.ndarray | slice = slice(None), fold: int | None = None
@@ -142,26 +147,29 @@ def fold_evidence(chosen: list[Candidate], data: Training) -> list[np.ndarray]:
     return [evidence_of(chosen, data.rows, k) for k in range(data.split.k)]
 
 
-def forward(found: list[Candidate], data: Training) -> list[tuple[list[Candidate], dict[str, float]]]:
+def forward(found: list[Candidate], data: Training) -> list[tuple[list[Candidate], Scored]]:
     """The forward selection's path: at each step the ``VERIFIED`` moves (a candidate, or every gripper not yet chosen
-    at once: two arms' grippers say little alone) of best quick score, scored exactly, the best of them added while
-    it raises the exact SCORE by MIN_STEP; each set on the path with its exact figures."""
+    at once: two arms' grippers say little alone) of best quick score, and the grippers at once, scored exactly; the
+    best of them added while it raises the exact SCORE by MIN_STEP; each set on the path with its exact figures and
+    each fold's weights."""
     chosen: list[Candidate] = []
-    path: list[tuple[list[Candidate], dict[str, float]]] = []
-    current = -np.inf
+    path: list[tuple[list[Candidate], Scored]] = []
+    current, near = -np.inf, None
     while len(chosen) < MAX_PREDICATES:
         grippers = [c for c in found if c.kind == "gripper" and c not in chosen]
         moves = [[c] for c in found if c not in chosen] + ([grippers] if len(grippers) > 1 else [])
         quick = sorted(moves, key=lambda m: quick_chain.score(fold_evidence(chosen + m, data), data.split),
                        reverse=True)[:VERIFIED]
+        quick += [grippers] if len(grippers) > 1 and grippers not in quick else []
         if not quick:
             break
-        figures, move = max(((exact(chosen + m, [], data), m) for m in quick), key=lambda item: item[0][SCORE])
+        (figures, weights), move = max(((exact(chosen + m, [], data, near), m) for m in quick),
+                                       key=lambda item: item[0][0][SCORE])
         if figures[SCORE] < current + MIN_STEP:
             break
         chosen = chosen + move
-        path.append((chosen, figures))
-        current = figures[SCORE]
+        path.append((chosen, (figures, weights)))
+        current, near = figures[SCORE], weights
     return path
 
 
@@ -204,9 +212,10 @@ def candidates_of(found: list[tuple[str, str, np.ndarray]], view: Frames) -> lis
 
 
 def fold_weights(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray, columns: list[str], mln,
-                 n_classes: int) -> pl.DataFrame:
+                 n_classes: int, near: dict[str, float] | None = None) -> pl.DataFrame:
     """The formulas' weights learned on these frames as `learn-weights` learns them (cll, its default penalty): a
-    table of formula and weight (hard: none)."""
+    table of formula and weight (hard: none). ``near``: weights of formulas learned before (a smaller set's), from
+    which the learner starts (the others at 0)."""
     from mlnseq.mln import cll
     from mlnseq.mln.grounding import AtomSpace, class_constant, expand_templates
     from mlnseq.mln.syntax import format_formula
@@ -215,36 +224,49 @@ def fold_weights(evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray, c
     words = tuple(c for c, on in zip(columns, seen) if on)
     present = tuple(class_constant(k) for k in sorted(set(labels.tolist())))
     expanded, _, _ = expand_templates(mln.formulas, AtomSpace(words, present))
+    texts = [format_formula(e.formula) for e in expanded]
     states = AtomSpace(words, tuple(class_constant(k) for k in range(n_classes)))
-    weights = cll.learn(expanded, evidence[:, seen], labels, starts, states, l2=cll.DEFAULT_L2)
-    return pl.DataFrame({"formula": [format_formula(e.formula) for e in expanded], "weight": weights,
-                         "hard": [False] * len(expanded)})
+    initial = None if near is None else np.array([near.get(t, 0.0) for t in texts])
+    weights = cll.learn(expanded, evidence[:, seen], labels, starts, states, l2=cll.DEFAULT_L2, initial=initial)
+    return pl.DataFrame({"formula": texts, "weight": weights, "hard": [False] * len(expanded)})
 
 
-def exact(chosen: list[Candidate], conjunctions: list[Conjunction], data: Training) -> dict[str, float]:
+def exact(chosen: list[Candidate], conjunctions: list[Conjunction], data: Training,
+          near: list[dict[str, float]] | None = None) -> Scored:
     """The MLN of ``chosen`` (and ``conjunctions``) cross-validated as conflate scores mln+filter: each fold's weights
-    learned on the other folds, its frames decoded by the filter from the other folds' start distribution."""
+    learned on the other folds (from ``near``'s, a smaller set's, where given), its frames decoded by the filter from
+    the other folds' start distribution. Its figures, and each fold's weights."""
     from mlnseq.mln.factors import MLNFactors
     from mlnseq.recognition.cross_validation import figures_of
     from mlnseq.recognition.decoding import start_of
     from mlnseq.recognition.latency import CRITERION
-    from mlnseq.recognition.recognizer import chain_of, decode_chain
+    from mlnseq.recognition.recognizer import chain_of
+
+    from mlnseq.recognition.decoding import decode_each
 
     view, episodes = data.frames, data.episodes
     mln = formulas(conjunctions)
-    predicted = np.zeros(len(view.labels), dtype=np.int64)
+    predicted = {d: np.zeros(len(view.labels), dtype=np.int64) for d in DECODERS}
+    learned = []
     for k, splits in enumerate(data.fold_splits):
         evidence, columns = evidence_of(chosen, fold=k), columns_of(chosen, k)
         fit, held = splits == Part.TRAIN, np.flatnonzero(splits == Part.HELDOUT)
         weights = fold_weights(evidence[fit], view.labels[fit], chain_starts(episodes, splits)[fit], columns, mln,
-                               view.n_classes)
+                               view.n_classes, None if near is None else near[k])
+        learned.append(dict(weights.select("formula", "weight").iter_rows()))
         factors = MLNFactors.from_weights(weights, columns, view.n_classes)
         starts = chain_starts(episodes[held]) | np.r_[True, np.diff(held) > 1]
         start = start_of(view.labels, episodes, fit, view.n_classes)
-        predicted[held] = decode_chain("filter", chain_of("mln", factors, evidence[held], starts, None, 0.0,
-                                                          start)).path
-    figures = figures_of(predicted[data.rows], data.split.labels, data.split.starts, view.n_classes, True)
-    return {**figures, "criterion": sum(figures[k] for k in CRITERION) / len(CRITERION)}
+        chained = chain_of("mln", factors, evidence[held], starts, None, 0.0, start)
+        for decoding, out in zip(DECODERS, decode_each([chained], DECODERS)[0]):
+            predicted[decoding][held] = out.path
+    scored = []
+    for decoding in DECODERS:
+        figures = figures_of(predicted[decoding][data.rows], data.split.labels, data.split.starts, view.n_classes,
+                             True)
+        scored.append({**figures, "criterion": sum(figures[k] for k in CRITERION) / len(CRITERION),
+                       "decoder": decoding})
+    return max(scored, key=lambda f: f[SCORE]), learned
 
 
 def formulas(conjunctions: list[Conjunction]):
@@ -309,19 +331,20 @@ def search(frames: pl.DataFrame, n_classes: int) -> Searched | None:
     found, distances = channels(frames)
     made = candidates_of(found, data.frames)
     searched = Searched([], candidates=len(made), channels=len(found), folds=data.describe, fold_record=data.record)
-    for chosen, figures in forward(pool(made, data), data):
+    near = None
+    for chosen, (figures, near) in forward(pool(made, data), data):
         searched.path.append({"predicates": [c.predicate.name for c in chosen], **figures})
         searched.predicates, searched.figures = chosen, figures
     for _, i, j in interacting(searched.predicates, data)[:PAIRS]:
         more = bodies(searched.predicates[i], searched.predicates[j], data)
         if not more:
             continue
-        figures = exact(searched.predicates, searched.conjunctions + more, data)
+        figures, weights = exact(searched.predicates, searched.conjunctions + more, data, near)
         searched.path.append({"predicates": [c.predicate.name for c in searched.predicates],
                               "conjunctions": [f"{c.first} ^ {c.second}" for c in searched.conjunctions + more],
                               **figures})
         if figures[SCORE] > searched.figures[SCORE] + MIN_STEP:
-            searched.conjunctions, searched.figures = searched.conjunctions + more, figures
+            searched.conjunctions, searched.figures, near = searched.conjunctions + more, figures, weights
     return finished(searched, frames, data.frames, distances)
 
 
