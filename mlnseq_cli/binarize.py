@@ -20,13 +20,22 @@ def binarize(
     suggest: Annotated[bool, typer.Option("--suggest", help="Learn a spec from these frames' training split (per channel a level, a change over a window or a gripper, thresholds by decision stumps, kept by cross-validation on the folds `mlnseq fit` cuts) and formulas for it (conjunctions of two predicates where they help), each commented; write them to --output and NAME.formulas.mln beside it; then binarize with the spec.")] = False,
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/learned.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output even if edited by hand.")] = False,
-    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas.")] = False,
+    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas. Without --spec or --suggest, of the workdir's predicates as they are (nothing rewritten).")] = False,
     max_columns: Annotated[int, typer.Option(help="Refuse a spec that makes more predicate columns than this (a pair makes one per combination).")] = stage.BinarizeOptions.max_columns,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet and a predicate spec (--spec, the source's built-in one, or --suggest: one written from the frames); write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
     if output is not None and not suggest:
         raise fail("--output names the spec --suggest writes: add --suggest", 2)
+    if table and spec is None and not suggest and (Path(workdir) / "predicates.parquet").exists():
+        from mlnseq.catalog import artifacts
+
+        with reported_errors():  # the workdir's predicates as they are: nothing rewritten, nothing after made stale
+            predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
+        console.print(f"binarize: {Path(workdir) / artifacts.PREDICATES} as it is (spec {meta['spec']['path']}); "
+                      "--spec FILE binarizes again", highlight=False)
+        print_class_table(predicates, meta["predicates"], list(meta["classes"]))
+        return
     suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
     options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force, max_columns=max_columns)
     with reported_errors():

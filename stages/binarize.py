@@ -142,6 +142,8 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
         spec_path = Path(options.suggest)
     else:
         spec_path = Path(options.spec) if options.spec is not None else default_spec_path(source)
+        if options.spec is None and not spec_path.is_file():
+            spec_path = made_from(Path(workdir)) or spec_path
     if options.spec is None and not spec_path.is_file():
         raise BadInput(f"no built-in spec for frames of source {source!r}: pass --spec FILE, or --suggest to write a "
                        "starter spec from these frames (`mlnseq binarize --suggest`)")
@@ -163,10 +165,25 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     folded = Path(workdir) / artifacts.FOLD_PREDICATES
     if learned is not None and learned.folds:
         artifacts.write_table(fold_predicates(frames, learned, spec_path, names_of(spec)), folded, "fold_predicates",
-                              {"folds": learned.folds, "spec_text": spec.text}, inputs=[path])
-    else:
-        folded.unlink(missing_ok=True)  # another spec's: stale
+                              {"folds": learned.folds, "spec_text": spec.text}, inputs=[frames_path])
+    elif folded.exists() and artifacts.read_metadata(folded).get("spec_text") != spec.text:
+        folded.unlink()  # another spec's: stale
     return path, Binarized(predicates, meta)
+
+
+def made_from(workdir: Path) -> Path | None:
+    """The spec file the workdir's predicates were made from, where it still holds the text they were made from (a
+    bag workdir's learned or own spec, for `binarize --table` without --spec)."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    try:
+        made = json.loads(pq.read_schema(workdir / artifacts.PREDICATES).metadata[artifacts.META_KEY])["spec"]
+        path = Path(made["path"])
+        return path if path.is_file() and path.read_text(encoding="utf-8") == made["text"] else None
+    except Exception:  # no predicates yet, or not ours
+        return None
 
 
 def names_of(spec: PredicateSpec) -> list[str]:

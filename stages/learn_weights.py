@@ -258,18 +258,27 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         },
         schema=artifacts.WEIGHTS_SCHEMA,
     )
-    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings,
+    from mlnseq.mln.weights_table import body_comments
+
+    comments = body_comments(every, training.rows, training.starts, training.space, class_names or [])
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names, comments), warnings,
                    objective, l2)
 
 
 def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
-                   l2: float, class_names: Sequence[str] | None = None) -> str:
+                   l2: float, class_names: Sequence[str] | None = None, comments: Sequence[str] = ()) -> str:
+    """learned.mln: the expanded formulas with their weights, each body under a comment of its support (``comments``,
+    one per formula, '' where the body is the formula before's). Read back by `formulas --spec`, each weight as
+    written is kept (a written weight is an expert's); 0.0 is learned again."""
     temporal = any(is_temporal(e.formula) for e in formulas)
-    lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas", ""]
+    lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas; read "
+             "back (`mlnseq formulas --spec THIS_FILE`), each", "// weight is kept as written (0.0: learned again). "
+             "Above each body: the training frames it holds in, by class.", ""]
     lines += [f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items() if name != NEXT or temporal]
-    lines += [""]
-    lines += [format_weighted(WeightedFormula(shown(e.formula, class_names), None if e.weight is None else float(w)))
-              for e, w in zip(formulas, weights)]
+    for e, w, comment in zip(formulas, weights, list(comments) or [""] * len(formulas)):
+        lines += ["", comment] if comment else []
+        lines.append(format_weighted(WeightedFormula(shown(e.formula, class_names),
+                                                     None if e.weight is None else float(w))))
     return "\n".join(lines) + "\n"
 
 

@@ -190,11 +190,14 @@ def write_bag(path: Path, robot: Robot, seed: int) -> Path:
     return path
 
 
-def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: int = 6,
-                  heldout: int = 2) -> tuple[Path, Path]:
+def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: int = 6, heldout: int = 2,
+                  rate: float | None = None) -> tuple[Path, Path]:
     """``episodes`` bags of ``robot`` (seeds seed*1000 + 0, 1, ...) in ``folder`` and ``heldout`` more (the next
-    seeds) in FOLDER-heldout."""
+    seeds) in FOLDER-heldout; ``rate``: another frame rate than the robot's (more frames per episode)."""
+    from dataclasses import replace
+
     arm, other = ROBOTS[robot], folder.with_name(folder.name + "-heldout")
+    arm = arm if rate is None else replace(arm, rate=rate)
     folder.mkdir(parents=True)
     other.mkdir(parents=True)
     for k in range(episodes + heldout):

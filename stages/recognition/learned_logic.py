@@ -40,9 +40,9 @@ from mlnseq.recognition.quick_chain import Split
 PRESELECT = 40  # candidates of best out-of-fold gain whose chains are scored (with every gripper)
 POOL = 12
 PER_CHANNEL = 2
-MAX_PREDICATES = 8
-VERIFIED = 3  # moves of best quick score scored exactly at each step of the forward selection
-MIN_STEP = 0.25  # points of SCORE a further predicate or conjunction must add (chosen by frame accuracy rather
+MAX_PREDICATES = 6
+VERIFIED = 2  # moves of best quick score scored exactly at each step of the forward selection
+MIN_STEP = 0.5  # points of SCORE a further predicate or conjunction must add (chosen by frame accuracy rather
 # than the criterion fit chooses methods by: the edit score punishes a few flickering frames the decoders smooth)
 SCORE = "frame_accuracy"  # of the MLN, cross-validated, by the better of DECODERS: what a set is chosen by
 DECODERS = ("filter", "lagviterbi@0")  # the MLN's decoders at lag 0 a set is scored with: the better one counts
@@ -129,11 +129,13 @@ def pool(found: list[Candidate], data: Training) -> list[Candidate]:
     return chosen
 
 
-def evidence_of(chosen: list[Candidate], rows: np.ndarray | slice = slice(None), fold: int | None = None
-                ) -> np.ndarray:
-    """bool [rows, columns]: the one-hot values of ``chosen`` (learned without ``fold``; None: on the whole split)."""
+def evidence_of(chosen: list[Candidate], frames: int, rows: np.ndarray | slice = slice(None),
+                fold: int | None = None) -> np.ndarray:
+    """bool [rows of ``frames``, columns]: the one-hot values of ``chosen`` (learned without ``fold``; None: on the
+    whole split)."""
     coded = [c.fold_codes(fold) for c in chosen]
-    return quick_chain.one_hot([codes[rows] for codes, _ in coded], [n for _, n in coded])
+    return quick_chain.one_hot([codes[rows] for codes, _ in coded], [n for _, n in coded],
+                               len(np.arange(frames)[rows]))
 
 
 def columns_of(chosen: list[Candidate], fold: int | None = None) -> list[str]:
@@ -144,7 +146,7 @@ def columns_of(chosen: list[Candidate], fold: int | None = None) -> list[str]:
 
 def fold_evidence(chosen: list[Candidate], data: Training) -> list[np.ndarray]:
     """Per fold, the training rows' evidence of ``chosen`` as learned without that fold."""
-    return [evidence_of(chosen, data.rows, k) for k in range(data.split.k)]
+    return [evidence_of(chosen, len(data.frames.labels), data.rows, k) for k in range(data.split.k)]
 
 
 def forward(found: list[Candidate], data: Training) -> list[tuple[list[Candidate], Scored]]:
@@ -173,36 +175,40 @@ def forward(found: list[Candidate], data: Training) -> list[tuple[list[Candidate
     return path
 
 
-def channels(frames: pl.DataFrame) -> tuple[list[tuple[str, str, np.ndarray]], list[Distance]]:
-    """(column, predicate name, values) of every feature and of the distance between each pair of the first 3-D
-    points, and those distances as spec channels."""
+Found = list[tuple[str, str, np.ndarray, bool]]  # per channel: its column, predicate name, values, whether derived
+
+
+def channels(frames: pl.DataFrame) -> tuple[Found, list[Distance]]:
+    """(column, predicate name, values, derived) of every feature and of the distance between each pair of the first
+    3-D points, and those distances as spec channels."""
     from mlnseq.catalog import artifacts
     from mlnseq.predicates import suggest
 
     features = artifacts.feature_columns(frames)
     names = suggest.names_for(features)
-    found = [(c, names[c], frames[c].cast(pl.Float64).to_numpy()) for c in features]
+    found = [(c, names[c], frames[c].cast(pl.Float64).to_numpy(), False) for c in features]
     distances = []
     for name, start, end, short in suggest.distance_channels(features, set(frames.columns)):
         points = [np.column_stack([frames[c].cast(pl.Float64).to_numpy() for c in p]) for p in (start, end)]
-        found.append((name, suggest.unique(short, set(names.values())), np.sqrt(((points[1] - points[0]) ** 2)
-                                                                                .sum(axis=1))))
+        distance = np.sqrt(((points[1] - points[0]) ** 2).sum(axis=1))
+        found.append((name, suggest.unique(short, set(names.values())), distance, True))
         distances.append(Distance(name, start, end))
     return found, distances
 
 
-def candidates_of(found: list[tuple[str, str, np.ndarray]], view: Frames) -> list[Candidate]:
-    """Each channel's candidates (a gripper, or a level and a change) with their out-of-fold gains."""
+def candidates_of(found: Found, view: Frames) -> list[Candidate]:
+    """Each channel's candidates (a gripper, or a level and a change; a distance is no gripper) with their out-of-fold
+    gains."""
     from mlnseq.predicates import suggest
 
     taken: set[str] = set()
     made: list[Candidate] = []
-    for column, name, values in found:
+    for column, name, values, derived in found:
         train = values[view.train]
         if not np.isfinite(values).all() or not train.size or train.min() == train.max():
             continue
         moves = np.abs(np.diff(train))
-        if suggest.looks_like_gripper(suggest.Channel(column, name, train, moves)):
+        if not derived and suggest.looks_like_gripper(suggest.Channel(column, name, train, moves)):
             tried = [(kinds.gripper, name)]
         else:
             tried = [(kinds.level, name), (kinds.change, f"{name}_change")]
@@ -249,7 +255,7 @@ def exact(chosen: list[Candidate], conjunctions: list[Conjunction], data: Traini
     predicted = {d: np.zeros(len(view.labels), dtype=np.int64) for d in DECODERS}
     learned = []
     for k, splits in enumerate(data.fold_splits):
-        evidence, columns = evidence_of(chosen, fold=k), columns_of(chosen, k)
+        evidence, columns = evidence_of(chosen, len(view.labels), fold=k), columns_of(chosen, k)
         fit, held = splits == Part.TRAIN, np.flatnonzero(splits == Part.HELDOUT)
         weights = fold_weights(evidence[fit], view.labels[fit], chain_starts(episodes, splits)[fit], columns, mln,
                                view.n_classes, None if near is None else near[k])
@@ -359,7 +365,8 @@ def finished(searched: Searched, frames: pl.DataFrame, view: Frames, distances: 
         columns = [f"{c.predicate.name}_{v}" for c in searched.predicates for v in c.predicate.values]
         splits = frames["split"].to_numpy() if train.any() else np.full(frames.height, Part.TRAIN)
         starts = chain_starts(frames["episode"].to_numpy(), splits)[searched.train]
-        searched.weights = fold_weights(evidence_of(searched.predicates)[searched.train], view.labels[searched.train],
+        evidence = evidence_of(searched.predicates, frames.height)
+        searched.weights = fold_weights(evidence[searched.train], view.labels[searched.train],
                                         starts, columns, formulas(searched.conjunctions), view.n_classes)
     return searched
 

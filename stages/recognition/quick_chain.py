@@ -41,9 +41,9 @@ class Split:
         return int(self.fold.max()) + 1
 
 
-def one_hot(codes: list[np.ndarray], sizes: list[int]) -> np.ndarray:
-    """bool [n, sum(sizes)]: each code group's value as one column."""
-    n = len(codes[0]) if codes else 0
+def one_hot(codes: list[np.ndarray], sizes: list[int], n: int | None = None) -> np.ndarray:
+    """bool [n, sum(sizes)]: each code group's value as one column (``n``: the frames, where there is no group)."""
+    n = len(codes[0]) if codes else n or 0
     out = np.zeros((n, sum(sizes)), dtype=bool)
     offset = 0
     for values, size in zip(codes, sizes):
