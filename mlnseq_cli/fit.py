@@ -121,15 +121,18 @@ def budget(own: dict[str, Any], rate: float | None) -> int | None:
     return budget_frames(own["lag"], own["latency"], rate, "the recordings")
 
 
-def conflate_options(frames: int | None) -> Any:
-    """Every decoder within the budget, at every lag of conflate's default lags within it and at the budget."""
+def conflate_options(frames: int | None, hard: bool) -> Any:
+    """Every decoder within the budget, at every lag of conflate's default lags within it and at the budget; the
+    -legal forms only where the formulas have hard rules (without, they decode as the free forms)."""
     from mlnseq import conflate
     from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder
 
+    decoders = [d for d in Decoder if d is Decoder.NONE or hard or not d.value.endswith("-legal")]
     if frames is None:
-        return conflate.ConflateOptions(decode=tuple(d.value for d in Decoder))
+        return conflate.ConflateOptions(decode=tuple(d.value for d in decoders))
     lags = tuple(sorted({lag for lag in DEFAULT_LAGS if lag <= frames} | {frames}))
-    return conflate.ConflateOptions(decode=("none", *ONLINE), lags=lags)
+    return conflate.ConflateOptions(decode=tuple(d.value for d in decoders if d is Decoder.NONE or (
+        d.value in ONLINE)), lags=lags)
 
 
 def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
@@ -157,7 +160,7 @@ def run_plan(plan: dict[str, Any], own: dict[str, Any], workdir: Path) -> None:
     console.print(f"[green]train[/]: {trained.checkpoint} (stream mode: whole episodes, as live frames come"
                   + (f"; {k} fold networks for out-of-fold predictions" if k else "") + ")", highlight=False)
     frames_budget = budget(own, plan["rate"])
-    result = conflate.run(workdir, conflate_options(frames_budget))
+    result = conflate.run(workdir, conflate_options(frames_budget, bool(learned.weights["hard"].any())))
     summary(result, workdir)
     exported = export_chosen(k, own, frames_budget, workdir)
     why = ("offline, over whole recordings" if frames_budget is None else "online, as live frames come"

@@ -36,7 +36,7 @@ def body_comments(formulas: Sequence, rows: np.ndarray, starts: np.ndarray, spac
     frames (pairs of consecutive frames, for a temporal formula) its body holds in, by class: its support and what
     it separates. ``rows``: the training frames' atoms (words, then one-hot classes over ``space``)."""
     from mlnseq.mln.grounding import PairSpace, is_temporal, next_atom, show, truth
-    from mlnseq.mln.syntax import Implies, format_formula
+    from mlnseq.mln.syntax import Implies, atoms, format_formula
 
     labels = rows[:, len(space.words):].argmax(axis=1) if len(space.classes) else np.zeros(len(rows), dtype=int)
     names = [classes[int(c[1:])] if c[1:].isdigit() and int(c[1:]) < len(classes) else c for c in space.classes]
@@ -51,6 +51,9 @@ def body_comments(formulas: Sequence, rows: np.ndarray, starts: np.ndarray, spac
             said.append("")
             continue
         before = key
+        if not all(space.contains(atom) for atom in atoms(body)):
+            said.append(f"// {show(body, classes)}: never in the training split (its weight stays 0)")
+            continue
         if is_temporal(formula):
             joined = next_atom(formula)
             holds = truth(body, pair_rows, PairSpace(space, joined.args[0].name, joined.args[1].name))

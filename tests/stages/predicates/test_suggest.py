@@ -1,7 +1,7 @@
-"""binarize --suggest on the real DESK Taurus kinematics (14 channels of two arms, grippers 30 (closed) .. 100
-(open); one training recording, so folds are blocks cut where a trial restarts): what it reads off the columns
-(mlnseq.predicates.suggest), the spec and formulas it learns and writes (recognition/learned_files.py), read back
-as written, from the training split only; and the per-class table (predicates.separation)."""
+"""binarize --suggest: what it reads off the columns (mlnseq.predicates.suggest; the real DESK Taurus kinematics, 14
+channels of two arms, grippers 30 (closed) .. 100 (open)), and the spec and formulas it learns and writes
+(recognition/learned_files.py) on a small recording of the generated 7-joint arm (tests/arm_bags.py: 3 training
+episodes and a test one), read back as written, from the training split only; and the per-class table."""
 
 from __future__ import annotations
 
@@ -26,10 +26,38 @@ def kinematics(tmp_path_factory, shared_data) -> Path:
     return workdir
 
 
+def arm_frames(seed: int = 5, episodes: int = 4, rate: float = 20.0) -> tuple[pl.DataFrame, dict]:
+    """The frames collect would make of ``episodes`` arm episodes (the last one the test split), at ``rate``."""
+    from dataclasses import replace
+
+    import arm_bags
+
+    robot = replace(arm_bags.ROBOTS["panda"], rate=rate)
+    tables = []
+    for k in range(episodes):
+        signals = arm_bags.episode_signals(robot, seed * 100 + k)
+        n = len(signals["phase"])
+        features = {"/gripper/width/data": signals["width"]} | {
+            f"/joint_states/{field}/{joint}": signals[field][:, j] for field in ("position", "velocity", "effort")
+            for j, joint in enumerate(robot.joints)}
+        tables.append(artifacts.frames_table({"episode": np.full(n, k), "frame": np.arange(n),
+                                              "label": signals["phase"], "split": ["train" if k < episodes - 1
+                                                                                  else "test"] * n}, features))
+    return pl.concat(tables), {"classes": list(arm_bags.PHASES), "source": "rosbag"}
+
+
 @pytest.fixture(scope="module")
-def learned(kinematics, tmp_path_factory) -> tuple[Path, binarize.Binarized]:
+def arm(tmp_path_factory) -> Path:
+    workdir = tmp_path_factory.mktemp("arm")
+    frames, meta = arm_frames()
+    artifacts.write_table(frames, workdir / artifacts.FRAMES, "frames", meta)
+    return workdir
+
+
+@pytest.fixture(scope="module")
+def learned(arm, tmp_path_factory) -> tuple[Path, binarize.Binarized]:
     spec = tmp_path_factory.mktemp("learned") / "mine.binarize.toml"
-    return spec, binarize.run(kinematics, binarize.BinarizeOptions(suggest=spec))[1]
+    return spec, binarize.run(arm, binarize.BinarizeOptions(suggest=spec))[1]
 
 
 def test_the_columns_read_as_grippers_points_and_short_names(kinematics):
@@ -46,7 +74,7 @@ def test_the_columns_read_as_grippers_points_and_short_names(kinematics):
         "/joint_states/velocity/j1": "velocity_j1"}  # a message's generic field names nothing
 
 
-def test_the_learned_spec_reads_back_as_written_and_says_what_each_predicate_separates(kinematics, learned):
+def test_the_learned_spec_reads_back_as_written_and_says_what_each_predicate_separates(arm, learned):
     spec_path, made = learned
     text = spec_path.read_text()
     assert made.meta["spec"]["text"] == text and learned_spec.untouched(text)
@@ -54,43 +82,41 @@ def test_the_learned_spec_reads_back_as_written_and_says_what_each_predicate_sep
     assert spec.predicates and all(f"name = \"{p.name}\"" in text for p in spec.predicates)
     assert text.count("% of training frames;") == sum(len(p.values) for p in spec.predicates)  # per value
     record = made.meta["learned"]
-    assert record["folds"] == "5 folds by block at task restarts" and record["predicates"] == [
-        p.name for p in spec.predicates]
-    assert record["cross_validated"]["frame_accuracy"] > 50  # seven classes: chance is about 14 %
-    _, again = binarize.run(kinematics, binarize.BinarizeOptions(spec=spec_path))
+    assert record["folds"] == "3 folds by episode" and record["predicates"] == [p.name for p in spec.predicates]
+    assert record["cross_validated"]["frame_accuracy"] > 80  # five phases: chance is about 20 %
+    _, again = binarize.run(arm, binarize.BinarizeOptions(spec=spec_path))
     assert again.predicates.equals(made.predicates)
     formulas = Path(record["formulas"])
     assert formulas.name == "mine.formulas.mln" and "0.0 Has(+w, p) => Topic(+c, p)" in formulas.read_text()
 
 
-def test_each_fold_has_its_own_predicates_learned_without_it_and_the_test_split_is_never_read(kinematics, learned,
-                                                                                               tmp_path):
+def test_each_fold_has_its_own_predicates_learned_without_it_and_the_test_split_is_never_read(arm, learned, tmp_path):
     spec_path, made = learned
-    table, meta = artifacts.read_table(kinematics / artifacts.FOLD_PREDICATES, "fold_predicates")
-    frames = pl.read_parquet(kinematics / artifacts.FRAMES)
-    cut = folding.assign(frames["episode"].to_numpy(), frames["split"].to_numpy(), frames["label"].to_numpy(), 5)
-    assert meta["folds"] == cut.record() and table["fold"].unique().sort().to_list() == [0, 1, 2, 3, 4]
-    assert table.height == 5 * frames.height and meta["spec_text"] == spec_path.read_text()
+    table, meta = artifacts.read_table(arm / artifacts.FOLD_PREDICATES, "fold_predicates")
+    frames = pl.read_parquet(arm / artifacts.FRAMES)
+    cut = folding.assign(frames["episode"].to_numpy(), frames["split"].to_numpy(), frames["label"].to_numpy(), 3)
+    assert meta["folds"] == cut.record() and table["fold"].unique().sort().to_list() == [0, 1, 2]
+    assert table.height == 3 * frames.height and meta["spec_text"] == spec_path.read_text()
     shifted = tmp_path / "shifted"  # the same frames, every test frame's features moved
     shifted.mkdir()
     test = pl.col("split") == "test"
     artifacts.write_table(frames.with_columns(pl.when(test).then(pl.col(c) * 3 + 7).otherwise(pl.col(c)).alias(c)
                                               for c in artifacts.feature_columns(frames)),
-                          shifted / artifacts.FRAMES, "frames", artifacts.read_metadata(kinematics / artifacts.FRAMES))
+                          shifted / artifacts.FRAMES, "frames", artifacts.read_metadata(arm / artifacts.FRAMES))
     other = tmp_path / "other.binarize.toml"
     binarize.run(shifted, binarize.BinarizeOptions(suggest=other))
     assert other.read_text().replace("other.", "mine.") == spec_path.read_text()
 
 
-def test_an_edited_spec_is_kept_unless_forced_and_the_class_table_reads_its_predicates(kinematics, learned):
+def test_an_edited_spec_is_kept_unless_forced_and_the_class_table_reads_its_predicates(arm, learned):
     spec_path, made = learned
     spec_path.write_text(spec_path.read_text() + "# my note\n")
     with pytest.raises(binarize.BadInput, match="was edited since it was learned"):  # edits are never lost silently
-        binarize.run(kinematics, binarize.BinarizeOptions(suggest=spec_path))
+        binarize.run(arm, binarize.BinarizeOptions(suggest=spec_path))
     assert spec_path.read_text().endswith("# my note\n")
     columns = [c for group in made.meta["predicates"].values() for c in group]
     shares = separation.class_shares(made.predicates, columns, made.meta["classes"])
-    assert shares.shares.shape == (len(columns), 7) and np.allclose(shares.shares[:len(made.meta["predicates"][
+    assert shares.shares.shape == (len(columns), 5) and np.allclose(shares.shares[:len(made.meta["predicates"][
         next(iter(made.meta["predicates"]))])].sum(axis=0), 1.0)  # one value of a predicate holds in every frame
 
 
