@@ -189,9 +189,10 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
         return exported
     ranked = sorted((c for c in candidates(chosen.candidates) if within(c, frames_budget, None, False)),
                     key=lambda c: c.score, reverse=True)
-    network = next((c for c in ranked if c.name == "lstm"), None)
-    shown = [(c, "chose") if c.name == chosen.name else (c, "runner-up") for c in ranked[:2]]
-    shown += [(network, "network alone")] if network is not None and network not in ranked[:2] else []
+    best = next(c for c in ranked if c.name == chosen.name)
+    others = [c for c in ranked if c is not best]
+    shown = [(best, "chose")] + [(c, "runner-up") for c in others[:1]]
+    shown += [(c, "network alone") for c in others[1:] if c.name == "lstm"]
     for candidate, role in shown:
         figures = candidate.figures
         console.print(f"  {role + ':':<15}{candidate.name:<24} cross-validated {figures['segment_accuracy']:5.1f} / "
@@ -199,7 +200,8 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
                       f"{candidate.score[0]:5.1f}", highlight=False)
     console.print(f"chose {chosen.name} of {len(ranked)} candidates within the budget: the best mean of cross-validated "
                   f"segment accuracy, frame accuracy and edit by {chosen.folds}-fold cross-validation on the training "
-                  "split (the test split unread; docs/choosing.md)", highlight=False)
+                  "split, among those with the network alone's frame accuracy or more (the test split unread; "
+                  "docs/choosing.md)", highlight=False)
     test_figures(workdir, [chosen.name, "lstm"])
     return exported
 

@@ -38,10 +38,10 @@ from mlnseq.recognition import quick_chain
 from mlnseq.recognition.quick_chain import Split
 
 PRESELECT = 40  # candidates of best out-of-fold gain whose chains are scored (with every gripper)
-POOL = 12
+POOL = 20
 PER_CHANNEL = 2
 MAX_PREDICATES = 6
-VERIFIED = 2  # moves of best quick score scored exactly at each step of the forward selection
+VERIFIED = 3  # moves of best quick score scored exactly at each step of the forward selection
 MIN_STEP = 0.5  # points of SCORE a further predicate or conjunction must add (chosen by frame accuracy rather
 # than the criterion fit chooses methods by: the edit score punishes a few flickering frames the decoders smooth)
 SCORE = "frame_accuracy"  # of the MLN, cross-validated, by the better of DECODERS: what a set is chosen by
