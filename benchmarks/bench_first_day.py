@@ -17,7 +17,7 @@ Datasets (each built here, or read from ../shared/data):
   scored on its test split (the held-out recordings: no stage reads them); hand spec: the paper's Fetch predicates.
 
 ``BENCH_FIRST_DAY`` names the datasets to run (comma-separated; default all); ``BENCH_EPOCHS`` fit's epochs (100);
-``BENCH_QUICK=1``: only ``arm-panda-dev`` at 5 epochs. Prints one row per dataset, then the targets of issue 45.
+``BENCH_QUICK=1``: only ``arm-panda-dev``, 4 bags and 1 held out, at 3 epochs. Prints one row per dataset, then the targets of issue 45.
 """
 
 from __future__ import annotations
@@ -58,7 +58,8 @@ class Dataset:
 def arm(root: Path, robot: str, seed: int, note: str, name: str) -> Dataset:
     import arm_bags
 
-    folder, heldout = arm_bags.write_folders(root / f"{robot}-{seed}", robot, seed)
+    episodes = 4 if os.environ.get("BENCH_QUICK") == "1" else 6
+    folder, heldout = arm_bags.write_folders(root / f"{robot}-{seed}", robot, seed, episodes, 2 if episodes == 6 else 1)
     return Dataset(name, ["--env", "rosbag", "--source", str(folder), "--label-topic", "/phase"],
                    ["--source", str(heldout)], arm_bags.hand_spec(robot), note)
 
@@ -230,7 +231,7 @@ def targets(row: dict) -> list[str]:
 def main() -> None:
     quick = os.environ.get("BENCH_QUICK") == "1"
     names = ["arm-panda-dev"] if quick else os.environ.get("BENCH_FIRST_DAY", ",".join(BUILDERS)).split(",")
-    epochs = "5" if quick else os.environ.get("BENCH_EPOCHS", "100")
+    epochs = "3" if quick else os.environ.get("BENCH_EPOCHS", "100")
     unknown = [n for n in names if n not in BUILDERS]
     if unknown:
         raise SystemExit(f"BENCH_FIRST_DAY: no dataset {', '.join(unknown)}; choose from {', '.join(BUILDERS)}")

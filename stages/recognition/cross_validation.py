@@ -6,9 +6,8 @@ The network factor's weight of a decoded network method is learned by the chain'
 likelihood (mlnseq.mln.cll.network_weight) on out-of-fold chains: each fold's frames under the MLN learned without
 it and the network's out-of-fold log-probabilities, so that neither part has seen the frames it is weighed on (an
 MLN on its own training frames is confident there, and a weight learned against it leaves the network almost
-nothing: 0.01 instead of about 0.1-0.3 on the arm bags of tests/arm_bags.py, whose held-out frame accuracy rose
-from 92.1 to 95.8 % with the larger weight). Per fold on the other folds' chains, for the cross-validated figures;
-on every fold's, for the model that decodes test.
+nothing: docs/choosing.md). Per fold on the other folds' chains, for the cross-validated figures; on every fold's,
+for the model that decodes test.
 """
 
 from __future__ import annotations

@@ -9,9 +9,9 @@ cuts (`binarize --suggest` and `fit` without --spec).
 3. **Forward selection**: at each step the ``VERIFIED`` candidates (or all grippers at once) of best score in a
    quick stand-in for the chain's cross-validation (recognition/quick_chain.py) are scored exactly: the MLN of the
    per-frame template and learned transitions, its weights learned by the chain's exact likelihood on each fold's
-   other folds (as `learn-weights --folds`), each held-out fold decoded by the filter (as conflate's
-   cross-validation of mln+filter); the best is added while it raises the cross-validated frame accuracy by
-   ``MIN_STEP`` points, up to ``MAX_PREDICATES``.
+   other folds (as `learn-weights --folds`), each held-out fold decoded by the filter and the lag-0 Viterbi (as
+   conflate's cross-validation of mln+filter; the better counts); the best is added while it raises the
+   cross-validated frame accuracy by ``MIN_STEP`` points, up to ``MAX_PREDICATES``.
 4. Every candidate's thresholds are learned again without each fold, and each fold is scored with its own: what
    the thresholds learn is cross-validated with them.
 5. **Conjunctions**: for the ``PAIRS`` pairs of kept predicates whose values interact most (the per-frame
@@ -65,7 +65,7 @@ class Conjunction:
 @dataclass
 class Searched:
     """What the search tried and found: the predicates kept (in the order added), the conjunctions kept, each set
-    of the path with its quick and exact figures, the candidates and channels read, the folds."""
+    of the path with its exact figures, the candidates and channels read, the folds."""
 
     predicates: list[Candidate]
     conjunctions: list[Conjunction] = field(default_factory=list)
