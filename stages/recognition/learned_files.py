@@ -81,6 +81,11 @@ def learn(frames: pl.DataFrame, classes: list[str], source: str) -> Learned:
     searched = learned_logic.search(frames, n_classes)
     if searched is None or not searched.predicates:
         searched = learned_logic.uncrossed(frames, n_classes)
+    if not searched.predicates:
+        from mlnseq.catalog.errors import BadInput
+
+        raise BadInput("binarize --suggest: no channel of the training split varies with its classes, so no predicate "
+                       "can be learned; write a spec of your own and pass it with --spec")
     labels = frames["label"].to_numpy().astype(np.int64)
     train = searched.train
     header = header_lines(searched, int(train.sum()), source)
