@@ -16,7 +16,7 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.predicates import rules as predicate_rules
-from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.errors import BadInput, MlnseqError
 from mlnseq.predicates.spec import (
     MAX_COLUMNS, Distance, Predicate, PredicateSpec, default_spec_path, load_spec, parse_spec,
 )
@@ -166,9 +166,17 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     if learned is not None and learned.folds:
         artifacts.write_table(fold_predicates(frames, learned, spec_path, names_of(spec)), folded, "fold_predicates",
                               {"folds": learned.folds, "spec_text": spec.text}, inputs=[frames_path])
-    elif folded.exists() and artifacts.read_metadata(folded).get("spec_text") != spec.text:
-        folded.unlink()  # another spec's: stale
+    elif folded.exists() and fold_spec_text(folded) != spec.text:
+        folded.unlink()  # another spec's, or older frames': stale
     return path, Binarized(predicates, meta)
+
+
+def fold_spec_text(path: Path) -> str | None:
+    """The spec text a predicates.folds.parquet was learned for (None: unreadable, or made from older frames)."""
+    try:
+        return artifacts.read_metadata(path, "fold_predicates").get("spec_text")
+    except MlnseqError:
+        return None
 
 
 def made_from(workdir: Path) -> Path | None:
