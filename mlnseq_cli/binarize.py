@@ -55,8 +55,9 @@ def binarize(
 def print_learned(learned: dict, spec: Path) -> None:
     """What --suggest learned: the search in one line, then its predicates and strongest formulas, one line each."""
     found = learned.get("cross_validated") or {}
-    how = (f"by {learned['folds']} cross-validation (mln+filter: frame accuracy {found['frame_accuracy']:.1f} %)"
-           if learned.get("folds") and found else "without cross-validation (too few training frames for 2 folds)")
+    how = (f"by {learned['folds']} cross-validation (the MLN alone, {found.get('decoder', 'filter')}: frame accuracy "
+           f"{found['frame_accuracy']:.1f} %)" if learned.get("folds") and found else
+           "without cross-validation (too few training frames for 2 folds)")
     console.print(f"binarize: learned {counted(len(learned['predicates']), 'predicate')} and "
                   f"{counted(len(learned['conjunctions']), 'conjunction')} of {learned['candidates']} candidates on "
                   f"{counted(learned['channels'], 'channel')} {how}: {spec} and {learned['formulas']} (edit them, then "

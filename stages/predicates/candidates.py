@@ -31,24 +31,7 @@ QUANTILES = 48  # cut points tried per channel
 WINDOWS = (1, 2, 4, 8, 16)  # frames a change is measured over
 DEAD_BANDS = (0.02, 0.05, 0.1, 0.2, 0.35)  # a gripper's dead band, as a fraction of its fastest motion per frame
 LAPLACE = 1.0  # added to every count of the out-of-fold tables
-
-
-def learned(make, name: str, channel: str, values: np.ndarray, frames: Frames) -> Candidate | None:
-    """``make`` (level, change, gripper) on the training split, with its out-of-fold gain and itself learned again
-    without each fold."""
-    found = make(name, channel, values, frames)
-    if found is None:
-        return None
-    k = int(frames.fold.max()) + 1
-    by_fold = tuple(make(name, channel, values, replace(frames, train=frames.train & (frames.fold != j)))
-                    for j in range(k))
-    found = replace(found, by_fold=by_fold)
-    return replace(found, oof=oof_gain(found, frames)) if k else found
-
-
-def written(value: float) -> float:
-    """A threshold as the spec writes it (six significant digits), so that the spec read back cuts the same frames."""
-    return float(f"{float(value):.6g}")
+NEAR_BEST = 0.98  # a change whose gain is at least this share of the best one's is as good (the steadiest is kept)
 
 
 @dataclass(frozen=True)
@@ -89,6 +72,24 @@ class Candidate:
 
     def __hash__(self) -> int:
         return id(self)
+
+
+def written(value: float) -> float:
+    """A threshold as the spec writes it (six significant digits), so that the spec read back cuts the same frames."""
+    return float(f"{float(value):.6g}")
+
+
+def learned(make, name: str, channel: str, values: np.ndarray, frames: Frames) -> Candidate | None:
+    """``make`` (level, change, gripper) on the training split, with its out-of-fold gain and itself learned again
+    without each fold."""
+    found = make(name, channel, values, frames)
+    if found is None:
+        return None
+    k = int(frames.fold.max()) + 1
+    by_fold = tuple(make(name, channel, values, replace(frames, train=frames.train & (frames.fold != j)))
+                    for j in range(k))
+    found = replace(found, by_fold=by_fold)
+    return replace(found, oof=oof_gain(found, frames)) if k else found
 
 
 def entropy(counts: np.ndarray) -> np.ndarray:
@@ -188,9 +189,6 @@ def change(name: str, channel: str, values: np.ndarray, frames: Frames) -> Candi
             tried.append(Candidate(Change(name, channel, float(threshold), window=window), channel, "change", codes,
                                    gain_of(codes, frames)))
     return steady(tried, lambda c: c.predicate.window, lambda c: c.predicate.threshold)
-
-
-NEAR_BEST = 0.98  # candidates whose gain is at least this share of the best one's are as good
 
 
 def steady(tried: list[Candidate], first, second) -> Candidate | None:

@@ -52,10 +52,26 @@ def how(candidate: Candidate) -> str:
     return f"its level, cut at {', '.join(number(e) for e in p.edges)} (decision stumps: best information gain)"
 
 
+def briefly(candidate: Candidate) -> str:
+    """A candidate in one short line: ``width: a gripper, open above 0.075, closed below 0.032, moving beyond ...``."""
+    p = candidate.predicate
+    if isinstance(p, Gripper):
+        said = (f"a gripper, open above {p.open_above:.3g}, closed below {p.closed_below:.3g}, moving beyond "
+                f"{p.threshold:.3g} per frame")
+    elif isinstance(p, Change):
+        said = f"its change over {p.window} frame{'s' if p.window > 1 else ''} beyond {p.threshold:.3g}"
+    else:
+        said = f"its level, cut at {', '.join(f'{e:.3g}' for e in p.edges)}"
+    return f"{p.name.replace('_', ' ')} ({candidate.channel}): {said}"
+
+
 def predicate_block(candidate: Candidate, labels: np.ndarray | None, train: np.ndarray | None,
                     classes: Sequence[str]) -> list[str]:
+    import textwrap
+
     p = candidate.predicate
-    lines = ["", f"# {candidate.channel}: {how(candidate)}; out-of-fold gain {candidate.oof:.3f} nats per frame"]
+    said = f"{candidate.channel}: {how(candidate)}; out-of-fold gain {candidate.oof:.3f} nats per frame"
+    lines = ["", *(f"# {line}" for line in textwrap.wrap(said, 114))]
     if labels is not None:
         lines += [f"#   {value}: {said}" for value, said in zip(p.values, separates(
             candidate.codes[train], labels[train], classes, len(p.values)))]

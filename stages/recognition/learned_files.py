@@ -93,7 +93,7 @@ def learn(frames: pl.DataFrame, classes: list[str], source: str) -> Learned:
     comments = [conjunction_comment(c, names, int(train.sum())) for c in searched.conjunctions]
     formulas = learned_spec.with_digest(FORMULAS_HEADER + learned_logic.formulas_text(searched.conjunctions, comments),
                                         "//")
-    said = [f"{words(c.predicate.name)}: {learned_spec.how(c)}" for c in searched.predicates]
+    said = [learned_spec.briefly(c) for c in searched.predicates]
     said += in_words(searched.weights, names) if searched.weights is not None else []
     record = {"predicates": [c.predicate.name for c in searched.predicates],
               "conjunctions": [f"{c.first} ^ {c.second}" for c in searched.conjunctions], "folds": searched.folds,
@@ -106,16 +106,20 @@ def learn(frames: pl.DataFrame, classes: list[str], source: str) -> Learned:
 
 
 def header_lines(searched: Searched, frames: int, source: str) -> list[str]:
+    """The learned spec's leading comment, wrapped: what was read, how the predicates were chosen, their figures."""
+    import textwrap
+
     kept = ", ".join(c.predicate.name for c in searched.predicates)
     if searched.folds:
         figures = searched.figures
-        chosen = (f"chosen by {searched.folds} cross-validation (forward selection, then each set on its path scored "
-                  f"as conflate scores mln+filter; docs/first-day.md): {kept}")
-        scored = (f"The MLN alone (mln+filter) cross-validated: frame accuracy {figures['frame_accuracy']:.1f} %, "
-                  f"segment accuracy {figures['segment_accuracy']:.1f} %, edit {figures['edit']:.1f}.")
+        chosen = (f"chosen by forward selection on {searched.folds} cross-validation of the MLN alone "
+                  f"(docs/first-day.md): {kept}. Cross-validated, decoded by {figures.get('decoder', 'filter')}: "
+                  f"frame accuracy {figures['frame_accuracy']:.1f}%, segment accuracy "
+                  f"{figures['segment_accuracy']:.1f}%, edit {figures['edit']:.1f}.")
     else:
-        chosen = f"too few training frames for 2 folds: the candidates of best information gain, {kept}"
-        scored = "Not cross-validated."
-    return [f"Predicates `mlnseq binarize --suggest` learned from the training split of frames of source {source!r}",
-            f"({frames:,} training frames; {searched.candidates} candidates on {searched.channels} channels), "
-            f"{chosen}.", scored, "Edit freely, then `mlnseq binarize --spec THIS_FILE`. Keys: docs/predicates.md."]
+        chosen = f"too few training frames for 2 folds: the candidates of best information gain, {kept}; not " \
+                 "cross-validated."
+    text = (f"Predicates `mlnseq binarize --suggest` learned from the training split of frames of source {source!r} "
+            f"({frames:,} training frames; {searched.candidates} candidates on {searched.channels} channels), {chosen} "
+            "Edit freely, then `mlnseq binarize --spec THIS_FILE`. Keys: docs/predicates.md.")
+    return textwrap.wrap(text, 114)
