@@ -118,7 +118,7 @@ def side_by_side(data: train.FrameData, epochs: int = 20) -> None:
     from mlnseq import networks
     from mlnseq.recognition import folds as folding
 
-    folds = folding.assign(data.episodes, data.splits, 5)
+    folds = folding.assign(data.episodes, data.splits, data.labels, 5)
     for cell, mode in (("tcn", "stream"), ("lstm", "stream"), ("lstm", "segment")):
         options = train.TrainOptions(mode=mode, cell=cell, epochs=epochs)
         config = networks.make_config(cell, n_features=data.features.shape[1], n_classes=int(data.labels.max()) + 1)

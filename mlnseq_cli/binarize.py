@@ -12,28 +12,36 @@ from mlnseq_cli.headings import legend, short_names
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, fail, reported_errors
 from mlnseq import binarize as stage
 
-SUGGESTED = "suggested.binarize.toml"  # --suggest's spec in the workdir
+SUGGESTED = "learned.binarize.toml"  # --suggest's spec in the workdir (its formulas beside it: learned.formulas.mln)
 
 
 def binarize(
     spec: Annotated[Optional[Path], typer.Option(help="Predicate spec (TOML) \\[default: the built-in spec of the frames' source, stages/specs/<source>.binarize.toml].", dir_okay=False)] = None,
-    suggest: Annotated[bool, typer.Option("--suggest", help="Write a starter spec from these frames (thresholds from the training split, change predicates per channel, grippers where the data looks like one), commented, to --output; then binarize with it.")] = False,
-    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/suggested.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
+    suggest: Annotated[bool, typer.Option("--suggest", help="Learn a spec from these frames' training split (per channel a level, a change over a window or a gripper, thresholds by decision stumps, kept by cross-validation on the folds `mlnseq fit` cuts) and formulas for it (conjunctions of two predicates where they help), each commented; write them to --output and NAME.formulas.mln beside it; then binarize with the spec.")] = False,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="--suggest: the spec file to write \\[default: WORKDIR/learned.binarize.toml]; one edited by hand is kept unless --force.", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="--suggest: overwrite --output even if edited by hand.")] = False,
-    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas.")] = False,
+    table: Annotated[bool, typer.Option("--table", help="Also print each predicate value's share of frames true, overall and per class (training split), and which values mark each class: help for writing formulas. Without --spec or --suggest, of the workdir's predicates as they are (nothing rewritten).")] = False,
     max_columns: Annotated[int, typer.Option(help="Refuse a spec that makes more predicate columns than this (a pair makes one per combination).")] = stage.BinarizeOptions.max_columns,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Read WORKDIR/frames.parquet and a predicate spec (--spec, the source's built-in one, or --suggest: one written from the frames); write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
     if output is not None and not suggest:
         raise fail("--output names the spec --suggest writes: add --suggest", 2)
+    if table and spec is None and not suggest and (Path(workdir) / "predicates.parquet").exists():
+        from mlnseq.catalog import artifacts
+
+        with reported_errors():  # the workdir's predicates as they are: nothing rewritten, nothing after made stale
+            predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
+        console.print(f"binarize: {Path(workdir) / artifacts.PREDICATES} as it is (spec {meta['spec']['path']}); "
+                      "--spec FILE binarizes again", highlight=False)
+        print_class_table(predicates, meta["predicates"], list(meta["classes"]))
+        return
     suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
     options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force, max_columns=max_columns)
     with reported_errors():
         path, binarized = stage.run(workdir, options)
     if suggested is not None:
-        console.print(f"binarize: suggested a spec from the frames: {suggested} (edit it, then "
-                      f"`mlnseq binarize --spec {suggested}`)", highlight=False)
+        print_learned(binarized.meta["learned"], suggested)
     columns = binarized.meta["predicates"]
     console.print(
         f"[green]binarize[/]: wrote {path} ({counted(len(columns), 'predicate')}, "
@@ -42,6 +50,20 @@ def binarize(
     )
     if table:
         print_class_table(binarized.predicates, columns, list(binarized.meta["classes"]))
+
+
+def print_learned(learned: dict, spec: Path) -> None:
+    """What --suggest learned: the search in one line, then its predicates and strongest formulas, one line each."""
+    found = learned.get("cross_validated") or {}
+    how = (f"by {learned['folds']} cross-validation (the MLN alone, {found.get('decoder', 'filter')}: frame accuracy "
+           f"{found['frame_accuracy']:.1f} %)" if learned.get("folds") and found else
+           "without cross-validation (too few training frames for 2 folds)")
+    console.print(f"binarize: learned {counted(len(learned['predicates']), 'predicate')} and "
+                  f"{counted(len(learned['conjunctions']), 'conjunction')} of {learned['candidates']} candidates on "
+                  f"{counted(learned['channels'], 'channel')} {how}: {spec} and {learned['formulas']} (edit them, then "
+                  f"--spec {spec} and `mlnseq formulas --spec {learned['formulas']}`)", highlight=False)
+    for line in learned.get("said", []):
+        console.print(f"  {line}", highlight=False)
 
 
 def print_class_table(predicates, columns: dict[str, list[str]], classes: list[str]) -> None:

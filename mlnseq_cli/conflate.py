@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
+from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from mlnseq import conflate as stage
 from mlnseq.catalog.decoders import parse_lags
 
@@ -39,19 +39,75 @@ def conflate(
         options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
                                         network_weight=stage.parse_network_weight(network_weight),
                                         lags=parse_lags(lags))
-    from mlnseq.catalog import artifacts
-    from mlnseq.recognition.folds import describe
-
     with reported_errors():
         result = stage.run(workdir, options)
+    summary(result, workdir)
+
+
+SHOWN = 3  # methods the cross-validation ranks first, named in the summary
+
+
+def summary(result: stage.ConflateResult, workdir) -> None:
+    """conflate's summary, brief: its notes, the network factor's weights once per method (each decoder shares its
+    method's), the methods counted by kind, the few the cross-validation ranks first by the criterion export --method
+    auto chooses on (every method's figures: --verbose, and the metadata)."""
+    from mlnseq_cli.console import verbose
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.folds import describe
+    from mlnseq.recognition.latency import candidates
+
     for note in result.notes:
         console.print(f"[yellow]note[/]: {escape(note.text)}")
-    for name, choice in result.choices.items():
-        if choice.how == "learned":
-            console.print(f"{name}: network factor weight {choice.weight:.3g} (learned on out-of-fold predictions)")
-        elif choice.accuracy is not None:
-            console.print(f"{name}: network factor weight {choice.weight:g} "
-                          f"(validation frame accuracy {choice.accuracy:.1%})")
+    weights = weight_lines(result.choices)
+    for line in (weights if verbose() else weights[:1]):
+        console.print(line, highlight=False)
     cross = artifacts.read_metadata(result.path).get("cross_validation")
-    said = f"; cross-validated figures over {describe(cross['folds'])}" if cross else ""
-    console.print(f"[green]conflate[/]: wrote {result.path} ({', '.join(result.methods)}){said}")
+    counts = kinds(result.methods)
+    console.print(f"[green]conflate[/]: wrote {result.path}: {counted(len(result.methods), 'method')} ({counts})"
+                  + (f"; cross-validated over {describe(cross['folds'])}" if cross else ""), highlight=False)
+    if not cross:
+        return
+    ranked = sorted(candidates(cross["figures"]), key=lambda c: c.score, reverse=True)
+    for candidate in ranked if verbose() else ranked[:SHOWN]:
+        f = candidate.figures
+        console.print(f"  {candidate.name:<26} cross-validated {f['segment_accuracy']:5.1f} / {f['frame_accuracy']:5.1f} "
+                      f"/ {f['edit']:5.1f} (segment / frame / edit), mean {candidate.score[0]:5.1f}", highlight=False)
+    if not verbose() and len(ranked) > SHOWN:
+        console.print(f"  ... and {len(ranked) - SHOWN} more (--verbose, or the figures in {result.path.name}'s "
+                      "metadata: cross_validation)", highlight=False)
+
+
+def kinds(methods: list[str]) -> str:
+    """The methods counted by kind: ``5 undecoded, 10 online (filter, smooth@5 ...), 8 offline``."""
+    from mlnseq.catalog.decoders import Decoder, parse_decoding
+
+    undecoded = [m for m in methods if "+" not in m]
+    decodings = [parse_decoding(m.partition("+")[2], "decoding") for m in methods if "+" in m]
+    online = [d for d in decodings if not d.decoder.offline]
+    offline = [d for d in decodings if d.decoder.offline]
+    names = sorted({d.decoder.value for d in online}, key=[x.value for x in Decoder].index)
+    lags = sorted({d.lag for d in online if d.lag})
+    return ", ".join(part for part in (
+        f"{len(undecoded)} undecoded" if undecoded else "",
+        f"{len(online)} online ({', '.join(names)}" + (f"; lags {', '.join(map(str, lags))}" if lags else "") + ")"
+        if online else "",
+        f"{len(offline)} offline ({', '.join(sorted({d.decoder.value for d in offline}))})" if offline else "") if part)
+
+
+def weight_lines(choices: dict) -> list[str]:
+    """The network factor's weight of each decoded network method, once per method (its decoders share it): one line
+    of them all, then (--verbose) one per method with how it was set."""
+    per_method: dict[str, tuple[float, str, float | None]] = {}
+    for name, choice in choices.items():
+        per_method.setdefault(name.partition("+")[0], (choice.weight, str(choice.how), choice.accuracy))
+    if not per_method:
+        return []
+    how = {h for _, h, _ in per_method.values()}
+    said = "learned on out-of-fold predictions" if how == {"learned"} else "chosen on the validation part" \
+        if how == {"validation"} else "set"
+    lines = [f"network factor weight ({said}; the weight of the network's log-probabilities in each decoded method): "
+             + ", ".join(f"{method} {weight:.3g}" for method, (weight, _, _) in per_method.items())]
+    for method, (weight, how_set, accuracy) in per_method.items():
+        lines.append(f"  {method}: {weight:.3g} ({how_set}"
+                     + (f", validation frame accuracy {accuracy:.1%}" if accuracy is not None else "") + ")")
+    return lines

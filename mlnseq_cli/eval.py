@@ -47,7 +47,7 @@ def evaluate(
 def print_tables(result: stage.EvalResult, fraction: float) -> None:
     """The summary, per-class and early-recognition tables, a row per method, readable at 80 columns."""
     def table(title: str, *columns: str) -> Table:
-        shown = Table(title=title, box=None, padding=(0, 1), pad_edge=False, title_justify="left")
+        shown = Table(title=title, box=None, padding=(0, 1), collapse_padding=True, pad_edge=False, title_justify="left")
         shown.add_column("method", no_wrap=True)
         for column in columns:
             shown.add_column(column, justify="right", no_wrap=True)

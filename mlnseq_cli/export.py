@@ -49,10 +49,11 @@ def export(
     chosen = manifest.chosen_by_cross_validation
     if chosen is not None:
         figures = chosen.figures
-        console.print(f"export: --method auto chose {chosen.name} by {chosen.folds}-fold cross-validation on the "
-                      f"training split: segment accuracy {figures['segment_accuracy']:.1f} %, frame accuracy "
-                      f"{figures['frame_accuracy']:.1f} %, edit {figures['edit']:.1f}, F1@50 {figures['f1_50']:.1f}"
-                      f" (criterion: their mean, {len(chosen.candidates)} candidates)")
+        console.print(f"export: --method auto chose {chosen.name} of {len(chosen.candidates)} candidates by "
+                      f"{chosen.folds}-fold cross-validation on the training split: segment accuracy "
+                      f"{figures['segment_accuracy']:.1f} %, frame accuracy {figures['frame_accuracy']:.1f} %, edit "
+                      f"{figures['edit']:.1f} (the criterion: the mean of these three, {chosen.score:.1f}); F1@50 "
+                      f"{figures['f1_50']:.1f}")
     weight = manifest.network_weight
     delay = "" if manifest.lag is None else f", lag {manifest.lag} frame(s)" + (
         "" if manifest.latency_s is None else f" = {manifest.latency_s:g} s")

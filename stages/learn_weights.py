@@ -258,18 +258,27 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         },
         schema=artifacts.WEIGHTS_SCHEMA,
     )
-    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names), warnings,
+    from mlnseq.mln.weights_table import body_comments
+
+    comments = body_comments(every, training.rows, training.starts, training.space, class_names or [])
+    return Learned(table, render_learned(mln, every, values, engine, objective, l2, class_names, comments), warnings,
                    objective, l2)
 
 
 def render_learned(mln: MLN, formulas: list[Expanded], weights: np.ndarray, engine: str, objective: str,
-                   l2: float, class_names: Sequence[str] | None = None) -> str:
+                   l2: float, class_names: Sequence[str] | None = None, comments: Sequence[str] = ()) -> str:
+    """learned.mln: the expanded formulas with their weights, each body under a comment of its support (``comments``,
+    one per formula, '' where the body is the formula before's). Read back by `formulas --spec`, each weight as
+    written is kept (a written weight is an expert's); 0.0 is learned again."""
     temporal = any(is_temporal(e.formula) for e in formulas)
-    lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas", ""]
+    lines = [f"// mlnseq learn-weights ({engine} {objective.upper()}, l2 {l2:g}): weighted, expanded formulas; read "
+             "back (`mlnseq formulas --spec THIS_FILE`), each", "// weight is kept as written (0.0: learned again). "
+             "Above each body: the training frames it holds in, by class.", ""]
     lines += [f"{name}({', '.join(domains)})" for name, domains in mln.predicates.items() if name != NEXT or temporal]
-    lines += [""]
-    lines += [format_weighted(WeightedFormula(shown(e.formula, class_names), None if e.weight is None else float(w)))
-              for e, w in zip(formulas, weights)]
+    for e, w, comment in zip(formulas, weights, list(comments) or [""] * len(formulas)):
+        lines += ["", comment] if comment else []
+        lines.append(format_weighted(WeightedFormula(shown(e.formula, class_names),
+                                                     None if e.weight is None else float(w))))
     return "\n".join(lines) + "\n"
 
 
@@ -303,7 +312,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     if options.folds:
         from mlnseq.recognition import folds as folding
 
-        folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(), options.folds)
+        folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(),
+                               predicates["label"].to_numpy(), options.folds)
     named = with_episode_names(predicates, workdir)  # messages name episodes as the recordings do
     learned = learn(named, len(classes), mln, options.engine, options.objective, options.l2, where, list(classes),
                     options.max_formulas)
@@ -313,8 +323,12 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     per_fold = []
     if folds is not None:
+        from mlnseq.recognition.folds import fold_predicates
+
+        tables, read = fold_predicates(workdir, folds, named, meta)
         for k in range(folds.k):
-            held_out = named.with_columns(pl.Series("split", folds.splits(k)))
+            held_out = tables[k].with_columns(pl.Series("episode", named["episode"]),
+                                              pl.Series("split", folds.splits(k)))
             fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
                          list(classes), options.max_formulas)
             fold.warnings[:] = source_lines.located(fold.warnings, where)
@@ -328,7 +342,8 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
             (workdir / artifacts.FOLD_WEIGHTS).unlink(missing_ok=True)
         else:
             artifacts.write_table(pl.concat(per_fold), workdir / artifacts.FOLD_WEIGHTS, "fold_weights",
-                                  {**table_meta, "folds": folds.record(), "training_episodes": int(
+                                  {**table_meta, "folds": folds.record(), "fold_predicates": bool(read),
+                                   "training_episodes": int(
                                       predicates.filter(pl.col("split") == "train")["episode"].n_unique())},
-                                  inputs=[predicates_path, formulas_path, path])
+                                  inputs=[predicates_path, formulas_path, path, *read])
     return path, learned

@@ -260,7 +260,8 @@ def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOption
     )
     device = resolve_device(options.device)
     trained = fit(data, config, options, device, progress, seeds)
-    folds = [folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits, Path(workdir))
+    folds = [folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits,
+                             data.labels, Path(workdir))
              for workdir in workdirs]
     out_of_fold: list[OutOfFold | None] = [None] * len(workdirs)
     if folds[0] is not None:

@@ -15,6 +15,7 @@ SMALL = {"BENCH_QUICK": "1", "BENCH_FETCH_EPISODES": "5", "BENCH_BAG_MINUTES": "
 LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "collect": "desk import: 22,329 frames",
     "decode": "decode: the 25 lagged, posterior and legal decodings",
+    "first_day": "first day: 1 dataset(s) measured",
     "networks": "tcn ",
     "recordings": "peak memory:",
     "scale": "| train: one stream epoch",

@@ -32,6 +32,7 @@ DEFAULT_WORKDIR = Path("mlnseq-work")
 
 FRAMES = "frames.parquet"
 PREDICATES = "predicates.parquet"
+FOLD_PREDICATES = "predicates.folds.parquet"  # learned predicates learned again without each fold (column fold)
 FORMULAS = "formulas.mln"
 WEIGHTS = "weights.parquet"
 FOLD_WEIGHTS = "weights.folds.parquet"  # each fold's MLN weights, learned without that fold (column fold)
@@ -44,6 +45,7 @@ METRICS = "metrics.parquet"
 PRODUCED_BY = {
     FRAMES: "collect",
     PREDICATES: "binarize",
+    FOLD_PREDICATES: "binarize --suggest",
     FORMULAS: "formulas",
     WEIGHTS: "learn-weights",
     FOLD_WEIGHTS: "learn-weights --folds K",
@@ -119,10 +121,7 @@ METRICS_SCHEMA: dict[str, pl.DataType] = {"method": pl.String(), "metric": pl.St
 
 def producer_of(path: Path) -> str:
     """The stage command that writes this artifact."""
-    name = path.name
-    if path.parent.name == MODELS_DIR:
-        name = MODELS_DIR
-    return PRODUCED_BY.get(name, "the stage that writes it")
+    return PRODUCED_BY.get(MODELS_DIR if path.parent.name == MODELS_DIR else path.name, "the stage that writes it")
 
 
 def package_version() -> str:

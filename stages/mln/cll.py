@@ -184,7 +184,8 @@ REFRESH = (35, 10)  # BFGS iterations after which the metric is renewed with the
 
 
 def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray,
-          space: AtomSpace, l2: float = DEFAULT_L2, gtol: float = 1e-6, ftol: float = 1e-8) -> np.ndarray:
+          space: AtomSpace, l2: float = DEFAULT_L2, gtol: float = 1e-6, ftol: float = 1e-8,
+          initial: np.ndarray | None = None) -> np.ndarray:
     """The weights maximising CLL - l2/2 |w|^2 on the chains of ``evidence`` (bool [T, W] over
     ``space.words``) with classes ``labels`` (indices into ``space.classes``), cut where ``starts``.
     Fixed formulas keep their weight; hard ones get +inf (the labels must satisfy them).
@@ -195,7 +196,8 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
     first metric BFGS alone needs about 400 evaluations on all DESK frames, with the renewals about 60). Each run
     stops when the largest entry of the whitened gradient per frame falls below ``gtol`` (L-BFGS also when an
     iteration improves the objective per frame by less than ``ftol``, relatively); in the exact Hessian's
-    coordinates that is a bound on the Newton step."""
+    coordinates that is a bound on the Newton step. ``initial``: a starting point for every weight (hard ones
+    ignored) near the optimum, where BFGS starts from the exact Hessian (a search that adds a few formulas)."""
     objective = Objective(formulas, evidence, labels, starts, space, l2)
     weights = objective.weights.copy()
     n_learned = int(objective.learned.sum())
@@ -205,7 +207,11 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
             method, options, runs = "BFGS", {"gtol": gtol}, (*REFRESH, 5000)
         else:
             method, options, runs = "L-BFGS-B", {"gtol": gtol, "ftol": ftol, "maxcor": 20}, (5000,)
-        learned, metric = np.zeros(n_learned), objective.curvature()
+        if initial is None:
+            learned, metric = np.zeros(n_learned), objective.curvature()
+        else:  # near the optimum already (a search's previous set): the exact Hessian there
+            learned = np.asarray(initial, dtype=np.float64)[objective.learned].copy()
+            metric, runs = objective.hessian(learned), runs[1:]
         with one_thread():
             for run, iterations in enumerate(runs):
                 if run:

@@ -6,8 +6,8 @@ The rules (paper section IV; the spec language is in stages/predicates/spec.py):
 index into its predicate's ``values``.
 
 - ``bins`` (C1): how many of the ascending ``edges`` are at most x.
-- ``change`` (C2, eq. 9): d = x minus the previous x; increase (d > threshold), decrease (d < -threshold),
-  else static.
+- ``change`` (C2, eq. 9): d = x minus the previous x (with ``window`` W: the x W frames before, or the episode's
+  first where it has fewer); increase (d > threshold), decrease (d < -threshold), else static.
 - ``gripper``: open (x > ``open_above``), else closed (x < ``closed_below``), else opening / closing by
   d = x − ``previous_scale``·previous x beyond ``threshold``, else static.
 - ``pair``: first's code times the number of second's values, plus second's code.
@@ -40,6 +40,19 @@ def tests(predicate: Change | Gripper) -> tuple[tuple[Test, ...], int]:
         return ((True, True, t, 1), (True, False, -t, 2)), 0
     return ((False, True, predicate.open_above, 0), (False, False, predicate.closed_below, 1),
             (True, True, t, 2), (True, False, -t, 3)), 4
+
+
+def window(predicate: Predicate) -> int:
+    """How many frames back a predicate's change d looks (1: the previous frame)."""
+    return predicate.window if isinstance(predicate, Change) else 1
+
+
+def looked_back(value: np.ndarray, first: np.ndarray, frames: int) -> np.ndarray:
+    """The value ``frames`` rows before each row in its episode (``first`` marks episodes' first rows), or the
+    episode's first value where it has fewer rows before it."""
+    index = np.arange(len(value))
+    start = np.maximum.accumulate(np.where(first, index, 0))
+    return value[np.maximum(index - frames, start)]
 
 
 def previous_scale(predicate: Predicate) -> float:
@@ -110,7 +123,7 @@ def evidence(spec: PredicateSpec, channels: Channels, first: np.ndarray) -> np.n
             found = pair_code(earlier[predicate.first], earlier[predicate.second], sizes[predicate.second])
         else:
             value = channels[predicate.channel]
-            delta = change(value, np.concatenate([value[:1], value[:-1]]), previous_scale(predicate))
+            delta = change(value, looked_back(value, first, window(predicate)), previous_scale(predicate))
             delta[first] = 0.0
             found = codes(predicate, value, delta)
         earlier[predicate.name] = found
@@ -179,14 +192,15 @@ class StreamingBinarizer:
             elif isinstance(p, Bins):
                 self._plan.append((p.name, offset, p.channel, p.edges, None, 0.0))
             else:
-                self._plan.append((p.name, offset, p.channel, None, tests(p), previous_scale(p)))
+                self._plan.append((p.name, offset, p.channel, None, tests(p), (previous_scale(p), window(p))))
             sizes[p.name] = len(p.values)
             offset += len(p.values)
-        self._previous: dict[str, float] | None = None
+        self._looks_back = max((window(p) for p in spec.predicates), default=1)
+        self._history: list[dict[str, float]] = []  # the last frames' channels, oldest first, at most _looks_back
 
     def reset(self) -> None:
         """The next frame starts an episode."""
-        self._previous = None
+        self._history = []
 
     def step(self, features: np.ndarray) -> np.ndarray:
         """The predicate values [columns] (bool) of the next frame, given its raw features [F]."""
@@ -195,7 +209,7 @@ class StreamingBinarizer:
             start = np.array([channels[c] for c in derived.start])
             end = np.array([channels[c] for c in derived.end])
             channels[derived.name] = float(distance(start, end, derived.decimals))
-        previous = self._previous
+        history = self._history
         evidence = np.zeros(self._width, dtype=bool)
         found: dict[str, int] = {}
         for name, offset, channel, edges, rule, scale in self._plan:
@@ -203,10 +217,13 @@ class StreamingBinarizer:
                 value = pair_code(found[edges], found[rule], scale)
             elif rule is None:
                 value = bisect.bisect_right(edges, channels[channel])
-            else:
-                x = channels[channel]
-                value = code(rule, x, 0.0 if previous is None else change(x, previous[channel], scale))
+            else:  # scale: the previous value's factor and the window
+                x, (factor, back) = channels[channel], scale
+                before = history[max(len(history) - back, 0)][channel] if history else None
+                value = code(rule, x, 0.0 if before is None else change(x, before, factor))
             found[name] = value
             evidence[offset + value] = True
-        self._previous = channels
+        history.append(channels)
+        if len(history) > self._looks_back:
+            del history[0]
         return evidence

@@ -10,7 +10,8 @@ Predicates (paper section IV), each a one-hot group of columns named ``<predicat
 - ``bins`` (C1): static thresholds on a channel; ``edges`` ascending, ``values`` one name per bin;
   bin i holds ``edges[i-1] <= x < edges[i]`` (a threshold is one edge, two values).
 - ``change`` (C2, eq. 9): x minus the previous x against a dead band ``threshold``:
-  increase (> threshold), decrease (< -threshold), else static.
+  increase (> threshold), decrease (< -threshold), else static; with ``window`` W (default 1), x minus the x W
+  frames before (the episode's first frame where it has fewer).
 - ``gripper``: open (x > ``open_above``), else closed (x < ``closed_below``), else opening / closing by a
   change beyond ``threshold``, else static. ``previous_scale`` multiplies the previous value before that
   change test (default 1; the DESK spec sets 100, see ``stages/specs/desk.binarize.toml``).
@@ -35,6 +36,7 @@ from mlnseq.catalog.errors import BadInput
 
 NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 VALUE = re.compile(r"[a-z0-9][a-z0-9_]*\Z")
+MAX_WINDOW = 10_000  # frames a change predicate may look back
 MAX_COLUMNS = 10_000  # predicate columns a spec may make (binarize --max-columns); a pair multiplies two predicates'
 
 
@@ -70,6 +72,7 @@ class Change:
     threshold: float
     lines: dict[str, int] = field(default_factory=dict, compare=False)
     values: ClassVar[tuple[str, ...]] = ("static", "increase", "decrease")
+    window: int = 1  # frames: x minus the x this many frames before
 
 
 @dataclass(frozen=True)
@@ -117,7 +120,7 @@ class PredicateSpec:
 
 KIND_KEYS = {
     "bins": {"channel", "edges", "values"},
-    "change": {"channel", "threshold"},
+    "change": {"channel", "threshold", "window"},
     "gripper": {"channel", "open_above", "closed_below", "threshold", "previous_scale"},
     "pair": {"of"},
 }
@@ -183,6 +186,12 @@ class _Entry:
             raise self.error(key, f"must be {'above' if positive else 'at least'} 0, got {value!r}")
         return float(value)
 
+    def window(self, key: str = "window", most: int = MAX_WINDOW) -> int:
+        value = self.table.get(key, 1)
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= most:
+            raise self.error(key, f"must be a whole number of frames from 1 to {most:,}, got {value!r}")
+        return value
+
     def text(self, key: str) -> str:
         value = self.require(key)
         if not isinstance(value, str) or not value:
@@ -241,7 +250,7 @@ def _predicate(entry: _Entry, defined: dict[str, Predicate], used: int = 0, limi
             raise entry.error("values", f"must be distinct lowercase names [a-z0-9][a-z0-9_]*, got {list(values)}")
         return Bins(name, entry.text("channel"), tuple(float(e) for e in edges), values, entry.lines)
     if kind == "change":
-        return Change(name, entry.text("channel"), entry.number("threshold"), entry.lines)
+        return Change(name, entry.text("channel"), entry.number("threshold"), entry.lines, window=entry.window())
     if kind == "gripper":
         open_above, closed_below = entry.number("open_above"), entry.number("closed_below")
         if closed_below > open_above:

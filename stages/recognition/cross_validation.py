@@ -3,14 +3,17 @@
 choice among methods, and the network factor's weight, are made on honest predictions and never on test.
 
 The network factor's weight of a decoded network method is learned by the chain's exact conditional
-likelihood (mlnseq.mln.cll.network_weight) on out-of-fold network log-probabilities: per fold on its fit
-part, for the cross-validated figures; on the whole training split, for the model that decodes test.
+likelihood (mlnseq.mln.cll.network_weight) on out-of-fold chains: each fold's frames under the MLN learned without
+it and the network's out-of-fold log-probabilities, so that neither part has seen the frames it is weighed on (an
+MLN on its own training frames is confident there, and a weight learned against it leaves the network almost
+nothing: docs/choosing.md). Per fold on the other folds' chains, for the cross-validated figures; on every fold's,
+for the model that decodes test.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,13 +47,12 @@ def chains(mask: np.ndarray, episodes: np.ndarray, fold: np.ndarray) -> tuple[np
     return rows, starts
 
 
-def learned_weight(method: str, mln: MLNFactors, evidence: np.ndarray, rows: np.ndarray, starts: np.ndarray,
-                   log_p: np.ndarray, labels: np.ndarray) -> float:
-    """The network factor's weight of a decoded method learned by exact CLL on ``rows`` (out-of-fold ``log_p``)."""
+def oof_weight(chains: Sequence[ChainFactors], log_p: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> float:
+    """The network factor's weight learned by exact CLL on out-of-fold chains (their per-frame log-potentials the
+    MLN's of the fold's MLN, with the start distribution) and the network's out-of-fold log-probabilities there."""
     from mlnseq.mln import cll
 
-    base = chain_of(method, mln, evidence[rows], starts, log_p[rows], 0.0)
-    return cll.network_weight(base, log_p[rows], labels[rows])
+    return cll.network_weight(ChainFactors.joined(list(chains)), np.concatenate(log_p), np.concatenate(labels))
 
 
 def figures_of(predicted: np.ndarray, labels: np.ndarray, starts: np.ndarray, n_classes: int,
@@ -85,7 +87,7 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     likelihood = {name: np.zeros(len(data.labels)) for name in predicted}  # log p(true label) per frame
     forbidden = dict.fromkeys((name for name in predicted if "+" in name), 0)
     decoded = [d for d in decodes if d != "none"]
-    held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]] = {}  # method -> each fold's rows and chain
+    held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]] = {}  # method -> each fold's rows and chain (weight 0)
     for k in range(folds.k):
         held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
         rows, starts = chains(held, data.episodes, folds.fold)
@@ -106,17 +108,13 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
                 name = decoded_name(method, "none")
                 predicted[name][rows] = probabilities.argmax(1)
                 likelihood[name][rows] = _log_likelihoods(probabilities, truth)
-            if not decoded:
-                continue
-            weight = 1.0
-            if network is not None:
-                weight = fixed_weight if fixed_weight is not None else learned_weight(
-                    method, factors, fold_mln.evidence, *chains(fit, data.episodes, folds.fold), log_p, data.labels)
-                for decode in decoded:
-                    result.fold_weights.setdefault(decoded_name(method, decode), []).append(weight)
-            held_out.setdefault(method, []).append((rows, chain_of(method, factors, fold_mln.evidence[rows], starts,
-                                                                   None if log_p is None else log_p[rows], weight,
-                                                                   start)))
+            if decoded:
+                held_out.setdefault(method, []).append((rows, chain_of(method, factors, fold_mln.evidence[rows], starts,
+                                                                       None if log_p is None else log_p[rows], 0.0,
+                                                                       start)))
+    for method in held_out if decoded else ():
+        held_out[method] = weighted(held_out[method], cv.log_probs.get(network_of(method)), data.labels, fixed_weight,
+                                    [result.fold_weights.setdefault(decoded_name(method, d), []) for d in decoded])
     _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     scored: dict[tuple[bytes, bool], dict[str, float]] = {}  # methods predicting alike (decoders often agree): once
@@ -129,6 +127,24 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         if name in forbidden:
             result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result
+
+
+def weighted(parts: list[tuple[np.ndarray, ChainFactors]], log_p: np.ndarray | None, labels: np.ndarray,
+             fixed: float | None, said: list[list[float]]) -> list[tuple[np.ndarray, ChainFactors]]:
+    """Each fold's chain with the network's log-probabilities at the weight learned on the other folds' chains (or
+    ``fixed``), each weight appended to every list of ``said``; the MLN alone (no network) as it is."""
+    if log_p is None:
+        return parts
+    out = []
+    for k, (rows, base) in enumerate(parts):
+        others = [j for j in range(len(parts)) if j != k]
+        weight = fixed if fixed is not None else oof_weight([parts[j][1] for j in others],
+                                                            [log_p[parts[j][0]] for j in others],
+                                                            [labels[parts[j][0]] for j in others])
+        for weights in said:
+            weights.append(weight)
+        out.append((rows, replace(base, unary=base.unary + weight * log_p[rows])))
+    return out
 
 
 def _decode_held_out(held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]], decodes: list[str],
@@ -154,12 +170,20 @@ def _log_likelihoods(probabilities: np.ndarray, labels: np.ndarray) -> np.ndarra
     return np.log(np.maximum(picked, decoders.LIKELIHOOD_FLOOR))
 
 
-def test_weight(method: str, inputs: WorkdirInputs, mln: MLNFactors) -> float:
-    """The weight that decodes test: learned on the whole training split's out-of-fold log-probabilities, with
-    the MLN weights learned on the whole training split."""
-    folds = inputs.folds.folds
-    rows, starts = chains(folds.fold >= 0, inputs.data.episodes, folds.fold)
-    return learned_weight(method, mln, inputs.mln.evidence, rows, starts, inputs.folds.log_probs[network_of(method)],
-                          inputs.data.labels)
+def test_weight(method: str, inputs: WorkdirInputs) -> float:
+    """The weight that decodes test: learned on every fold's out-of-fold chain (the fold's MLN and the network's
+    out-of-fold log-probabilities on the fold's frames)."""
+    from mlnseq.mln.factors import MLNFactors
 
+    cv, data, folds = inputs.folds, inputs.data, inputs.folds.folds
+    log_p = cv.log_probs[network_of(method)]
+    parts, network = [], []
+    for k, fold_mln in enumerate(cv.mln):
+        held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
+        rows, starts = chains(held, data.episodes, folds.fold)
+        factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
+        start = decoders.start_of(data.labels, data.episodes, fit, len(inputs.classes))
+        parts.append(chain_of(method, factors, fold_mln.evidence[rows], starts, log_p[rows], 0.0, start))
+        network.append(rows)
+    return oof_weight(parts, [log_p[rows] for rows in network], [data.labels[rows] for rows in network])
 

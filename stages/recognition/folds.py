@@ -1,7 +1,10 @@
 """Folds of the training split for cross-validation: whole episodes when the split has at least K of them,
-else K contiguous blocks of its frames (in file order). The assignment depends only on the frames' episodes
-and splits and on K, so train (the fold networks), learn-weights (each fold's MLN weights) and conflate (the
-out-of-fold decoding) cut the same folds; every artifact made from them records them."""
+else K contiguous blocks of its frames (in file order), cut where the labels show the task restarting (an episode
+starts, or the labels return to the class episodes start with) nearest to K equal blocks' cuts, else at the
+nearest segment boundaries, never inside a segment where the split has enough of them. The assignment depends
+only on the frames' episodes, splits, labels and on K, so train (the fold networks), learn-weights (each fold's
+MLN weights) and conflate (the out-of-fold decoding) cut the same folds; every artifact made from them records
+them."""
 
 from __future__ import annotations
 
@@ -19,10 +22,15 @@ from mlnseq.catalog.parts import Part
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
 
+CUTS = ("restarts", "mixed", "segments", "frames")  # where blocks were cut: task restarts, restarts and segment
+# ends, segment ends only, or anywhere (a training split with too few segments)
+
+
 @dataclass(frozen=True)
 class Folds:
     fold: np.ndarray  # [n] fold of each training row, -1 on test rows
     kind: str  # episodes | blocks
+    cut: str | None = None  # blocks: one of CUTS
 
     @property
     def k(self) -> int:
@@ -33,7 +41,7 @@ class Folds:
         from mlnseq.timeline import sequences
 
         spans = [[s.start, s.stop] for s in sequences.runs(self.fold) if self.fold[s.start] >= 0]
-        return {"k": self.k, "kind": self.kind, "spans": spans}
+        return {"k": self.k, "kind": self.kind, "spans": spans, **({"cut": self.cut} if self.cut else {})}
 
     def describe(self) -> str:
         """What was cut, for summaries: ``4 folds by episode`` or ``5 folds by block``."""
@@ -44,9 +52,16 @@ class Folds:
         return np.where(self.fold == k, Part.HELDOUT, np.where(self.fold >= 0, Part.TRAIN, Part.TEST))
 
 
+CUT_WORDS = {"restarts": " at task restarts", "mixed": " at task restarts and segment ends",
+             "segments": " at segment ends", "frames": " inside segments"}
+
+
 def describe(record: dict) -> str:
-    """A recorded assignment (Folds.record) in words: ``4 folds by episode`` or ``5 folds by block``."""
-    return f"{record['k']} folds by {'episode' if record['kind'] == 'episodes' else 'block'}"
+    """A recorded assignment (Folds.record) in words: ``4 folds by episode``, ``5 folds by block at task
+    restarts`` (``at segment ends``, ``inside segments``)."""
+    if record["kind"] == "episodes":
+        return f"{record['k']} folds by episode"
+    return f"{record['k']} folds by block{CUT_WORDS.get(record.get('cut'), '')}"
 
 
 def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
@@ -66,7 +81,7 @@ def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5) -> int:
     return k if k >= 2 else 0
 
 
-def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--folds") -> Folds:
+def assign(episodes: np.ndarray, splits: np.ndarray, labels: np.ndarray, k: int, option: str = "--folds") -> Folds:
     """Cut the training rows into ``k`` folds (deterministic); refuse a K the split cannot make."""
     episodes, train = np.asarray(episodes), np.asarray(splits) == Part.TRAIN
     most = largest(episodes, splits)
@@ -84,12 +99,53 @@ def assign(episodes: np.ndarray, splits: np.ndarray, k: int, option: str = "--fo
         for index, group in enumerate(np.array_split(np.arange(len(present)), k)):
             fold[rows[np.isin(episodes[rows], [present[i] for i in group])]] = index
         return Folds(fold, "episodes")
-    for index, block in enumerate(np.array_split(rows, k)):
-        fold[block] = index
-    return Folds(fold, "blocks")
+    cuts, cut = block_cuts(episodes[rows], np.asarray(labels)[rows], k)
+    for index, (start, stop) in enumerate(zip([0, *cuts], [*cuts, len(rows)])):
+        fold[rows[start:stop]] = index
+    return Folds(fold, "blocks", cut)
 
 
-def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray,
+def block_cuts(episodes: np.ndarray, labels: np.ndarray, k: int) -> tuple[list[int], str]:
+    """Where K blocks of the training rows begin (positions 1 .. n-1, ascending), and how they were cut: the cuts of
+    K equal blocks each moved to a task restart, at least cost (the sum of the moves; a segment boundary that is
+    not a restart costs half a block more), in order; with too few boundaries, the equal cuts."""
+    from mlnseq.recognition.decoding import start_of
+
+    n = len(labels)
+    ideal = np.array([round(n * j / k) for j in range(1, k)], dtype=np.float64)
+    new_episode = np.r_[True, episodes[1:] != episodes[:-1]]
+    start_class = int(np.argmax(start_of(labels, episodes, np.ones(n, dtype=bool), int(labels.max()) + 1)))
+    changed = np.r_[False, labels[1:] != labels[:-1]] | new_episode
+    restart = new_episode | (changed & (labels == start_class))
+    where = np.flatnonzero(changed[1:]) + 1
+    if len(where) < k - 1:
+        return [int(c) for c in ideal], "frames"
+    extra = np.where(restart[where], 0.0, n / (2 * k))
+    chosen = cheapest(where, np.abs(where[None, :] - ideal[:, None]) + extra[None, :])
+    at_restarts = restart[where[chosen]]
+    return [int(where[i]) for i in chosen], ("restarts" if at_restarts.all() else "mixed" if at_restarts.any()
+                                               else "segments")
+
+
+def cheapest(where: np.ndarray, cost: np.ndarray) -> list[int]:
+    """Indices i_1 < ... < i_m into ``where`` of least total ``cost[j, i_j]`` (cost: [m, len(where)]; ties: the
+    earliest)."""
+    m, size = cost.shape
+    total, back = np.full((m, size), np.inf), np.zeros((m, size), dtype=np.int64)
+    total[0] = cost[0]
+    for j in range(1, m):
+        before = total[j - 1]
+        least = np.minimum.accumulate(before)
+        new = before < np.r_[np.inf, least[:-1]]
+        back[j, 1:] = np.maximum.accumulate(np.where(new, np.arange(size), 0))[:-1]
+        total[j, 1:] = least[:-1] + cost[j, 1:]
+    chosen = [int(np.argmin(total[-1]))]
+    for j in range(m - 1, 0, -1):
+        chosen.append(int(back[j, chosen[-1]]))
+    return chosen[::-1]
+
+
+def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray, labels: np.ndarray,
             workdir: Path | None = None) -> Folds | None:
     """``train --folds``: None is the default: in stream mode without a validation part, the folds the MLN's
     weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none; 0 is none."""
@@ -100,7 +156,7 @@ def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits:
         k = int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
     if k == 0:
         return None
-    return assign(episodes, splits, k)
+    return assign(episodes, splits, labels, k)
 
 
 def same(recorded: dict, folds: Folds, what: str, remedy: str) -> None:
@@ -132,12 +188,28 @@ def out_of_fold_table(keys: pl.DataFrame, folds: Folds, log_probs: np.ndarray) -
 
 
 def fold_mln_scores(workdir: Path, folds: Folds, classes: Sequence[str]) -> tuple[list[np.ndarray], list[Path]]:
-    """Each fold's per-frame MLN class scores, from weights.folds.parquet (checked to hold the same folds)."""
+    """Each fold's per-frame MLN class scores, from weights.folds.parquet (checked to hold the same folds) and each
+    fold's predicates (:func:`fold_predicates`)."""
     from mlnseq.mln import classifier
 
     weights, path = fold_weights(workdir, folds)
-    predicates, _ = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
-    return [classifier.class_scores(predicates, w, classes) for w in weights], [path]
+    predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
+    tables, read = fold_predicates(workdir, folds, predicates, meta)
+    return [classifier.class_scores(t, w, classes) for t, w in zip(tables, weights)], [path, *read]
+
+
+def fold_predicates(workdir: Path, folds: Folds, predicates: pl.DataFrame,
+                    meta: dict) -> tuple[list[pl.DataFrame], list[Path]]:
+    """Each fold's predicates: where binarize --suggest learned them (predicates.folds.parquet, of these folds and
+    this spec), the learned predicates learned again without the fold, so that what their thresholds learn is
+    cross-validated too; else the workdir's predicates for every fold (a spec that nothing learned). And the file
+    read, if any."""
+    path = Path(workdir) / artifacts.FOLD_PREDICATES
+    if path.exists():
+        table, made = artifacts.read_table(path, "fold_predicates")
+        if made.get("folds") == folds.record() and made.get("spec_text") == meta.get("spec", {}).get("text"):
+            return [table.filter(pl.col("fold") == k).drop("fold") for k in range(folds.k)], [path]
+    return [predicates] * folds.k, []
 
 
 def fold_weights(workdir: Path, folds: Folds) -> tuple[list[pl.DataFrame], Path]:

@@ -5,7 +5,8 @@ Candidates: every method conflate cross-validated, undecoded (lag 0) and with ev
 scored at, within the budget (offline decoders only without one). Where the chain has hard rules (a transition
 factor of -inf), only decoders that keep them are candidates (the -legal forms and viterbi). Criterion: the mean
 of the cross-validated segment accuracy, frame accuracy and edit score, ties broken by the out-of-fold
-log-likelihood of the true labels. Segment accuracy alone moves in steps of 2-8 points on the few dozen
+log-likelihood of the true labels, among the candidates whose cross-validated frame accuracy is at least the
+network alone's where it is a candidate (``best``). Segment accuracy alone moves in steps of 2-8 points on the few dozen
 segments of a training split; frame accuracy moves by a frame at a time, and the mean of the three follows
 what a live user reads (the segments, the frames and their order).
 """
@@ -103,7 +104,22 @@ def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: De
         raise BadInput(f"no cross-validated {what}candidate in {where}{limit}"
                        + (" that keeps its hard rules" if hard_rules else "")
                        + ": run `mlnseq conflate --decode all` (with --lags including smaller lags) or allow more")
-    return max(fitting, key=lambda c: c.score), fitting
+    return best(fitting), fitting
+
+
+def best(fitting: list[Candidate]) -> Candidate:
+    """The candidate of best criterion among those whose cross-validated frame accuracy is at least the network
+    alone's (the undecoded network among ``fitting``; where it is not among them, all): a method chosen for its
+    segments or order never loses frames to the network alone, whose fold networks are weaker than the one refit."""
+    networks = [c for c in fitting if c.method == "lstm" and c.decoding.decoder is Decoder.NONE]
+    floor = max((frames(c) for c in networks), default=-math.inf)
+    kept = [c for c in fitting if frames(c) >= floor]
+    return max(kept or fitting, key=lambda c: c.score)
+
+
+def frames(candidate: Candidate) -> float:
+    value = candidate.figures.get("frame_accuracy", math.nan)
+    return value if value == value else -math.inf
 
 
 AUTO = "auto"  # export --method auto: the method, decoder and lag with the best cross-validated figures

@@ -100,7 +100,7 @@ class WeightDecision:
             return WeightChoice(self.fixed, None, {}, WeightSource.FIXED)
         if self.folded(network):
             if method not in self.learned:
-                self.learned[method] = test_weight(method, self.inputs, self.mln)
+                self.learned[method] = test_weight(method, self.inputs)
             return WeightChoice(self.learned[method], None, {}, WeightSource.LEARNED)
         trained, data = self.inputs.networks[network], self.inputs.data
         return choose(method, kind, self.mln, self.inputs.mln.evidence, data.episodes, trained.parts,

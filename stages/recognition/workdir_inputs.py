@@ -194,7 +194,7 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
         raise BadInput(f"the networks were trained with different folds ({records}); retrain them with the same "
                        "`train --folds K`")
     first = next(iter(records.values()))
-    folds = folding.assign(inputs.data.episodes, inputs.data.splits, first["k"])
+    folds = folding.assign(inputs.data.episodes, inputs.data.splits, inputs.data.labels, first["k"])
     log_probs = {}
     train = folds.fold >= 0
     for network, trained in folded.items():
@@ -214,10 +214,12 @@ def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
     mln = []
     if inputs.mln is not None:
         weights, path = folding.fold_weights(workdir, folds)
-        inputs.inputs.append(path)
-        training = inputs.mln.predicates.filter(pl.Series(train))
-        for w in weights:  # a fold's MLN scores only training frames (cross-validation never reads test)
+        tables, read = folding.fold_predicates(workdir, folds, inputs.mln.predicates,
+                                               artifacts.read_metadata(workdir / artifacts.PREDICATES))
+        inputs.inputs += [path, *read]
+        for w, table in zip(weights, tables):  # a fold's MLN scores only training frames (never test)
             scores = np.zeros_like(inputs.mln.scores)
-            scores[train] = classifier.class_scores(training, w, inputs.classes)
-            mln.append(MLNInputs(w, scores, inputs.mln.columns, inputs.mln.evidence))
+            scores[train] = classifier.class_scores(table.filter(pl.Series(train)), w, inputs.classes)
+            columns = artifacts.feature_columns(table)
+            mln.append(MLNInputs(w, scores, columns, table.select(columns).to_numpy().astype(bool)))
     return FoldInputs(folds, log_probs, mln)

@@ -94,7 +94,10 @@ def choose(candidates: list[Scored], budget: int | None, offline: bool = False) 
     them); ``offline``: among the offline decoders only."""
     fitting = [s for s in candidates if latency.within(s.candidate, budget, None, s.hard_rules)
                and (not offline or s.candidate.decoding.decoder.offline)]
-    return max(fitting, key=lambda s: s.candidate.score) if fitting else None
+    if not fitting:
+        return None
+    chosen = latency.best([s.candidate for s in fitting])  # export --method auto's choice
+    return next(s for s in fitting if s.candidate is chosen)
 
 
 def rate_of(run: Run, dataset: str) -> float | None:

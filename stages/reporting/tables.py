@@ -214,11 +214,11 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
 
 def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     """Per decoding (filter, viterbi), every decoded method of a DEPLOY_VARIANTS folder (stream mode) with its
-    cross-validated and test figures (mean, std over seeds), and the one with the best cross-validated choice
-    score (``cross_validation.choice_score`` of the means; ties: the first in that order and METHODS order, the
-    others listed under ``ties``); the test split is never looked at for the choice. ``best_on_test`` per metric
-    is shown beside it, marked optimistic."""
-    from mlnseq.recognition.cross_validation import choice_score
+    cross-validated and test figures (mean, std over seeds), and the one with the best cross-validated criterion
+    (``recognition.latency``'s: the mean of segment accuracy, frame accuracy and edit, of the means; ties: the first
+    in that order and METHODS order, the others listed under ``ties``); the test split is never looked at for the
+    choice. ``best_on_test`` per metric is shown beside it, marked optimistic."""
+    from mlnseq.recognition.latency import CRITERION
 
     stats = {m: by_pair(table) for m, table in sequence_stats(run).items()}
     cv = {m: by_pair(table) for m, table in cv_stats(run).items()}
@@ -230,7 +230,8 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
                 figures = {m: cv[m].get(pair, ABSENT) for m in SEQUENCE_METRICS}
                 if figures["segment_accuracy"][0] is None or stats["segment_accuracy"].get(pair, ABSENT)[0] is None:
                     continue
-                score = choice_score({CV_METRICS[m]: v[0] for m, v in figures.items()}, decode)
+                means = {CV_METRICS[m]: np.nan if v[0] is None else v[0] for m, v in figures.items()}
+                score = float(np.mean([means.get(k, np.nan) for k in CRITERION]))
                 candidates.append({"folder": pair[0], "variant": VARIANTS[suffix], "method": pair[1], "decode": decode,
                                    "score": score, "cv": figures,
                                    **{m: stats[m].get(pair, ABSENT) for m in SEQUENCE_METRICS}})

@@ -1,6 +1,7 @@
 """`mlnseq fit` on a user's folder of 6 ROS 2 bags with a /phase topic (the real DESK trials, tests/desk_bags.py):
-one command to a model file with no spec written by hand, as good on a held-out bag as the paper's hand-written
-predicates (within 10 points here, at 3 epochs; the full-size figure is in docs/first-day.md)."""
+one command to a model file with no spec written by hand (predicates and formulas learned from the training split),
+on a held-out bag no worse than the paper's hand-written predicates (at 3 epochs here; the full-size figures are
+benchmarks/bench_first_day.py's, in docs/first-day.md); the learned files read back as they are."""
 
 from __future__ import annotations
 
@@ -58,11 +59,14 @@ def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags,
     workdir, said = fitted
     assert "6 episodes" in said
     assert "folds: 4 folds by episode (4 training episodes" in said
-    assert "from the spec suggested from the training split" in said
-    chosen = re.search(r"chose (\S+): the best segment accuracy by 4-fold cross-validation", said)
+    assert re.search(r"binarize: learned \d+ predicates? and \d+ conjunctions? of \d+ candidates on 15 channels by 4 "
+                     r"folds by episode cross-validation", said) and "from the learned spec" in said
+    chosen = re.search(r"chose (\S+) of \d+ candidates within the budget: the best mean of cross-validated segment "
+                       r"accuracy, frame accuracy and edit by 4-fold cross-validation", said)
     assert chosen and re.search(rf"test split \(held out of everything above\): {re.escape(chosen[1])} frame", said)
-    spec = (workdir / "suggested.binarize.toml").read_text()
-    assert 'kind = "gripper"' in spec and 'of = ["left_gripper", "right_gripper"]' in spec
+    assert "runner-up:" in said and re.search(r"(chose|runner-up|network alone): +lstm ", said)
+    spec = (workdir / SUGGESTED).read_text()
+    assert "[[predicate]]" in spec and "% of training frames;" in spec
     for stage_file in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS,
                        artifacts.PREDICTIONS, artifacts.METRICS):
         assert (workdir / stage_file).exists()  # every stage's file: each can be rerun on its own
@@ -72,7 +76,7 @@ def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags,
     assert "from your spec" in said
     hand = held_out_frame_accuracy(bags, tmp_path / "hand" / "arm.mlnseq", tmp_path / "hand")
     assert ours > 0.4 and hand > 0.4  # seven classes: chance is about 0.14
-    assert abs(ours - hand) <= 0.10, (ours, hand)
+    assert ours >= hand - 0.05, (ours, hand)
 
 
 def test_the_model_says_how_it_reads_names_its_classes_and_writes_plain_intervals(bags, fitted, tmp_path):
@@ -124,16 +128,18 @@ def test_eval_all_fits_80_columns(fitted, monkeypatch):
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()[:-1]  # the summary line names a path
     assert all(len(line) <= 80 for line in lines) and "…" not in result.output
-    assert any(line.startswith("conflation+viterbi") for line in lines)
+    assert any(line.startswith("conflation+lagviterbi@0") for line in lines)  # fit decodes at lag 0 by default
 
 
-def test_binarize_table_fits_80_columns(fitted, monkeypatch):
+def test_binarize_table_fits_80_columns(fitted, monkeypatch, tmp_path):
     from mlnseq_cli.console import console
 
     workdir, _ = fitted
+    (tmp_path / artifacts.FRAMES).write_bytes((workdir / artifacts.FRAMES).read_bytes())
     monkeypatch.setattr(console, "width", 80)
-    result = runner.invoke(app, ["binarize", "-w", str(workdir), "--spec", str(workdir / "suggested.binarize.toml"),
-                                 "--table"])
+    spec = tmp_path / "hand.binarize.toml"
+    spec.write_text(desk_bags.HAND_SPEC)
+    result = runner.invoke(app, ["binarize", "-w", str(tmp_path), "--spec", str(spec), "--table"])
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
     table = lines[lines.index(next(line for line in lines if line.startswith("column"))):]
@@ -146,9 +152,12 @@ def test_learn_weights_names_the_users_file_line_and_episodes(fitted, tmp_path):
     workdir, _ = fitted
     for name in (artifacts.FRAMES, artifacts.PREDICATES):
         (tmp_path / name).write_bytes((workdir / name).read_bytes())
+    predicates = pl.read_parquet(tmp_path / artifacts.PREDICATES).filter(pl.col("split") == "train")
+    column = next(c for c in artifacts.feature_columns(predicates)  # a value true in S1 and another class
+                  if predicates.filter(pl.col(c))["label"].n_unique() > 1)
     spec = tmp_path / "mine.mln"
-    spec.write_text('Has(word, page)\nTopic(class, page)\n\n// open grippers only when approaching\n'
-                    'Has("grippers_open_open", p) => Topic("S1 approach peg", p).\n')
+    spec.write_text('Has(word, page)\nTopic(class, page)\n\n// only when approaching\n'
+                    f'Has("{column}", p) => Topic("S1 approach peg", p).\n')
     assert runner.invoke(app, ["formulas", "--spec", str(spec), "-w", str(tmp_path)]).exit_code == 0
     result = runner.invoke(app, ["learn-weights", "-w", str(tmp_path)])
     assert result.exit_code == 2 and result.stderr.startswith(f"error: {spec}:5: hard formula"), result.stderr
@@ -160,8 +169,9 @@ def test_learn_weights_says_which_folds_it_cut(fitted, tmp_path):
     for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.FORMULAS):
         (tmp_path / name).write_bytes((workdir / name).read_bytes())
     said = runner.invoke(app, ["learn-weights", "--folds", "5", "-w", str(tmp_path)])
-    assert said.exit_code == 0 and ("weights.folds.parquet (5 folds by block across episodes: the training split has 4 "
-                                    "and `--folds 4` cuts whole ones;") in " ".join(said.output.split()), said.output
+    assert said.exit_code == 0 and ("weights.folds.parquet (5 folds by block at task restarts and segment ends, across "
+                                    "episodes: the training split has 4 and `--folds 4` cuts whole ones;") in " ".join(
+        said.output.split()), said.output
     said = runner.invoke(app, ["learn-weights", "--folds", "4", "-w", str(tmp_path)])
     assert "weights.folds.parquet (4 folds by episode; each fold's" in " ".join(said.output.split())
 
@@ -175,6 +185,29 @@ def test_fit_keeps_a_suggested_spec_edited_by_hand(bags, fitted, tmp_path):
     folder, _ = bags
     result = runner.invoke(app, ["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase",
                                  "-w", str(tmp_path), "--epochs", "1"])
-    assert result.exit_code == 2 and f"{spec} was edited since it was suggested: binarize with it by --spec {spec}" \
+    assert result.exit_code == 2 and f"{spec} was edited since it was learned: binarize with it by --spec {spec}" \
         in result.stderr, result.output
     assert spec.read_text().endswith("# my edit\n")
+
+
+def test_the_learned_files_read_back_with_identical_predicates_and_weights(fitted, tmp_path):
+    workdir, _ = fitted
+    (tmp_path / artifacts.FRAMES).write_bytes((workdir / artifacts.FRAMES).read_bytes())
+    for command in (["binarize", "--spec", str(workdir / SUGGESTED)], ["formulas", "--spec", str(workdir / "learned.mln")],
+                    ["learn-weights"]):
+        result = runner.invoke(app, [*command, "-w", str(tmp_path)])
+        assert result.exit_code == 0, result.output
+    assert pl.read_parquet(tmp_path / artifacts.PREDICATES).equals(pl.read_parquet(workdir / artifacts.PREDICATES))
+    ours, again = (pl.read_parquet(w / artifacts.WEIGHTS).select("formula", "weight") for w in (workdir, tmp_path))
+    assert ours.height == again.height and ours.join(again, on="formula").filter(
+        pl.col("weight") != pl.col("weight_right")).height == 0
+    learned = (workdir / "learned.mln").read_text()
+    assert re.search(r'// Has\("[a-z0-9_]+",p\): \d+ training frames \(\d+%\), by class: S', learned)
+
+
+def test_binarize_table_after_a_bag_fit_shows_its_predicates_and_rewrites_nothing(fitted):
+    workdir, _ = fitted
+    before = (workdir / artifacts.PREDICATES).read_bytes()
+    result = runner.invoke(app, ["binarize", "--table", "-w", str(workdir)])
+    assert result.exit_code == 0 and f"{workdir / SUGGESTED}" in " ".join(result.output.split()), result.output
+    assert "marks each class" in result.output and (workdir / artifacts.PREDICATES).read_bytes() == before

@@ -232,6 +232,20 @@ def test_streaming_binarizer_matches_the_batch_one_on_real_frames(desk_frames, s
     np.testing.assert_array_equal(streamed(fetch, rich), batch)
 
 
+def test_a_change_over_a_window_is_the_same_frame_by_frame_and_over_episodes(desk_frames):
+    spec = stage.parse_spec('[[predicate]]\nname = "arm"\nkind = "change"\nchannel = "arm_distance"\n'
+                            'threshold = 0.01\nwindow = 6\n', stage.Path("inline.toml"))
+    desk = desk_frames.head(600).with_columns((pl.arange(0, 600) // 150).alias("episode").cast(pl.Int32))
+    batch = stage.binarize(desk, spec).select(pl.exclude(artifacts.KEY_COLUMNS)).to_numpy()
+    np.testing.assert_array_equal(streamed(desk, spec), batch)
+    x = desk["arm_distance"].to_numpy().astype(np.float64)
+    start = np.arange(600) // 150 * 150  # each frame's episode's first frame
+    delta = x - x[np.maximum(np.arange(600) - 6, start)]  # 6 frames back, or the episode's first frame
+    expected = np.select([delta > 0.01, delta < -0.01], [1, 2], 0)
+    np.testing.assert_array_equal(batch.argmax(axis=1), expected)
+    assert (expected != np.select([np.diff(x, prepend=x[0]) > 0.01, np.diff(x, prepend=x[0]) < -0.01], [1, 2], 0)).any()
+
+
 def test_streaming_binarizer_names_a_channel_the_model_lacks():
     spec = stage.load_spec(stage.default_spec_path("desk"))
     with pytest.raises(BadInput, match="channel 'right_gripper' is not in the model's features"):

@@ -304,9 +304,10 @@ def test_fold_weights_are_learned_without_their_fold(tmp_path: Path, shared_data
     (tmp_path / "formulas.mln").write_text(TEMPORAL)
     stage.run(tmp_path, stage.LearnWeightsOptions(folds=2))
     table, meta = artifacts.read_table(tmp_path / artifacts.FOLD_WEIGHTS, "fold_weights")
-    assert meta["folds"] == {"k": 2, "kind": "blocks", "spans": [[0, 703], [703, 1405]]}
+    # two blocks, cut where a trial restarts (at S1) nearest the middle
+    assert meta["folds"] == {"k": 2, "kind": "blocks", "spans": [[0, 659], [659, 1405]], "cut": "restarts"}
     first = table.filter(pl.col("fold") == 0).drop("fold")
-    held_out = frames.with_columns(pl.Series("split", np.where(np.arange(frames.height) < 703, "heldout",
+    held_out = frames.with_columns(pl.Series("split", np.where(np.arange(frames.height) < 659, "heldout",
                                                                frames["split"].to_numpy())))
     expected = stage.learn(held_out, 7, parse_mln(TEMPORAL)).weights
     np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy())

@@ -63,7 +63,7 @@ def test_fold_networks_fitted_side_by_side_end_where_each_fitted_alone_ends(desk
     extra = {"smoothing": smoothing} if cell == "tcn" else {}
     config = networks.make_config(cell, n_features=data.features.shape[1], n_classes=len(meta["classes"]),
                                   prior_layer=prior_layer, **extra)
-    folds = folding.assign(data.episodes, data.splits, 3)
+    folds = folding.assign(data.episodes, data.splits, data.labels, 3)
     alone, together = started(data, folds, config, options), started(data, folds, config, options)
     units = [len(f.tensors[3]) for f in alone]
     assert len(set(units)) > 1 and any(n % BATCH for n in units)  # some networks wait, some batches are short

@@ -18,33 +18,50 @@ from mlnseq.recognition.cross_validation import FIGURES, choice_score
 from mlnseq.catalog.errors import BadInput, StaleArtifact
 
 
-def desk_keys(workdir: Path) -> tuple[np.ndarray, np.ndarray]:
-    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "split"])
-    return frames["episode"].to_numpy(), frames["split"].to_numpy()
+def desk_keys(workdir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "split", "label"])
+    return frames["episode"].to_numpy(), frames["split"].to_numpy(), frames["label"].to_numpy()
 
 
-def test_desk_has_one_training_recording_so_its_folds_are_contiguous_blocks(desk_frames_workdir):
-    episodes, splits = desk_keys(desk_frames_workdir)
-    cut = folds.assign(episodes, splits, 5)
-    assert cut.kind == "blocks" and cut.k == 5
+def test_desk_has_one_training_recording_so_its_folds_are_blocks_cut_where_a_trial_restarts(desk_frames_workdir):
+    episodes, splits, labels = desk_keys(desk_frames_workdir)
+    cut = folds.assign(episodes, splits, labels, 5)
+    assert cut.kind == "blocks" and cut.k == 5 and cut.describe() == "5 folds by block at task restarts"
     assert (cut.fold[splits == "test"] == -1).all() and (cut.fold[splits == "train"] >= 0).all()
-    assert cut.record()["spans"] == [[0, 281], [281, 562], [562, 843], [843, 1124], [1124, 1405]]
-    assert folds.assign(episodes, splits, 5).record() == cut.record()  # deterministic
+    # the cuts of 5 equal blocks (281, 562, 843, 1124) moved to the nearest frames where the surgeme returns to S1
+    assert cut.record()["spans"] == [[0, 217], [217, 476], [476, 865], [865, 1131], [1131, 1405]]
+    assert cut.record()["cut"] == "restarts"
+    train = labels[splits == "train"]
+    assert all(train[a] == 0 != train[a - 1] for a, _ in cut.record()["spans"][1:])
+    assert folds.assign(episodes, splits, labels, 5).record() == cut.record()  # deterministic
+
+
+def test_blocks_never_cut_a_segment_where_the_task_restarts_too_rarely():
+    labels = np.repeat([0, 1, 2, 1, 2, 1, 2], [10, 30, 20, 25, 15, 30, 20])  # one start of class 0
+    cut = folds.assign(np.zeros(150, dtype=int), np.array(["train"] * 150), labels, 3)
+    starts = [a for a, _ in cut.record()["spans"][1:]]
+    assert cut.record()["cut"] == "segments" and all(labels[a] != labels[a - 1] for a in starts)
+    assert starts == [40, 100]  # the segment ends nearest 50 and 100
+    flat = folds.assign(np.zeros(60, dtype=int), np.array(["train"] * 60), np.zeros(60, dtype=int), 3)
+    assert flat.record()["cut"] == "frames" and flat.describe() == "3 folds by block inside segments"
 
 
 def test_folds_are_whole_episodes_when_there_are_enough():
     episodes = np.repeat([3, 1, 2, 7], 30)
     splits = np.array(["train"] * 90 + ["test"] * 30)
-    cut = folds.assign(episodes, splits, 3)
+    labels = np.tile(np.repeat([0, 1], 15), 4)
+    cut = folds.assign(episodes, splits, labels, 3)
     assert cut.kind == "episodes" and [s[:2] for s in cut.record()["spans"]] == [[0, 30], [30, 60], [60, 90]]
-    assert folds.assign(episodes, splits, 4).kind == "blocks"  # 3 training episodes: 4 folds are blocks
+    blocks = folds.assign(episodes, splits, labels, 4)  # 3 training episodes: 4 folds are blocks, cut at restarts
+    assert blocks.kind == "blocks" and [a for a, _ in blocks.record()["spans"][1:]] == [30, 45, 60]
+    assert blocks.describe() == "4 folds by block at task restarts and segment ends"
 
 
 @pytest.mark.parametrize("k", [1, 71])
 def test_a_k_the_split_cannot_make_names_the_largest(desk_frames_workdir, k):
-    episodes, splits = desk_keys(desk_frames_workdir)
+    episodes, splits, labels = desk_keys(desk_frames_workdir)
     with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 5 \\(5 folds by block"):
-        folds.assign(episodes, splits, k)
+        folds.assign(episodes, splits, labels, k)
 
 
 def test_out_of_fold_predictions_cover_every_training_frame_with_its_fold(desk_folds_workdir):
@@ -52,7 +69,7 @@ def test_out_of_fold_predictions_cover_every_training_frame_with_its_fold(desk_f
     checkpoint = checkpoints.load_checkpoint(desk_folds_workdir, "lstm")
     assert meta["folds"] == checkpoint.config["folds"] and meta["folds"]["k"] == 3
     assert checkpoint.config["n_val_units"] == 0  # the deployed network is refit on the whole training split
-    assert table.height == 1405 and table["fold"].to_list() == np.repeat([0, 1, 2], [469, 468, 468]).tolist()
+    assert table.height == 1405 and table["fold"].to_list() == np.repeat([0, 1, 2], [476, 521, 408]).tolist()
     log_probs = table.select(artifacts.log_prob_columns(7)).to_numpy()
     np.testing.assert_allclose(np.exp(log_probs).sum(1), 1.0, atol=1e-4)
     fold_weights, weights_meta = artifacts.read_table(desk_folds_workdir / artifacts.FOLD_WEIGHTS, "fold_weights")
@@ -129,8 +146,8 @@ def test_priorlayer_fold_networks_need_the_folds_mln_weights(desk_folds_workdir,
 
 
 def test_a_fold_lacking_a_class_is_a_warning_naming_fold_and_class():
-    cut = folds.assign(np.zeros(60, dtype=int), np.array(["train"] * 60), 3)
     labels = np.r_[np.zeros(20, int), np.ones(40, int)]  # class a only in fold 0
+    cut = folds.assign(np.zeros(60, dtype=int), np.array(["train"] * 60), labels, 3)
     assert folds.missing_classes(cut, labels, ["a", "b"]) == [
         "fold 0: its fit part lacks class a; its out-of-fold predictions are written all the same"]
 
