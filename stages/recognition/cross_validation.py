@@ -32,14 +32,6 @@ FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies 
 # beside them: log_likelihood (nats per frame, of the true labels) and forbidden_transitions (decoded methods)
 
 
-def choice_score(figures: dict[str, float], decode: str) -> float:
-    """What a choice among decoded methods maximises: online (filter), the segment accuracy; offline (viterbi),
-    the mean of segment accuracy and edit score (an offline user also wants the segments' order right)."""
-    if decode == "viterbi":
-        return (figures["segment_accuracy"] + figures["edit"]) / 2
-    return figures["segment_accuracy"]
-
-
 def chains(mask: np.ndarray, episodes: np.ndarray, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rows, starts) of the chains over the rows ``mask`` selects: cut at episodes, folds and gaps."""
     rows = np.flatnonzero(mask)

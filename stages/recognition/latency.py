@@ -33,6 +33,12 @@ def rate_of(frames_meta: dict[str, Any]) -> float | None:
     return None
 
 
+def criterion(figures: dict[str, float]) -> float:
+    """The mean of the cross-validated segment accuracy, frame accuracy and edit score (-inf where one is missing)."""
+    accuracy = sum(figures.get(k, math.nan) for k in CRITERION) / len(CRITERION)
+    return accuracy if accuracy == accuracy else -math.inf
+
+
 @dataclass(frozen=True)
 class Candidate:
     name: str  # as predictions name it: conflation+smooth-legal@5
@@ -42,8 +48,7 @@ class Candidate:
 
     @property
     def score(self) -> tuple[float, float]:
-        accuracy = sum(self.figures.get(k, math.nan) for k in CRITERION) / len(CRITERION)
-        return (accuracy if accuracy == accuracy else -math.inf, self.figures.get("log_likelihood", -math.inf))
+        return (criterion(self.figures), self.figures.get("log_likelihood", -math.inf))
 
     def record(self) -> dict[str, Any]:
         return {"name": self.name, "method": self.method, "decoder": self.decoding.decoder.value,

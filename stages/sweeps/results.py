@@ -19,7 +19,7 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import decoded_name
-from mlnseq.recognition.cross_validation import choice_score
+from mlnseq.recognition import latency
 from mlnseq.sweeps.grid import Config, Sweep, flags
 from mlnseq.sweeps.running import JobError
 from mlnseq.sweeps.workflow import FORMULAS_DIR, run_dir, spec_names
@@ -48,7 +48,7 @@ def deployed_method(config: Config, figures: dict[str, dict[str, float]], where:
         if not candidates:
             raise BadInput(f"{where} holds no cross-validated {options.decode} figures: were its networks trained "
                            "with folds (the dataset's `mlnseq learn-weights --folds K`)?")
-        return max(candidates, key=lambda name: choice_score(candidates[name], options.decode))
+        return latency.best(latency.candidates(candidates)).name  # as export --method auto --decode chooses
     name = decoded_name(options.method, options.decode)
     if name not in figures:
         raise BadInput(f"{where} holds no cross-validated figures for {name} (it has {', '.join(sorted(figures))})")
@@ -173,8 +173,7 @@ def failed_row(sweep: Sweep, config: Config, failed: Failure) -> dict[str, Any]:
 
 def config_row(sweep: Sweep, config: Config, out: Path) -> dict[str, Any]:
     results = [seed_result(config, seed, run_dir(out, config.name, seed)) for seed in sweep.seeds]
-    decode = config.options["export"].decode
-    best = max(results, key=lambda r: choice_score(r.cv, decode))
+    best = max(results, key=lambda r: latency.criterion(r.cv))
     row: dict[str, Any] = {"config": config.name, **{key: config.values[key] for key in sweep.keys},
                            "status": DONE, "failure": None, "method": ", ".join(sorted({r.method for r in results})),
                            "seeds": len(results)}
@@ -182,7 +181,7 @@ def config_row(sweep: Sweep, config: Config, out: Path) -> dict[str, Any]:
         values = [r.cv[figure] for r in results]
         row[f"cv_{figure}"] = statistics.fmean(values)
         row[f"cv_{figure}_std"] = spread(values)
-    row["cv_score"] = choice_score({f: row[f"cv_{f}"] for f in FIGURES}, decode)
+    row["cv_score"] = latency.criterion({f: row[f"cv_{f}"] for f in FIGURES})
     for figure in FIGURES:
         row[f"test_{figure}"] = statistics.fmean(r.test[figure] for r in results)
     row["best_seed"] = best.seed

@@ -14,7 +14,8 @@ from mlnseq.catalog import artifacts
 from mlnseq.model import checkpoints
 from mlnseq import conflate, export, learn_weights, train
 from mlnseq.recognition import folds
-from mlnseq.recognition.cross_validation import FIGURES, choice_score
+from mlnseq.recognition.cross_validation import FIGURES
+from mlnseq.recognition.latency import criterion
 from mlnseq.catalog.errors import BadInput, StaleArtifact
 
 
@@ -112,7 +113,7 @@ def test_export_auto_picks_the_best_cross_validated_method(desk_folds_workdir, t
                                                                     output=tmp_path / "auto.mlnseq"))
     chosen = exported.manifest.chosen_by_cross_validation
     figures = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]["figures"]
-    best = max((n for n in figures if n.endswith("+viterbi")), key=lambda n: choice_score(figures[n], "viterbi"))
+    best = max((n for n in figures if n.endswith("+viterbi")), key=lambda n: criterion(figures[n]))
     assert chosen.name == best and exported.manifest.method == best.partition("+")[0]
     assert exported.manifest.decode == "viterbi"
 
