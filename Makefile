@@ -24,8 +24,10 @@ $(SETUP_DONE): pyproject.toml scripts/setup.sh scripts/link_ros1.py
 $(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
 	bash scripts/install_pracmln.sh $(VENV) && touch $@
 
-test: setup ## Run the test suite (the SLURM cluster's test included: root, about a minute)
-	$(VENV)/bin/pytest -q
+# The suite's files go to TEST_WORKERS processes (pytest-xdist), a file's tests to one of them (its fixtures shared).
+TEST_WORKERS ?= 2
+test: setup ## Run the test suite in TEST_WORKERS processes (the SLURM cluster's test included: root, about a minute)
+	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
 	$(VENV)/bin/pytest -q -m slurm tests/sweeps
@@ -35,7 +37,7 @@ dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package ind
 	@ls dist/mlnseq-*.whl
 
 docs-figures: setup ## Rerun the docs' commands and write what they print into the pages' quoted outputs and figures
-	MLNSEQ_DOCS_FIGURES=write $(VENV)/bin/pytest -q -p no:cacheprovider tests/docs
+	MLNSEQ_DOCS_FIGURES=write $(VENV)/bin/pytest -q -p no:cacheprovider tests/docs/test_docs_run.py tests/docs/test_docs_recordings.py
 	@git status --short README.md docs
 
 bench: setup ## Run the benchmarks (figures and ratios measured side by side)
