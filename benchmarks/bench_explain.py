@@ -29,9 +29,8 @@ from pathlib import Path
 
 import polars as pl
 
-REPO = Path(__file__).resolve().parents[1]
-DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
-TEMPORAL = REPO / "examples" / "temporal.mln"
+from benchmarks.bench_recognize import combined_model
+
 FEATURES = ("arm_distance", "left_gripper", "right_gripper")
 TARGET_US = 50.0
 ROUNDS = 5
@@ -39,17 +38,7 @@ ROUNDS = 5
 
 def build_model(folder: Path) -> tuple[Path, pl.DataFrame]:
     """The exported combined+filter model and the DESK test recording's frames."""
-    from mlnseq import binarize, collect, export, formulas, learn_weights, train
-
-    workdir = folder / "work"
-    collect.run(workdir, collect.CollectOptions(env="desk", source=DESK_SOURCE))
-    binarize.run(workdir, binarize.BinarizeOptions())
-    formulas.run(workdir, formulas.FormulasOptions(spec=TEMPORAL))
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
-    for method in ("lstm", "priorlayer"):
-        train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
-    model = export.run(workdir, export.ExportOptions(method="combined", decode="filter",
-                                                     output=folder / "combined.mlnseq")).path
+    workdir, model = combined_model(folder)
     return model, pl.read_parquet(workdir / "frames.parquet").filter(pl.col("split") == "test")
 
 

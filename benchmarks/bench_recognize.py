@@ -40,9 +40,9 @@ TARGET_P99_MS, TARGET_FPS, TARGET_GROWTH_MB = 1.0, 5000.0, 10.0
 LAG = 25  # frames: DESK's live budget (issue 24)
 
 
-def build_model(folder: Path) -> tuple[dict[str, Path], pl.DataFrame]:
-    """The exported combined+filter and combined+smooth-legal@LAG models and the DESK test recording's frames."""
-    from mlnseq import binarize, collect, conflate, export, formulas, learn_weights, train
+def combined_model(folder: Path) -> tuple[Path, Path]:
+    """A DESK workdir (stream-mode networks, 3 epochs) and its exported combined+filter model."""
+    from mlnseq import binarize, collect, export, formulas, learn_weights, train
 
     workdir = folder / "work"
     collect.run(workdir, collect.CollectOptions(env="desk", source=DESK_SOURCE))
@@ -53,6 +53,14 @@ def build_model(folder: Path) -> tuple[dict[str, Path], pl.DataFrame]:
         train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
     model = export.run(workdir, export.ExportOptions(method="combined", decode="filter",
                                                      output=folder / "combined.mlnseq")).path
+    return workdir, model
+
+
+def build_model(folder: Path) -> tuple[dict[str, Path], pl.DataFrame]:
+    """The exported combined+filter and combined+smooth-legal@LAG models and the DESK test recording's frames."""
+    from mlnseq import conflate, export
+
+    workdir, model = combined_model(folder)
     conflate.run(workdir, conflate.ConflateOptions(decode=("smooth-legal",), lags=(LAG,)))
     lagged = export.run(workdir, export.ExportOptions(method="combined", decode="smooth-legal", lag=LAG,
                                                       output=folder / "combined-lag.mlnseq")).path

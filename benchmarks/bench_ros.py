@@ -174,8 +174,6 @@ def real_master(model_path: Path, rows: np.ndarray, folder: Path, hz: float = 10
     import signal
     import socket
 
-    import ros_episode
-
     what = "real master" if hz == 100 else "flood, real master"
     if shutil.which("rosmaster") is None:
         print(f"{what}: skipped, rosmaster is not installed (`make setup` as root on Debian installs it)")

@@ -11,6 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedCo
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from mlnseq import collect as stage
 from mlnseq.sources import labels_option
+from mlnseq.sources.holds import MAX_HOLD_S
 
 
 def collect(
@@ -33,7 +34,7 @@ def collect(
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics to read, comma-separated \\[default: every topic with numeric fields].")] = None,
     rate: Annotated[Optional[float], typer.Option(help="rosbag: the frames' clock in Hz \\[default: the first topic's rate].")] = None,
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of phase names, each holding until the next.")] = None,
-    max_hold: Annotated[float, typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the value is missing and the frame dropped. Each topic or joint that stops early, starts late or goes silent is a note.")] = stage.MAX_HOLD_S,
+    max_hold: Annotated[float, typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the value is missing and the frame dropped. Each topic or joint that stops early, starts late or goes silent is a note.")] = MAX_HOLD_S,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """Collect frames into WORKDIR/frames.parquet (episode, frame, label, split, then one column per feature)."""
@@ -58,7 +59,7 @@ def collect(
 def collect_options(*, label_column: str, episode_column: Optional[str], time_column: Optional[str],
                     classes: Optional[str], features: Optional[str], labels: Optional[Path], labels_unit: Optional[str],
                     unlabelled: Optional[str], topics: Optional[str], rate: Optional[float], label_topic: Optional[str],
-                    max_hold: float = stage.MAX_HOLD_S, **rest) -> stage.CollectOptions:
+                    max_hold: float = MAX_HOLD_S, **rest) -> stage.CollectOptions:
     """The stage's options from the command's flags (also `mlnseq fit`'s source flags)."""
     return stage.CollectOptions(
         **rest,

@@ -174,7 +174,7 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
     """export --method auto within the budget (conflation without folds), its choice, the runner-up and the network
     alone said with their cross-validated figures, then the test split's figures of the choice and the network."""
     from mlnseq import export
-    from mlnseq.recognition.latency import Candidate, candidates, within
+    from mlnseq.recognition.latency import candidates, within
 
     output = own["output"] or workdir / "model.mlnseq"
     options = (export.ExportOptions(method="auto", lag=frames_budget, output=output, force=True) if k else

@@ -12,7 +12,6 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import polars as pl
 
@@ -21,7 +20,6 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
-from mlnseq.sources.holds import MAX_HOLD_S
 from mlnseq.sources.recording import Collected, TableColumns, split_by_position
 from mlnseq.sources.table import collect_frames, reading_record
 

@@ -25,7 +25,6 @@ from mlnseq.recognition import decoding as decoders
 from mlnseq.recognition.recognizer import chain_of, fuse
 
 if TYPE_CHECKING:
-    from mlnseq.mln.factors import MLNFactors
     from mlnseq.recognition.workdir_inputs import MLNInputs, WorkdirInputs
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %

@@ -10,7 +10,6 @@ from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
 from mlnseq.catalog import artifacts
-from mlnseq import collect
 from mlnseq.sources import desk
 
 runner = CliRunner()

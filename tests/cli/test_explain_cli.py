@@ -79,7 +79,7 @@ def test_the_table_prints_each_formula_as_written_within_80_columns(model, desk_
     for term in found["terms"]:
         if term["kind"] == "formula" and abs(term["contribution"]) > 0.01 * abs(found["margin"]):
             assert " ".join(term["text"].split()) in flat
-    assert f"the margin" in flat and f"{found['margin']:+.3f}" in flat
+    assert "the margin" in flat and f"{found['margin']:+.3f}" in flat
 
 
 def test_what_if_scores_the_frame_again_and_segments_say_what_held_and_ended_them(model, desk_test_recording):

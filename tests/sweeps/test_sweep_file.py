@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 
-from mlnseq.catalog.errors import BadInput
 from mlnseq.sweeps import grid
 from typer.testing import CliRunner
 

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mlnseq.catalog.decoders import Decoder, parse_decoding
-from mlnseq.catalog.methods import FUSED, Method, MLNMode, PaperFloor
+from mlnseq.catalog.methods import Method, MLNMode, PaperFloor
 from mlnseq.mln import chain, classifier
 from mlnseq.mln.factors import MLNFactors, parse_weights
 from mlnseq.recognition.explained import explain
