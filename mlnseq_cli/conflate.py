@@ -54,7 +54,7 @@ def summary(result: stage.ConflateResult, workdir) -> None:
     from mlnseq_cli.console import verbose
     from mlnseq.catalog import artifacts
     from mlnseq.recognition.folds import describe
-    from mlnseq.recognition.latency import candidates
+    from mlnseq.recognition.latency import candidates, ranked
 
     for note in result.notes:
         console.print(f"[yellow]note[/]: {escape(note.text)}")
@@ -67,13 +67,13 @@ def summary(result: stage.ConflateResult, workdir) -> None:
                   + (f"; cross-validated over {describe(cross['folds'])}" if cross else ""), highlight=False)
     if not cross:
         return
-    ranked = sorted(candidates(cross["figures"]), key=lambda c: c.score, reverse=True)
-    for candidate in ranked if verbose() else ranked[:SHOWN]:
+    order = ranked(candidates(cross["figures"], cross.get("fold_frame_accuracy")))
+    for candidate in order if verbose() else order[:SHOWN]:
         f = candidate.figures
         console.print(f"  {candidate.name:<26} cross-validated {f['segment_accuracy']:5.1f} / {f['frame_accuracy']:5.1f} "
                       f"/ {f['edit']:5.1f} (segment / frame / edit), mean {candidate.score[0]:5.1f}", highlight=False)
-    if not verbose() and len(ranked) > SHOWN:
-        console.print(f"  ... and {len(ranked) - SHOWN} more (--verbose, or the figures in {result.path.name}'s "
+    if not verbose() and len(order) > SHOWN:
+        console.print(f"  ... and {len(order) - SHOWN} more (--verbose, or the figures in {result.path.name}'s "
                       "metadata: cross_validation)", highlight=False)
 
 

@@ -174,7 +174,8 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
     """export --method auto within the budget (conflation without folds), its choice, the runner-up and the network
     alone said with their cross-validated figures, then the test split's figures of the choice and the network."""
     from mlnseq import export
-    from mlnseq.recognition.latency import candidates, within
+    from mlnseq.catalog import artifacts
+    from mlnseq.recognition.latency import candidates, ranked, within
 
     output = own["output"] or workdir / "model.mlnseq"
     options = (export.ExportOptions(method="auto", lag=frames_budget, output=output, force=True) if k else
@@ -187,10 +188,11 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
                       "on", highlight=False)
         test_figures(workdir, ["conflation+filter", "lstm"])
         return exported
-    ranked = sorted((c for c in candidates(chosen.candidates) if within(c, frames_budget, None, False)),
-                    key=lambda c: c.score, reverse=True)
-    best = next(c for c in ranked if c.name == chosen.name)
-    others = [c for c in ranked if c is not best]
+    cross = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")["cross_validation"]
+    order = ranked([c for c in candidates(cross["figures"], cross.get("fold_frame_accuracy"))
+                    if c.name in chosen.candidates and within(c, frames_budget, None, False)])
+    best = next(c for c in order if c.name == chosen.name)
+    others = [c for c in order if c is not best]
     shown = [(best, "chose")] + [(c, "runner-up") for c in others[:1]]
     shown += [(c, "network alone") for c in others[1:] if c.name == "lstm"]
     for candidate, role in shown:
@@ -198,10 +200,10 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
         console.print(f"  {role + ':':<15}{candidate.name:<24} cross-validated {figures['segment_accuracy']:5.1f} / "
                       f"{figures['frame_accuracy']:5.1f} / {figures['edit']:5.1f} (segment / frame / edit), mean "
                       f"{candidate.score[0]:5.1f}", highlight=False)
-    console.print(f"chose {chosen.name} of {len(ranked)} candidates within the budget: the best mean of cross-validated "
-                  f"segment accuracy, frame accuracy and edit by {chosen.folds}-fold cross-validation on the training "
-                  "split, among those with the network alone's frame accuracy or more (the test split unread; "
-                  "docs/choosing.md)", highlight=False)
+    console.print(f"chose {chosen.name} of {len(order)} candidates within the budget by {chosen.folds}-fold "
+                  "cross-validation on the training split: among those with the network alone's frame accuracy or "
+                  "more and within one standard error of the best frame accuracy, the best mean of segment "
+                  "accuracy, frame accuracy and edit (the test split unread; docs/choosing.md)", highlight=False)
     test_figures(workdir, [chosen.name, "lstm"])
     return exported
 

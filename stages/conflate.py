@@ -243,6 +243,8 @@ def run(workdir: Path, options: ConflateOptions) -> ConflateResult:
     if cv is not None:
         meta["cross_validation"] = {"folds": inputs.folds.folds.record(),
                                     "figures": {m: cv.figures[m] for m in methods if m in cv.figures},
-                                    "fold_network_weights": cv.fold_weights}
+                                    "fold_network_weights": cv.fold_weights,
+                                    "fold_frame_accuracy": {m: cv.fold_frames[m] for m in methods
+                                                            if m in cv.fold_frames}}
     path = artifacts.write_table(table, workdir / artifacts.PREDICTIONS, "predictions", meta, inputs=inputs.inputs)
     return ConflateResult(path, methods, predicted.notes, predicted.choices)

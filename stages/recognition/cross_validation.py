@@ -60,6 +60,7 @@ def figures_of(predicted: np.ndarray, labels: np.ndarray, starts: np.ndarray, n_
 class CrossValidated:
     figures: dict[str, dict[str, float]] = field(default_factory=dict)  # method name -> FIGURES
     fold_weights: dict[str, list[float]] = field(default_factory=dict)  # decoded network method -> per fold
+    fold_frames: dict[str, list[float]] = field(default_factory=dict)  # method name -> frame accuracy (%) per fold
 
 
 def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str], methods: Sequence[str],
@@ -115,6 +116,8 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         if key not in scored:
             scored[key] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental=key[1])
         result.figures[name] = {**scored[key], "log_likelihood": float(likelihood[name][rows].mean())}
+        result.fold_frames[name] = [100 * float((values[held] == data.labels[held]).mean())
+                                    for held in (folds.fold == k for k in range(folds.k))]
         if name in forbidden:
             result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result

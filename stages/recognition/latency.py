@@ -3,12 +3,16 @@
 
 Candidates: every method conflate cross-validated, undecoded (lag 0) and with every decoder at every lag it was
 scored at, within the budget (offline decoders only without one). Where the chain has hard rules (a transition
-factor of -inf), only decoders that keep them are candidates (the -legal forms and viterbi). Criterion: the mean
-of the cross-validated segment accuracy, frame accuracy and edit score, ties broken by the out-of-fold
-log-likelihood of the true labels, among the candidates whose cross-validated frame accuracy is at least the
-network alone's where it is a candidate (``best``). Segment accuracy alone moves in steps of 2-8 points on the few dozen
-segments of a training split; frame accuracy moves by a frame at a time, and the mean of the three follows
-what a live user reads (the segments, the frames and their order).
+factor of -inf), only decoders that keep them are candidates (the -legal forms and viterbi). The choice (``best``):
+the frames first, then their order. Among the candidates whose cross-validated frame accuracy is at least the
+network alone's (where it is a candidate), those whose frame accuracy is within one standard error of the best
+one's (the error of their per-fold differences from it: a one-standard-error rule) are near the best; among them
+the best mean of the cross-validated segment accuracy, frame accuracy and edit score, ties broken by the
+out-of-fold log-likelihood of the true labels. Segment accuracy alone moves in steps of 2-8 points on the few
+dozen segments of a training split, and the edit score punishes a few flickering frames that cost little
+frame accuracy; the mean of the three follows what a live user reads once the frames are as good as they get.
+Without per-fold figures (a workdir conflated before they were recorded, the report's means over seeds) every
+candidate at or above the network alone's frame accuracy is near the best.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ class Candidate:
     method: str
     decoding: Decoding
     figures: dict[str, float]
+    fold_frames: tuple[float, ...] = ()  # cross-validated frame accuracy (%) per fold, where conflate recorded it
 
     @property
     def score(self) -> tuple[float, float]:
@@ -56,13 +61,15 @@ class Candidate:
                 "cv": self.figures}
 
 
-def candidates(figures: dict[str, dict[str, float]]) -> list[Candidate]:
-    """Every cross-validated method of a predictions table's metadata, with its decoding."""
+def candidates(figures: dict[str, dict[str, float]], fold_frames: dict[str, list[float]] | None = None
+               ) -> list[Candidate]:
+    """Every cross-validated method of a predictions table's metadata, with its decoding and, where given, its
+    frame accuracy per fold."""
     out = []
     for name, values in figures.items():
         method, plus, decode = name.partition("+")
         decoding = parse_decoding(decode, "decoding") if plus else Decoding(Decoder.NONE)
-        out.append(Candidate(name, method, decoding, values))
+        out.append(Candidate(name, method, decoding, values, tuple((fold_frames or {}).get(name, ()))))
     return out
 
 
@@ -100,9 +107,10 @@ def within(candidate: Candidate, budget: int | None, decoder: Decoder | None, ha
 
 
 def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: Decoder | None = None,
-           hard_rules: bool = False, where: str = "the workdir") -> tuple[Candidate, list[Candidate]]:
-    """The best candidate by the criterion, and all those that fitted; none fits: a BadInput saying why."""
-    fitting = [c for c in candidates(figures) if within(c, budget, decoder, hard_rules)]
+           hard_rules: bool = False, where: str = "the workdir", fold_frames: dict[str, list[float]] | None = None
+           ) -> tuple[Candidate, list[Candidate]]:
+    """The best candidate (``best``), and all those that fitted; none fits: a BadInput saying why."""
+    fitting = [c for c in candidates(figures, fold_frames) if within(c, budget, decoder, hard_rules)]
     if not fitting:
         what = f"{decoder.value} " if decoder is not None else ""
         limit = "" if budget is None else f" within {budget} frame(s)"
@@ -113,13 +121,43 @@ def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: De
 
 
 def best(fitting: list[Candidate]) -> Candidate:
-    """The candidate of best criterion among those whose cross-validated frame accuracy is at least the network
-    alone's (the undecoded network among ``fitting``; where it is not among them, all): a method chosen for its
-    segments or order never loses frames to the network alone, whose fold networks are weaker than the one refit."""
+    """The frames first, then their order: among the candidates at or above the network alone's cross-validated
+    frame accuracy (the undecoded network among ``fitting``; where it is not among them, all), those near the best
+    frame accuracy (``near_best``), and among these the best criterion. The floor: a method chosen for its segments
+    or order never loses frames to the network alone, whose fold networks are weaker than the one refit."""
     networks = [c for c in fitting if c.method == "lstm" and c.decoding.decoder is Decoder.NONE]
     floor = max((frames(c) for c in networks), default=-math.inf)
-    kept = [c for c in fitting if frames(c) >= floor]
-    return max(kept or fitting, key=lambda c: c.score)
+    kept = [c for c in fitting if frames(c) >= floor] or fitting
+    return max(near_best(kept), key=lambda c: c.score)
+
+
+def ranked(fitting: list[Candidate]) -> list[Candidate]:
+    """The candidates in the order ``best`` takes them: the choice, then the choice among the rest, and so on."""
+    left, order = list(fitting), []
+    while left:
+        order.append(best(left))
+        left.remove(order[-1])
+    return order
+
+
+def near_best(kept: list[Candidate]) -> list[Candidate]:
+    """The candidates whose cross-validated frame accuracy is within one standard error of the best one's: the
+    standard error of their per-fold differences from it (a one-standard-error rule: a difference the folds do not
+    show apart from their spread decides nothing). Without per-fold figures, all of ``kept``."""
+    top = max(kept, key=frames)
+    if len(top.fold_frames) < 2:
+        return kept
+    return [c for c in kept if frames(c) >= frames(top) - standard_error(c.fold_frames, top.fold_frames)]
+
+
+def standard_error(ours: tuple[float, ...], theirs: tuple[float, ...]) -> float:
+    """The standard error of the mean per-fold difference (0 where the folds differ in number or are too few)."""
+    if len(ours) != len(theirs) or len(ours) < 2:
+        return 0.0
+    difference = [a - b for a, b in zip(ours, theirs)]
+    mean = sum(difference) / len(difference)
+    variance = sum((d - mean) ** 2 for d in difference) / (len(difference) - 1)
+    return math.sqrt(variance / len(difference))
 
 
 def frames(candidate: Candidate) -> float:
@@ -179,15 +217,16 @@ def _auto(workdir: Any, decoder: Decoder, budget: int | None) -> tuple[Any, str,
     from mlnseq.model.manifest import Chosen
 
     meta = _scored(workdir, f"--method {AUTO}")
-    figures = (meta.get("cross_validation") or {}).get("figures") or {}
+    cross_validation = meta.get("cross_validation") or {}
+    figures = cross_validation.get("figures") or {}
     if not figures:
         raise BadInput(f"--method {AUTO}: {workdir} holds no cross-validated figures; train its networks with "
                        f"folds (`mlnseq train --folds K`, and `mlnseq learn-weights --folds K`), then run "
                        f"`mlnseq conflate --decode all`")
     best, fitting = choose(figures, budget, None if decoder is Decoder.NONE else decoder,
-                           bool(meta.get("hard_rules")), str(workdir))
+                           bool(meta.get("hard_rules")), str(workdir), cross_validation.get("fold_frame_accuracy"))
     chosen = Chosen(Method(best.method), best.name, best.figures, best.score[0],
-                    {c.name: c.figures for c in fitting}, meta["cross_validation"]["folds"]["k"], budget)
+                    {c.name: c.figures for c in fitting}, cross_validation["folds"]["k"], budget)
     return chosen, best.method, best.decoding
 
 

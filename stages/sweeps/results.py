@@ -40,15 +40,17 @@ class SeedResult:
     test: dict[str, float]
 
 
-def deployed_method(config: Config, figures: dict[str, dict[str, float]], where: Path) -> str:
-    """The method the config's export options deploy: named, or (``auto``) the best cross-validated one."""
+def deployed_method(config: Config, figures: dict[str, dict[str, float]], where: Path,
+                    fold_frames: dict[str, list[float]] | None = None) -> str:
+    """The method the config's export options deploy: named, or (``auto``) the best cross-validated one (its frame
+    accuracy per fold, where recorded, as export --method auto reads it)."""
     options = config.options["export"]
     if options.method == "auto":
         candidates = {n: f for n, f in figures.items() if n.endswith(f"+{options.decode}")}
         if not candidates:
             raise BadInput(f"{where} holds no cross-validated {options.decode} figures: were its networks trained "
                            "with folds (the dataset's `mlnseq learn-weights --folds K`)?")
-        return latency.best(latency.candidates(candidates)).name  # as export --method auto --decode chooses
+        return latency.best(latency.candidates(candidates, fold_frames)).name  # as export --method auto --decode chooses
     name = decoded_name(options.method, options.decode)
     if name not in figures:
         raise BadInput(f"{where} holds no cross-validated figures for {name} (it has {', '.join(sorted(figures))})")
@@ -57,8 +59,10 @@ def deployed_method(config: Config, figures: dict[str, dict[str, float]], where:
 
 def seed_result(config: Config, seed: int, workdir: Path) -> SeedResult:
     meta = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")
-    figures = (meta.get("cross_validation") or {}).get("figures") or {}
-    method = deployed_method(config, figures, workdir / artifacts.PREDICTIONS)
+    cross_validation = meta.get("cross_validation") or {}
+    figures = cross_validation.get("figures") or {}
+    method = deployed_method(config, figures, workdir / artifacts.PREDICTIONS,
+                             cross_validation.get("fold_frame_accuracy"))
     metrics, _ = artifacts.read_table(workdir / artifacts.METRICS, "metrics")
     test = {}
     for figure, (metric, scale) in TEST_METRICS.items():

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 pytest.importorskip("rosbags", reason="the [recordings] extra is not installed")
 
 import desk_bags  # noqa: E402  (tests/desk_bags.py)
+from choice_rule import expected_choice  # noqa: E402  (tests/choice_rule.py)
 from mlnseq_cli.main import app  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
 from mlnseq_cli.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402
@@ -61,9 +62,14 @@ def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags,
     assert "folds: 4 folds by episode (4 training episodes" in said
     assert re.search(r"binarize: learned \d+ predicates? and \d+ conjunctions? of \d+ candidates on 15 channels by 4 "
                      r"folds by episode cross-validation", said) and "from the learned spec" in said
-    chosen = re.search(r"chose (\S+) of \d+ candidates within the budget: the best mean of cross-validated segment "
-                       r"accuracy, frame accuracy and edit by 4-fold cross-validation", said)
+    chosen = re.search(r"chose (\S+) of \d+ candidates within the budget by 4-fold cross-validation on the training "
+                       r"split: among those with the network alone's frame accuracy or more and within one standard "
+                       r"error of the best frame accuracy, the best mean of segment accuracy, frame accuracy and edit",
+                       said)
     assert chosen and re.search(rf"test split \(held out of everything above\): {re.escape(chosen[1])} frame", said)
+    cross = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")["cross_validation"]
+    online = {n: f for n, f in cross["figures"].items() if "@" not in n or n.endswith("@0")}  # lag 0: fit's budget
+    assert chosen[1] == expected_choice(online, cross["fold_frame_accuracy"])
     assert "runner-up:" in said and re.search(r"(chose|runner-up|network alone): +lstm ", said)
     spec = (workdir / SUGGESTED).read_text()
     assert "[[predicate]]" in spec and "% of training frames;" in spec

@@ -15,8 +15,9 @@ from mlnseq.model import checkpoints
 from mlnseq import conflate, export, learn_weights, train
 from mlnseq.recognition import folds
 from mlnseq.recognition.cross_validation import FIGURES
-from mlnseq.recognition.latency import criterion
 from mlnseq.catalog.errors import BadInput, StaleArtifact
+
+from choice_rule import expected_choice  # tests/choice_rule.py
 
 
 def desk_keys(workdir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,8 +113,9 @@ def test_export_auto_picks_the_best_cross_validated_method(desk_folds_workdir, t
     exported = export.run(desk_folds_workdir, export.ExportOptions(method="auto", decode="viterbi",
                                                                     output=tmp_path / "auto.mlnseq"))
     chosen = exported.manifest.chosen_by_cross_validation
-    figures = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]["figures"]
-    best = max((n for n in figures if n.endswith("+viterbi")), key=lambda n: criterion(figures[n]))
+    cross = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]
+    best = expected_choice({n: f for n, f in cross["figures"].items() if n.endswith("+viterbi")},
+                           cross["fold_frame_accuracy"])
     assert chosen.name == best and exported.manifest.method == best.partition("+")[0]
     assert exported.manifest.decode == "viterbi"
 
