@@ -11,8 +11,8 @@ the best mean of the cross-validated segment accuracy, frame accuracy and edit s
 out-of-fold log-likelihood of the true labels. Segment accuracy alone moves in steps of 2-8 points on the few
 dozen segments of a training split, and the edit score punishes a few flickering frames that cost little
 frame accuracy; the mean of the three follows what a live user reads once the frames are as good as they get.
-Without per-fold figures (a workdir conflated before they were recorded, the report's means over seeds) every
-candidate at or above the network alone's frame accuracy is near the best.
+Without per-fold figures (a workdir conflated before they were recorded) every candidate at or above the network
+alone's frame accuracy is near the best.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 lag conflate scored, its best method by cross-validation, with its test figures), and the choices within a
 latency budget that reports/summary.json records: ``live`` (DESK: 25 frames, Fetch: 1 s), ``online`` (lag 0)
 and ``offline`` (no budget). Choices read the cross-validated figures only (stages/recognition/latency.py's
-criterion); the test figures stand beside them."""
+choice, on means over seeds); the test figures stand beside them."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ from mlnseq.reporting.tables import ABSENT, CV_METRICS, DEPLOY_VARIANTS, by_pair
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
 FOLDERS = (*DEPLOY_VARIANTS, TCN)
 SHOWN = ("segment_accuracy", "frame_accuracy", "edit")
+CHOSEN_BY = "CV frame accuracy (within one standard error of the best), then the mean of CV segment, frame, edit"
 
 
 @dataclass(frozen=True)
@@ -45,16 +46,23 @@ class Scored:
                 "test": {**self.test, "forbidden_transitions": self.forbidden}}
 
 
-def _forbidden_and_rules(run: Run, folder: str) -> tuple[dict[str, float], bool]:
-    """Per method, the forbidden transitions on test (mean over seeds), and whether the chain has hard rules."""
+def _seed_figures(run: Run, folder: str) -> tuple[dict[str, float], bool, dict[str, list[float]]]:
+    """Per method, the forbidden transitions on test (mean over seeds), whether the chain has hard rules, and the
+    cross-validated frame accuracy per fold (mean over seeds, fold by fold: every seed and folder of a dataset cuts
+    the same folds)."""
     counts: dict[str, list[int]] = {}
+    folds: dict[str, list[list[float]]] = {}
     rules = False
     for path in sorted((run.runs / folder / "stream").glob(f"seed-*/{artifacts.PREDICTIONS}")) if run.runs else []:
         meta = artifacts.read_metadata(path, "predictions")
         rules |= bool(meta.get("hard_rules"))
         for name, count in (meta.get("forbidden_transitions") or {}).items():
             counts.setdefault(name, []).append(count)
-    return {name: float(np.mean(values)) for name, values in counts.items()}, rules
+        for name, per_fold in ((meta.get("cross_validation") or {}).get("fold_frame_accuracy") or {}).items():
+            folds.setdefault(name, []).append(per_fold)
+    return ({name: float(np.mean(values)) for name, values in counts.items()}, rules,
+            {name: np.mean(values, axis=0).tolist() for name, values in folds.items()
+             if len(set(map(len, values))) == 1})
 
 
 def _value_means(table: pl.DataFrame) -> dict[tuple[str, str], float]:
@@ -77,14 +85,14 @@ def scored(run: Run, dataset: str) -> list[Scored]:
         names = [name for (where, name) in cv["segment_accuracy"] if where == folder]
         if not names:
             continue
-        forbidden, rules = _forbidden_and_rules(run, folder)
+        forbidden, rules, fold_frames = _seed_figures(run, folder)
         for name in names:
             figures = {metric: means.get((folder, name), ABSENT)[0] for metric, means in cv.items()}
             figures.update({key: means[folder, name] for key, means in extra.items() if (folder, name) in means})
             tested = {metric: means.get((folder, name), ABSENT)[0] for metric, means in test.items()}
             if tested["segment_accuracy"] is None:
                 continue
-            (candidate,) = latency.candidates({name: figures})
+            (candidate,) = latency.candidates({name: figures}, fold_frames)
             out.append(Scored(folder, candidate, tested, forbidden.get(name), rules))
     return out
 
@@ -127,12 +135,12 @@ def live_summary(run: Run, dataset: str, entry: dict[str, Any]) -> dict[str, Any
             best = choose(candidates, budget, offline)
             if best is not None:
                 out[use] = {**best.record(rate), "budget_frames": budget, "variant": VARIANTS.get(
-                    best.folder.removeprefix(dataset), best.folder), "chosen_by": "mean of CV segment, frame, edit"}
+                    best.folder.removeprefix(dataset), best.folder), "chosen_by": CHOSEN_BY}
         return out
     for use in ("online", "offline"):
         if use in out:
             decode = out[use]["method"].partition("+")[2] or "none"
-            forbidden, _ = _forbidden_and_rules(run, out[use]["folder"]) if run.runs else ({}, False)
+            forbidden = _seed_figures(run, out[use]["folder"])[0] if run.runs else {}
             out[use] = {**out[use], "decoder": decode.partition("@")[0],
                         "lag_frames": 0 if use == "online" else None,
                         "forbidden_transitions": forbidden.get(out[use]["method"])}

@@ -15,6 +15,8 @@ from mlnseq import eval as evaluation
 from mlnseq.catalog.errors import BadInput
 from mlnseq.reporting import claims, loading, tables
 
+from choice_rule import expected_choice  # tests/choice_rule.py
+
 
 @pytest.fixture(scope="module")
 def desk_run(tmp_path_factory, desk_mln_workdir, desk_folds_workdir) -> Path:
@@ -75,6 +77,19 @@ def test_load_run_reads_every_seed_workdir(loaded, desk_folds_workdir):
     assert set(loaded.logs["epoch"].unique()) == {1, 2}
     assert loaded.datasets["desk"]["n_train"] == 1405
     assert loaded.settings["train"]["epochs"] == [2]
+
+
+def test_the_reports_choices_weigh_frames_by_each_folds_figures(loaded, desk_folds_workdir):
+    from mlnseq.reporting import latency
+
+    recorded = artifacts.read_metadata(desk_folds_workdir / artifacts.PREDICTIONS)["cross_validation"]
+    scored = [s for s in latency.scored(loaded, "desk") if s.folder == "desk-temporal"]
+    assert scored and all(list(s.candidate.fold_frames) == recorded["fold_frame_accuracy"][s.candidate.name]
+                          for s in scored)
+    online = latency.choose(scored, 0)  # the report's online choice: lag 0
+    fitting = {s.candidate.name: s.candidate.figures for s in scored
+               if not s.candidate.decoding.decoder.offline and not s.candidate.decoding.lag}
+    assert online.candidate.name == expected_choice(fitting, recorded["fold_frame_accuracy"])
 
 
 def test_table_iii_puts_the_paper_beside_the_measured_value(loaded):
