@@ -17,7 +17,8 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.recognition import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
-from mlnseq.reporting.tables import ABSENT, CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, sequence_stats
+from mlnseq.reporting.tables import (ABSENT, CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, fold_frames_of,
+                                     sequence_stats)
 
 BUDGETS = {"desk": (25, None), "fetch": (None, 1.0)}  # the live budget: frames, or seconds at the known rate
 FOLDERS = (*DEPLOY_VARIANTS, TCN)
@@ -46,23 +47,16 @@ class Scored:
                 "test": {**self.test, "forbidden_transitions": self.forbidden}}
 
 
-def _seed_figures(run: Run, folder: str) -> tuple[dict[str, float], bool, dict[str, list[float]]]:
-    """Per method, the forbidden transitions on test (mean over seeds), whether the chain has hard rules, and the
-    cross-validated frame accuracy per fold (mean over seeds, fold by fold: every seed and folder of a dataset cuts
-    the same folds)."""
+def _forbidden_and_rules(run: Run, folder: str) -> tuple[dict[str, float], bool]:
+    """Per method, the forbidden transitions on test (mean over seeds), and whether the chain has hard rules."""
     counts: dict[str, list[int]] = {}
-    folds: dict[str, list[list[float]]] = {}
     rules = False
     for path in sorted((run.runs / folder / "stream").glob(f"seed-*/{artifacts.PREDICTIONS}")) if run.runs else []:
         meta = artifacts.read_metadata(path, "predictions")
         rules |= bool(meta.get("hard_rules"))
         for name, count in (meta.get("forbidden_transitions") or {}).items():
             counts.setdefault(name, []).append(count)
-        for name, per_fold in ((meta.get("cross_validation") or {}).get("fold_frame_accuracy") or {}).items():
-            folds.setdefault(name, []).append(per_fold)
-    return ({name: float(np.mean(values)) for name, values in counts.items()}, rules,
-            {name: np.mean(values, axis=0).tolist() for name, values in folds.items()
-             if len(set(map(len, values))) == 1})
+    return {name: float(np.mean(values)) for name, values in counts.items()}, rules
 
 
 def _value_means(table: pl.DataFrame) -> dict[tuple[str, str], float]:
@@ -85,14 +79,14 @@ def scored(run: Run, dataset: str) -> list[Scored]:
         names = [name for (where, name) in cv["segment_accuracy"] if where == folder]
         if not names:
             continue
-        forbidden, rules, fold_frames = _seed_figures(run, folder)
+        forbidden, rules = _forbidden_and_rules(run, folder)
         for name in names:
             figures = {metric: means.get((folder, name), ABSENT)[0] for metric, means in cv.items()}
             figures.update({key: means[folder, name] for key, means in extra.items() if (folder, name) in means})
             tested = {metric: means.get((folder, name), ABSENT)[0] for metric, means in test.items()}
             if tested["segment_accuracy"] is None:
                 continue
-            (candidate,) = latency.candidates({name: figures}, fold_frames)
+            (candidate,) = latency.candidates({name: figures}, fold_frames_of(run, folder, [name]))
             out.append(Scored(folder, candidate, tested, forbidden.get(name), rules))
     return out
 
@@ -140,7 +134,7 @@ def live_summary(run: Run, dataset: str, entry: dict[str, Any]) -> dict[str, Any
     for use in ("online", "offline"):
         if use in out:
             decode = out[use]["method"].partition("+")[2] or "none"
-            forbidden = _seed_figures(run, out[use]["folder"])[0] if run.runs else {}
+            forbidden, _ = _forbidden_and_rules(run, out[use]["folder"]) if run.runs else ({}, False)
             out[use] = {**out[use], "decoder": decode.partition("@")[0],
                         "lag_frames": 0 if use == "online" else None,
                         "forbidden_transitions": forbidden.get(out[use]["method"])}

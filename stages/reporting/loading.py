@@ -53,6 +53,9 @@ class Run:
     # metric (segment_accuracy and frame_accuracy in %, edit, f1_50), value
     cv: pl.DataFrame = field(default_factory=lambda: pl.DataFrame(schema=CV_SCHEMA))
     runs: Path | None = None  # the run folder (the timeline figure reads one workdir's predictions)
+    # (dataset, mode, method) -> the cross-validated frame accuracy (%) per fold, mean over seeds fold by fold
+    # (every seed and folder of a dataset cuts the same folds): what the choices weigh frame differences by
+    fold_frames: dict[tuple[str, str, str], list[float]] = field(default_factory=dict)
 
 
 SEED_VALUE_SCHEMA = {"dataset": pl.String, "mode": pl.String, "seed": pl.Int64, "method": pl.String,
@@ -74,6 +77,7 @@ class _Found:
     network_weights: list[dict[str, Any]] = field(default_factory=list)
     notes: dict[tuple[str, str], list[str]] = field(default_factory=dict)
     cv: list[dict[str, Any]] = field(default_factory=list)
+    fold_frames: dict[tuple[str, str, str], list[list[float]]] = field(default_factory=dict)  # per seed
 
 
 def load_run(runs: Path) -> Run:
@@ -99,6 +103,8 @@ def load_run(runs: Path) -> Run:
         validation=pl.DataFrame(found.validation, schema=SEED_VALUE_SCHEMA),
         network_weights=pl.DataFrame(found.network_weights, schema=SEED_VALUE_SCHEMA), notes=found.notes, runs=runs,
         cv=pl.DataFrame(found.cv, schema=CV_SCHEMA),
+        fold_frames={key: np.mean(seeds, axis=0).tolist() for key, seeds in found.fold_frames.items()
+                     if len(set(map(len, seeds))) == 1},
     )
 
 
@@ -136,8 +142,11 @@ def _read_seed_workdir(workdir: Path, dataset: str, found: _Found) -> None:
                          for m, v in predictions_meta.get("validation_frame_accuracy", {}).items()]
     found.network_weights += [{**keys, "method": m, "value": float(c["weight"])}
                               for m, c in predictions_meta.get("network_weights", {}).items()]
-    for m, figures in ((predictions_meta.get("cross_validation") or {}).get("figures") or {}).items():
+    cross_validation = predictions_meta.get("cross_validation") or {}
+    for m, figures in (cross_validation.get("figures") or {}).items():
         found.cv += [{**keys, "method": m, "metric": k, "value": float(v)} for k, v in figures.items()]
+    for m, per_fold in (cross_validation.get("fold_frame_accuracy") or {}).items():
+        found.fold_frames.setdefault((dataset, keys["mode"], m), []).append(per_fold)
     notes = found.notes.setdefault((dataset, keys["mode"]), []) if predictions_meta.get("notes") else []
     for note in predictions_meta.get("notes", []):
         if note not in notes:

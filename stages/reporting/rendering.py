@@ -245,9 +245,10 @@ def _deploy(run: Run) -> list[str]:
            "decoded method of the no-transitions, learned-transitions, hard-order and conjunctive-transitions "
            "folders. Each is cross-validated on the training split: every fold is predicted by the fold "
            "networks, the fold's MLN weights and a network factor weight learned without it. The online (+ "
-           "filter) choice has the best mean cross-validated segment accuracy over seeds, the offline (+ Viterbi) "
-           "one the best mean of cross-validated segment accuracy and edit; the test figures (mean ± std) are "
-           "shown beside, never used. Ties go to the first in the order no transitions, learned transitions, "
+           "filter) and offline (+ Viterbi) choices are export --method auto's on the means over seeds: the frames "
+           "first (within one standard error of the best cross-validated frame accuracy, fold by fold), then the "
+           "best mean of cross-validated segment accuracy, frame accuracy and edit; the test figures (mean ± std) "
+           "are shown beside, never used. Ties go to the first in the order no transitions, learned transitions, "
            "hard order, conjunctive, then LSTM, MLN, PriorLayer, Conflation, combined.\n",
            markdown_table(["dataset", "use", "method", "variant (folder)", "CV segment acc.", "CV frame acc.",
                            "CV edit", "CV F1@50", "test segment acc.", "test frame acc.", "test edit",

@@ -212,13 +212,19 @@ def ablation_table(run: Run, dataset: str) -> list[list[str]]:
     return rows
 
 
+def fold_frames_of(run: Run, folder: str, names: list[str], mode: str = "stream") -> dict[str, list[float]]:
+    """The cross-validated frame accuracy per fold (mean over seeds) of the methods ``names`` of a folder."""
+    return {name: run.fold_frames[folder, mode, name] for name in names if (folder, mode, name) in run.fold_frames}
+
+
 def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     """Per decoding (filter, viterbi), every decoded method of a DEPLOY_VARIANTS folder (stream mode) with its
-    cross-validated and test figures (mean, std over seeds), and the one with the best cross-validated criterion
-    (``recognition.latency``'s: the mean of segment accuracy, frame accuracy and edit, of the means; ties: the first
-    in that order and METHODS order, the others listed under ``ties``); the test split is never looked at for the
-    choice. ``best_on_test`` per metric is shown beside it, marked optimistic."""
-    from mlnseq.recognition.latency import CRITERION
+    cross-validated and test figures (mean, std over seeds), and the one export --method auto's choice takes
+    (``recognition.latency.best`` on the means: the frames first, then the mean of segment accuracy, frame accuracy
+    and edit; ties: the first in that order and METHODS order, the others near the best frames of the same
+    criterion listed under ``ties``); the test split is never looked at for the choice. ``best_on_test`` per metric
+    is shown beside it, marked optimistic."""
+    from mlnseq.recognition import latency
 
     stats = {m: by_pair(table) for m, table in sequence_stats(run).items()}
     cv = {m: by_pair(table) for m, table in cv_stats(run).items()}
@@ -231,16 +237,19 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
                 if figures["segment_accuracy"][0] is None or stats["segment_accuracy"].get(pair, ABSENT)[0] is None:
                     continue
                 means = {CV_METRICS[m]: np.nan if v[0] is None else v[0] for m, v in figures.items()}
-                score = float(np.mean([means.get(k, np.nan) for k in CRITERION]))
+                (scored,) = latency.candidates({pair[1]: means}, fold_frames_of(run, pair[0], [pair[1]]))
                 candidates.append({"folder": pair[0], "variant": VARIANTS[suffix], "method": pair[1], "decode": decode,
-                                   "score": score, "cv": figures,
+                                   "score": scored.score[0], "cv": figures, "candidate": scored,
                                    **{m: stats[m].get(pair, ABSENT) for m in SEQUENCE_METRICS}})
     choices: dict[str, Any] = {"candidates": candidates}
     for decode in DECODES[1:]:
         kind = [c for c in candidates if c["decode"] == decode]
         if kind:
-            best = max(kind, key=lambda c: c["score"])  # max keeps the first of equals
-            ties = [c for c in kind if c is not best and np.isclose(c["score"], best["score"], atol=1e-9)]
+            chosen = latency.best([c["candidate"] for c in kind])  # max keeps the first of equals
+            best = next(c for c in kind if c["candidate"] is chosen)
+            near = {id(n) for n in latency.near_best([c["candidate"] for c in kind])}  # no network alone: no floor
+            ties = [c for c in kind if c is not best and id(c["candidate"]) in near
+                    and np.isclose(c["score"], best["score"], atol=1e-9)]
             choices[decode] = {**best, "ties": ties}
     if candidates:
         choices["best_on_test"] = {m: max(candidates, key=lambda c: c[m][0] if c[m][0] is not None else -np.inf)

@@ -50,7 +50,7 @@ def deployed_method(config: Config, figures: dict[str, dict[str, float]], where:
         if not candidates:
             raise BadInput(f"{where} holds no cross-validated {options.decode} figures: were its networks trained "
                            "with folds (the dataset's `mlnseq learn-weights --folds K`)?")
-        return latency.best(latency.candidates(candidates, fold_frames)).name  # as export --method auto --decode chooses
+        return latency.best(latency.candidates(candidates, fold_frames)).name  # export --method auto --decode's
     name = decoded_name(options.method, options.decode)
     if name not in figures:
         raise BadInput(f"{where} holds no cross-validated figures for {name} (it has {', '.join(sorted(figures))})")
