@@ -175,7 +175,7 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
     alone said with their cross-validated figures, then the test split's figures of the choice and the network."""
     from mlnseq import export
     from mlnseq.catalog import artifacts
-    from mlnseq.recognition.latency import candidates, ranked, within
+    from mlnseq.recognition.latency import candidates, ranked
 
     output = own["output"] or workdir / "model.mlnseq"
     options = (export.ExportOptions(method="auto", lag=frames_budget, output=output, force=True) if k else
@@ -190,7 +190,7 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
         return exported
     cross = artifacts.read_metadata(workdir / artifacts.PREDICTIONS, "predictions")["cross_validation"]
     order = ranked([c for c in candidates(cross["figures"], cross.get("fold_frame_accuracy"))
-                    if c.name in chosen.candidates and within(c, frames_budget, None, False)])
+                    if c.name in chosen.candidates])  # those export chose among: within the budget
     best = next(c for c in order if c.name == chosen.name)
     others = [c for c in order if c is not best]
     shown = [(best, "chose")] + [(c, "runner-up") for c in others[:1]]

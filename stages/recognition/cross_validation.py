@@ -110,14 +110,14 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
     rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
     scored: dict[tuple[bytes, bool], dict[str, float]] = {}  # methods predicting alike (decoders often agree): once
+    held_by_fold = [folds.fold == k for k in range(folds.k)]
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
         key = (values[rows].tobytes(), network is None or inputs.networks[network].checkpoint.mode != "segment")
         if key not in scored:
             scored[key] = figures_of(values[rows], data.labels[rows], starts, n_classes, segmental=key[1])
         result.figures[name] = {**scored[key], "log_likelihood": float(likelihood[name][rows].mean())}
-        result.fold_frames[name] = [100 * float((values[held] == data.labels[held]).mean())
-                                    for held in (folds.fold == k for k in range(folds.k))]
+        result.fold_frames[name] = [100 * float((values[held] == data.labels[held]).mean()) for held in held_by_fold]
         if name in forbidden:
             result.figures[name]["forbidden_transitions"] = forbidden[name]
     return result
