@@ -69,7 +69,7 @@ def measure(workdir: Path, n: int) -> dict[str, float | None]:
     from mlnseq.mln.factors import MLNFactors
     from mlnseq.model.checkpoints import load_checkpoint
     from mlnseq.networks.fitting import Fitting, resolve_device
-    from mlnseq.recognition.recognizer import chain_of, decode_chain
+    from mlnseq.fusion.fuse import chain_of, decode_chain
     from mlnseq.timeline import metrics, sequences
 
     frames = pl.read_parquet(workdir / artifacts.FRAMES)

@@ -23,7 +23,7 @@ import torch
 from mlnseq import collect, train
 from mlnseq.timeline import sequences
 from mlnseq.networks import fitting
-from mlnseq.recognition import training_rows as rows
+from mlnseq.choosing import training_rows as rows
 from mlnseq.networks.classifier import SequenceClassifier
 from mlnseq.networks.recurrent import Config as ModelConfig
 
@@ -116,7 +116,7 @@ def side_by_side(data: train.FrameData, epochs: int = 20) -> None:
     from dataclasses import replace
 
     from mlnseq import networks
-    from mlnseq.recognition import folds as folding
+    from mlnseq.choosing import folds as folding
 
     folds = folding.assign(data.episodes, data.splits, data.labels, 5)
     for cell, mode in (("tcn", "stream"), ("lstm", "stream"), ("lstm", "segment")):

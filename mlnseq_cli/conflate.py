@@ -53,8 +53,8 @@ def summary(result: stage.ConflateResult, workdir) -> None:
     auto chooses on (every method's figures: --verbose, and the metadata)."""
     from mlnseq_cli.console import verbose
     from mlnseq.catalog import artifacts
-    from mlnseq.recognition.folds import describe
-    from mlnseq.recognition.latency import candidates, ranked
+    from mlnseq.choosing.folds import describe
+    from mlnseq.choosing.latency import candidates, ranked
 
     for note in result.notes:
         console.print(f"[yellow]note[/]: {escape(note.text)}")

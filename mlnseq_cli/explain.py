@@ -30,7 +30,7 @@ def explain(
 ) -> None:
     """Read MODEL and the recording at SOURCE, decide it as predict does, and print why the frame (--frame T or --time S) got its class: its margin over the runner-up (or --versus CLASS), the log-ratio of their scores, as terms that add up to it exactly: each formula (its text, line, weight and truth for both classes), the network (its weight x its log-probability difference), the start distribution, the frames before and, for lagged and offline decoders, after (the chain's messages), and the hard rules that removed classes. --segment K: the terms that held the K-th segment and the transition that ended it. Sorted by size, the small ones summed in one line; --json writes JSON lines instead."""
     from mlnseq import explain as stage
-    from mlnseq.recognition import explanation_text
+    from mlnseq.explaining import text as explanation_text
 
     overrides = {k: v for k, v in dict(topics=_names(topics), rate=rate).items() if v not in (None, ())}
     options = stage.ExplainOptions(model=model, source=source, episode=episode, frame=frame, time=time,

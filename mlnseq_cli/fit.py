@@ -76,8 +76,8 @@ def fit(**flags: Any) -> None:
 def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str, Any]:
     """Collect and binarize, then the options of the stages after them (K chosen from the frames)."""
     from mlnseq import binarize, collect
-    from mlnseq.recognition import folds as folding
-    from mlnseq.recognition.latency import rate_of
+    from mlnseq.choosing import folds as folding
+    from mlnseq.choosing.latency import rate_of
     from mlnseq_cli.binarize import print_learned
 
     collect_options.validate()
@@ -112,7 +112,7 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
 
 def budget(own: dict[str, Any], rate: float | None) -> int | None:
     """The latency budget in frames: None offline, else --lag, else --latency at the recordings' rate, else 0."""
-    from mlnseq.recognition.latency import budget_frames
+    from mlnseq.choosing.latency import budget_frames
 
     if own["offline"]:
         return None
@@ -175,7 +175,7 @@ def export_chosen(k: int, own: dict[str, Any], frames_budget: int | None, workdi
     alone said with their cross-validated figures, then the test split's figures of the choice and the network."""
     from mlnseq import export
     from mlnseq.catalog import artifacts
-    from mlnseq.recognition.latency import candidates, ranked
+    from mlnseq.choosing.latency import candidates, ranked
 
     output = own["output"] or workdir / "model.mlnseq"
     options = (export.ExportOptions(method="auto", lag=frames_budget, output=output, force=True) if k else

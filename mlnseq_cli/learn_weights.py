@@ -57,7 +57,7 @@ def learn_weights(
         console.print(table)
     also = ""
     if folds:
-        from mlnseq.recognition.folds import describe
+        from mlnseq.choosing.folds import describe
 
         meta = artifacts.read_metadata(path.parent / artifacts.FOLD_WEIGHTS, "fold_weights")
         record, episodes = meta["folds"], meta.get("training_episodes", 0)

@@ -48,7 +48,7 @@ def predict(
     )
     with reported_errors():
         result = stage.run(options)
-    from mlnseq.recognition.recognizer import restart_note
+    from mlnseq.fusion.fuse import restart_note
 
     for note in result.notes:
         console.print(f"note: {note}", markup=False, highlight=False)

@@ -112,7 +112,7 @@ def _then_folds(workdir, options: stage.TrainOptions) -> str:
 def _folds_said(checkpoint, asked: Optional[int]) -> str:
     """With folds: which, and where they came from (asked, or inherited from learn-weights)."""
     from mlnseq.catalog import artifacts
-    from mlnseq.recognition.folds import describe
+    from mlnseq.choosing.folds import describe
 
     oof = artifacts.out_of_fold_path(checkpoint.parent.parent, checkpoint.stem)
     if not oof.exists():

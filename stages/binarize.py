@@ -90,17 +90,17 @@ def true_shares(predicates: pl.DataFrame, columns: dict[str, list[str]]) -> list
 
 
 def formulas_of(spec: Path) -> Path:
-    from mlnseq.recognition.learned_files import formulas_path
+    from mlnseq.learning.learned_files import formulas_path
 
     return formulas_path(spec).resolve()
 
 
 def write_learned(spec: Path, frames: pl.DataFrame, frames_meta: dict[str, Any], replace: bool) -> Any:
-    """--suggest: learn predicates and formulas from the training split (stages/recognition/learned_logic.py) and write
+    """--suggest: learn predicates and formulas from the training split (stages/learning/learned_logic.py) and write
     them to ``spec`` and the formulas file beside it; a file of either edited by hand is kept unless ``replace``. The
     record says what was learned and how (its formulas file, the few formulas in words, the search)."""
-    from mlnseq.predicates.learned_spec import untouched
-    from mlnseq.recognition.learned_files import formulas_path, learn
+    from mlnseq.learning.learned_spec import untouched
+    from mlnseq.learning.learned_files import formulas_path, learn
 
     formulas = formulas_path(spec)
     for path, mark in ((spec, "#"), (formulas, "//")):

@@ -10,8 +10,8 @@ Methods: lstm, priorlayer (the networks), mln (the MLN classifier alone), confla
 and combined (priorlayer + MLN); with ``--decode filter`` or ``viterbi`` also METHOD+filter (online
 forward filtering) and METHOD+viterbi (offline: the most probable path, forward-backward marginals).
 A method whose inputs are absent is left out with a note. The core (:func:`predict`) works on the
-workdir's arrays (stages/recognition/workdir_inputs.py); fusion and decoding are stages/recognition/recognizer.py's, the
-network factor's weight stages/recognition/network_weight.py's.
+workdir's arrays (stages/choosing/workdir_inputs.py); fusion and decoding are stages/recognition/recognizer.py's, the
+network factor's weight stages/choosing/network_weight.py's.
 """
 
 from __future__ import annotations
@@ -32,11 +32,11 @@ from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
 from mlnseq.catalog.parts import Part
 from mlnseq.mln import chain
 from mlnseq.mln.blas import one_thread
-from mlnseq.recognition import decoding as decoders
-from mlnseq.recognition.cross_validation import CrossValidated, cross_validate
-from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
-from mlnseq.recognition.recognizer import chain_of, fuse, restart_note
-from mlnseq.recognition.workdir_inputs import WorkdirInputs, read_workdir
+from mlnseq.fusion import decoding as decoders
+from mlnseq.choosing.cross_validation import CrossValidated, cross_validate
+from mlnseq.choosing.network_weight import WeightChoice, WeightDecision
+from mlnseq.fusion.fuse import chain_of, fuse, restart_note
+from mlnseq.choosing.workdir_inputs import WorkdirInputs, read_workdir
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 The recording is read as `predict` reads it (as the model's own recordings were read) and decided by the model's
 decoder (or ``decode``); then one frame (by its frame number or its time) is explained: its margin over the
-runner-up (or a class named) as the terms that add up to it (stages/recognition/explaining.py), or one segment:
+runner-up (or a class named) as the terms that add up to it (stages/explaining/explainer.py), or one segment:
 the terms that held it and the transition that ended it. ``what_if`` scores the frame again with one predicate's
 value changed and says whether the decision flips.
 """
@@ -18,13 +18,14 @@ import numpy as np
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
-from mlnseq.recognition.explained import class_index, explain, scoring_of
-from mlnseq.recognition.explaining import Explainer, Keys
-from mlnseq.recognition.explaining_segments import Segment, segments
-from mlnseq.recognition.explanation import Explanation
+from mlnseq.explaining.frames import class_index, explain, scoring_of
+from mlnseq.explaining.explainer import Explainer, Keys
+from mlnseq.explaining.segments import Segment, segments
+from mlnseq.explaining.terms import Explanation
 from mlnseq.recognition.reading import reading_of
-from mlnseq.recognition.recognizer import EPSILON, Recognizer
-from mlnseq.recognition.what_if import WhatIf, parse_what_if
+from mlnseq.fusion.fuse import EPSILON
+from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.explaining.what_if import WhatIf, parse_what_if
 from mlnseq.sources import RECORDING_ENVS
 from mlnseq.sources.table import prediction_frames
 

@@ -25,9 +25,10 @@ from mlnseq.mln import formula_sources
 from mlnseq.model import model_file
 from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
 from mlnseq.model.manifest import Manifest, NetworkEntry
-from mlnseq.recognition import latency, recognizer
-from mlnseq.recognition.network_weight import WeightChoice, WeightDecision
-from mlnseq.recognition.workdir_inputs import paper_floor, read_workdir
+from mlnseq.choosing import latency
+from mlnseq.recognition import recognizer
+from mlnseq.choosing.network_weight import WeightChoice, WeightDecision
+from mlnseq.choosing.workdir_inputs import paper_floor, read_workdir
 
 AUTO = latency.AUTO  # --method auto: the method, decoder and lag with the best cross-validated figures in the workdir
 

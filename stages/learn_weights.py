@@ -42,7 +42,7 @@ class LearnWeightsOptions:
     engine: str = "native"
     objective: str | None = None  # pll | cll; None: cll when a formula uses Next, else pll
     l2: float | None = None  # L2 penalty on the learned weights; None: 0 for pll, cll.DEFAULT_L2 for cll
-    # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/recognition/folds.py
+    # K > 0: also learn each fold's weights without it (weights.folds.parquet), see stages/choosing/folds.py
     folds: int = 0
     max_formulas: int = MAX_FORMULAS  # refuse formulas whose templates and variables expand past this many
 
@@ -310,7 +310,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     mln, where = source_lines.to_source(mln, formulas_path.read_text(encoding="utf-8"), formulas_path)  # user's lines
     folds = None
     if options.folds:
-        from mlnseq.recognition import folds as folding
+        from mlnseq.choosing import folds as folding
 
         folds = folding.assign(predicates["episode"].to_numpy(), predicates["split"].to_numpy(),
                                predicates["label"].to_numpy(), options.folds)
@@ -323,7 +323,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     per_fold = []
     if folds is not None:
-        from mlnseq.recognition.folds import fold_predicates
+        from mlnseq.choosing.folds import fold_predicates
 
         tables, read = fold_predicates(workdir, folds, named, meta)
         for k in range(folds.k):

@@ -141,7 +141,7 @@ def _run(options: PredictOptions, stage) -> Predicted:
     table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
     found = None
     if options.explain:  # each frame's largest terms and each segment's why (stages/recognition/reasons.py)
-        from mlnseq.recognition.explaining import Keys
+        from mlnseq.explaining.explainer import Keys
         from mlnseq.recognition.reasons import reasons
 
         found = reasons(model, Keys(table["episode"].to_list(), table["frame"].to_numpy(), times), options.explain)

@@ -32,10 +32,10 @@ from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor
 from mlnseq.catalog.parts import Part
 from mlnseq.model.checkpoints import write_checkpoint
 from mlnseq.networks.fitting import Fitting, Together, fit_together, predict_log_probs, resolve_device, set_threads
-from mlnseq.recognition.training_rows import Rows, Select
-from mlnseq.recognition import folds as folding
-from mlnseq.recognition.recognizer import prior_input
-from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
+from mlnseq.choosing.training_rows import Rows, Select
+from mlnseq.choosing import folds as folding
+from mlnseq.fusion.fuse import prior_input
+from mlnseq.choosing.workdir_inputs import FrameData, mln_class_scores
 from mlnseq.timeline import sequences
 
 if TYPE_CHECKING:  # torch loads only when a network is built or run

@@ -1,4 +1,4 @@
-"""The choice of docs/choosing.md written out again, independently of mlnseq.recognition.latency, for the tests to
+"""The choice of docs/choosing.md written out again, independently of mlnseq.choosing.latency, for the tests to
 hold export --method auto, fit and conflate's ranking to: among the candidates at or above the network alone's
 cross-validated frame accuracy, those within one standard error (of the per-fold differences) of the best frame
 accuracy, the best mean of segment accuracy, frame accuracy and edit."""

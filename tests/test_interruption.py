@@ -142,7 +142,7 @@ def test_plain_sigkill_of_collect_keeps_the_previous_frames(tmp_path, desk_frame
 def test_sigkill_during_training_keeps_the_previous_model(desk_workdir):
     before = snapshot(desk_workdir)
     process, marker = start(desk_workdir, "train", "--epochs", 1000, "--measure", "every-epoch",
-                            where="running:mlnseq.recognition.training_rows:predict_log_probs")
+                            where="running:mlnseq.choosing.training_rows:predict_log_probs")
     wait_for(process, marker)  # the first epoch is done, the second is running
     kill(process)
     assert snapshot(desk_workdir) == before
@@ -170,7 +170,7 @@ def test_sigkill_mid_write_of_a_checkpoint_keeps_the_previous_model_and_log(desk
 def test_ctrl_c_during_training_exits_130_and_keeps_the_last_complete_model(desk_workdir):
     before = snapshot(desk_workdir)
     process, marker = start(desk_workdir, "train", "--epochs", 1000, "--measure", "every-epoch",
-                            where="running:mlnseq.recognition.training_rows:predict_log_probs")
+                            where="running:mlnseq.choosing.training_rows:predict_log_probs")
     wait_for(process, marker)
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=WAIT_S)

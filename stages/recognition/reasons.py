@@ -1,6 +1,6 @@
 """Every frame's and every segment's reasons, for `predict --explain N`: a JSON column of each frame's N largest terms,
 each segment's ``why`` (the terms that held it, the transition that ended it) for the intervals and the Rerun text
-log (stages/recognition/explaining_segments.py)."""
+log (stages/explaining/segments.py)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,12 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from mlnseq.recognition.explained import explain, scoring_of
-from mlnseq.recognition.explaining import Explainer, Keys
-from mlnseq.recognition.explaining_segments import Segment, segments
-from mlnseq.recognition.explanation import brief
-from mlnseq.recognition.recognizer import EPSILON, Recognizer
+from mlnseq.explaining.frames import explain, scoring_of
+from mlnseq.explaining.explainer import Explainer, Keys
+from mlnseq.explaining.segments import Segment, segments
+from mlnseq.explaining.terms import brief
+from mlnseq.fusion.fuse import EPSILON
+from mlnseq.recognition.recognizer import Recognizer
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,7 @@
-"""A trained model turned into class probabilities: the MLN input of PriorLayer, fusion (eq. 16), decoding
-over the frame chain, and `Recognizer` (a model file: frames in, class probabilities out).
+"""`Recognizer`: a model file, frames in, class probabilities out (fusion and decoding from stages/fusion/).
 
-`conflate` (every method over a workdir), `predict` (a model file over new recordings), `stream` (one
-frame at a time) and the Python API all call this module. The networks run in numpy
+`predict` (a model file over new recordings), `stream` (one frame at a time), the live nodes and the Python API
+call this module. The networks run in numpy
 (stages/networks/network.py), so a model file is recognised without torch. The method names are in
 stages/catalog/methods.py, the workdir's checkpoints in stages/model/checkpoints.py, the model file in
 stages/model/model_file.py and its manifest in stages/model/manifest.py.
@@ -29,89 +28,12 @@ from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
 from mlnseq.mln.lag_online import Online
+from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain, frame_factor, fuse, prior_input
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
-    from mlnseq.recognition.explaining import Scores
+    from mlnseq.explaining.explainer import Scores
     from mlnseq.mln.factors import MLNFactors
-
-EPSILON = 1e-7  # keeps eq. 16 defined when one side is exactly 0 and the other exactly 1
-
-
-# --- the MLN ----------------------------------------------------------------------------------------
-
-
-def prior_input(scores: np.ndarray, kind: Prior, floor: PaperFloor) -> np.ndarray:
-    """The c2c input of PriorLayer: the MLN class weights as the authors passed them (floored by ``floor``), or
-    log-probs."""
-    from mlnseq.mln import classifier
-
-    if kind == Prior.PAPER:
-        return np.asarray(classifier.paper_prior(scores, floor), dtype=np.float32)
-    return np.asarray(classifier.class_log_probs(scores, MLNMode.EXACT, floor), dtype=np.float32)
-
-
-# --- fusion -----------------------------------------------------------------------------------------
-
-
-def conflation(p_network: np.ndarray, p_mln: np.ndarray) -> np.ndarray:
-    """Eq. 16 per class on [n, C] probabilities: P_L·P_K / (P_L·P_K + (1 − P_L)·(1 − P_K)).
-
-    The values are eq. 16 as it stands, not renormalised to sum to 1 (the argmax is the same either way).
-    """
-    a = np.clip(np.asarray(p_network, dtype=np.float64), EPSILON, 1 - EPSILON)
-    b = np.clip(np.asarray(p_mln, dtype=np.float64), EPSILON, 1 - EPSILON)
-    return a * b / (a * b + (1 - a) * (1 - b))
-
-
-def fuse(method: str, p_network: np.ndarray | None, p_mln: np.ndarray | None) -> np.ndarray:
-    """A method's per-frame class probabilities, undecoded: the network, the MLN, or eq. 16 of the two."""
-    if method == Method.MLN:
-        return p_mln
-    if method in NETWORKS:
-        return p_network
-    return conflation(p_network, p_mln)
-
-
-# --- decoding ---------------------------------------------------------------------------------------
-
-
-def frame_factor(method: str, mln_unary: np.ndarray, log_p_network: np.ndarray | None, weight: float) -> np.ndarray:
-    """A decoded method's per-frame log-potentials: the MLN's per-frame factor (mln, conflation, combined)
-    plus ``weight`` times the network's log-probabilities (every method but mln)."""
-    factor = mln_unary if method == "mln" or method in FUSED else np.zeros_like(mln_unary)
-    return factor if method == "mln" else factor + weight * np.asarray(log_p_network, dtype=np.float64)
-
-
-def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
-             log_p_network: np.ndarray | None, weight: float, start: np.ndarray | None = None) -> chain.ChainFactors:
-    """The chain a decoded method runs: its frame factors and the MLN's transition factors, and the start
-    distribution ``start`` (log [C]) at each chain's first frame, if given."""
-    from mlnseq.mln.lag import with_start
-
-    factors = mln.chain(evidence, starts)
-    return with_start(replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight)), start)
-
-
-def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
-    """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
-    filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
-    forward-backward marginals as probabilities)."""
-    if kind in ("filter", "viterbi"):
-        return chain.decode(factors, kind)
-    from mlnseq.recognition.decoding import decode  # the lagged, posterior and legal decoders
-
-    decoded = decode(factors, kind)
-    return chain.Decoded(decoded.probabilities, decoded.path, decoded.restarts)
-
-
-def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:
-    """One line naming where a decoded method's chain restarted: (episode, frame) of each dead end."""
-    where = ", ".join(f"episode {episode} frame {frame}" for episode, frame in restarts[:shown])
-    more = f" and {len(restarts) - shown} more" if len(restarts) > shown else ""
-    return (f"{name}: the chain restarted at {len(restarts)} frame(s) that no allowed transition reaches (a missed "
-            f"episode boundary, or evidence that breaks a hard rule): {where}{more}")
-
 
 # --- the Recognizer (export, info, predict, stream, the Python API) ---------------------------------
 
@@ -203,7 +125,7 @@ class Recognizer:
     def explain_steps(self, count: int) -> None:
         """From now on each frame a step decides (a Prediction, or one of its ``final``) carries ``why``: the
         ``count`` largest terms of its margin (as ``explain`` gives them); 0 stops."""
-        from mlnseq.recognition.explaining_live import LiveExplainer
+        from mlnseq.explaining.streaming import LiveExplainer
 
         self._explaining = LiveExplainer(self, count, EPSILON) if count else None
 
@@ -346,7 +268,7 @@ class Recognizer:
                edit: Callable[[np.ndarray], np.ndarray] | None = None) -> Scores:
         """:meth:`predict`'s classes and probabilities with what they were scored from (``explaining.Scores``);
         ``edit`` changes the evidence (predicate values [T, W]) before it is scored (a what-if)."""
-        from mlnseq.recognition.explaining import Scores
+        from mlnseq.explaining.explainer import Scores
 
         decode = self.decoding.name if decode is None else decode
         if decode != self.decoding.name and decode != "none" and self.mln is None:
@@ -386,6 +308,6 @@ class Recognizer:
         ``versus``, as terms that add up to it; docs/explain.md). ``frame``: a row of the recording the last
         :meth:`predict` was given; or a whole recording's features [T, F] (rows grouped by ``episodes``): then a
         list, one per frame; or one frame's features: a recording of that frame alone."""
-        from mlnseq.recognition.explained import explain_recognized
+        from mlnseq.explaining.frames import explain_recognized
 
         return explain_recognized(self, frame, versus, episodes, decode, EPSILON)

@@ -1,7 +1,7 @@
 """Live recognition in the report (issue 24): per paper dataset, accuracy against latency (every decoder at every
 lag conflate scored, its best method by cross-validation, with its test figures), and the choices within a
 latency budget that reports/summary.json records: ``live`` (DESK: 25 frames, Fetch: 1 s), ``online`` (lag 0)
-and ``offline`` (no budget). Choices read the cross-validated figures only (stages/recognition/latency.py's
+and ``offline`` (no budget). Choices read the cross-validated figures only (stages/choosing/latency.py's
 choice, on means over seeds); the test figures stand beside them."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
-from mlnseq.recognition import latency
+from mlnseq.choosing import latency
 from mlnseq.reporting.loading import PAPER_DATASETS, TCN, VARIANTS, Run
 from mlnseq.reporting.tables import (ABSENT, CV_METRICS, DEPLOY_VARIANTS, by_pair, cv_stats, fold_frames_of,
                                      sequence_stats)

@@ -224,7 +224,7 @@ def deploy_choices(run: Run, dataset: str) -> dict[str, Any]:
     and edit; ties: the first in that order and METHODS order, the others near the best frames of the same
     criterion listed under ``ties``); the test split is never looked at for the choice. ``best_on_test`` per metric
     is shown beside it, marked optimistic."""
-    from mlnseq.recognition import latency
+    from mlnseq.choosing import latency
 
     stats = {m: by_pair(table) for m, table in sequence_stats(run).items()}
     cv = {m: by_pair(table) for m, table in cv_stats(run).items()}

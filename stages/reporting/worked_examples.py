@@ -1,5 +1,5 @@
 """The report's worked examples: per paper dataset, a test segment the MLN's method got right and the network alone
-got wrong, and one it got wrong, each explained term by term (stages/recognition/explaining.py) as `mlnseq explain`
+got wrong, and one it got wrong, each explained term by term (stages/explaining/explainer.py) as `mlnseq explain`
 prints it: the segment's middle frame against the class the network said (or the true class), and what held the
 segment. Read from the dataset's learned-transitions folder (D-temporal, stream mode, its first seed): its workdir's
 networks, MLN and the network weight and start distribution conflate decoded it with."""
@@ -17,13 +17,13 @@ from mlnseq.catalog.methods import Method, network_of, parse_method
 from mlnseq.mln import chain
 from mlnseq.mln.factors import MLNFactors, parse_weights
 from mlnseq.mln.formula_sources import annotated, formulas_of, read_written, written_lines
-from mlnseq.recognition.decoding import decoding_of
-from mlnseq.recognition.explained import explain
-from mlnseq.recognition.explaining import Explainer, Keys, Scores, Scoring
-from mlnseq.recognition.explaining_segments import held_by
-from mlnseq.recognition.explanation_text import table, term_lines
-from mlnseq.recognition.recognizer import EPSILON, chain_of, decode_chain
-from mlnseq.recognition.workdir_inputs import read_workdir
+from mlnseq.fusion.decoding import decoding_of
+from mlnseq.explaining.frames import explain
+from mlnseq.explaining.explainer import Explainer, Keys, Scores, Scoring
+from mlnseq.explaining.segments import held_by
+from mlnseq.explaining.text import table, term_lines
+from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain
+from mlnseq.choosing.workdir_inputs import read_workdir
 from mlnseq.timeline import sequences
 
 METHOD = "combined+filter"  # the method explained: PriorLayer and the MLN, decoded online

@@ -19,7 +19,7 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import decoded_name
-from mlnseq.recognition import latency
+from mlnseq.choosing import latency
 from mlnseq.sweeps.grid import Config, Sweep, flags
 from mlnseq.sweeps.running import JobError
 from mlnseq.sweeps.workflow import FORMULAS_DIR, run_dir, spec_names

@@ -125,7 +125,7 @@ def test_fetch_frames_schema_and_metadata(fetch_frames, fetch_frames_workdir):
 
 @pytest.mark.mujoco
 def test_fetch_frames_record_the_simulations_rate_which_turns_a_latency_into_frames(fetch_frames):
-    from mlnseq.recognition import latency
+    from mlnseq.choosing import latency
 
     _, meta = fetch_frames
     assert meta["rate_hz"] == pytest.approx(1 / fetch_demos.make_env().unwrapped.dt)  # 0.04 s a step

@@ -9,7 +9,8 @@ import pytest
 
 from mlnseq.catalog import artifacts, methods, notes
 from mlnseq import conflate, train
-from mlnseq.recognition import network_weight, recognizer, workdir_inputs
+from mlnseq.choosing import network_weight, workdir_inputs
+from mlnseq.fusion import fuse
 from mlnseq.catalog.errors import BadInput, MissingArtifact
 
 
@@ -18,10 +19,10 @@ def test_conflation_is_equation_16():
     p_mln = np.array([[0.4, 0.4, 0.2]])
     # by hand: 0.28 / (0.28 + 0.3*0.6), 0.08 / (0.08 + 0.8*0.6), 0.02 / (0.02 + 0.9*0.8)
     expected = [[0.28 / 0.46, 0.08 / 0.56, 0.02 / 0.74]]
-    np.testing.assert_allclose(recognizer.conflation(p_lstm, p_mln), expected, rtol=1e-6)
+    np.testing.assert_allclose(fuse.conflation(p_lstm, p_mln), expected, rtol=1e-6)
     # two sources agreeing on a class strengthen it; a certain zero stays (near) zero
-    assert recognizer.conflation([[0.6, 0.4]], [[0.6, 0.4]])[0, 0] > 0.6
-    assert recognizer.conflation([[1.0, 0.0]], [[0.0, 1.0]]).max() <= 0.5 + 1e-9
+    assert fuse.conflation([[0.6, 0.4]], [[0.6, 0.4]])[0, 0] > 0.6
+    assert fuse.conflation([[1.0, 0.0]], [[0.0, 1.0]]).max() <= 0.5 + 1e-9
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +45,7 @@ def test_every_method_is_predicted_and_conflation_matches_its_parts(predicted):
                              "conflation": "segment", "combined": "stream"}
     probs = {m: table.select(artifacts.prob_columns(m, 7)).to_numpy().astype(np.float64) for m in result.methods}
     np.testing.assert_allclose(probs["lstm"].sum(1), 1.0, rtol=1e-4)
-    np.testing.assert_allclose(probs["conflation"], recognizer.conflation(probs["lstm"], probs["mln"]), rtol=1e-4)
+    np.testing.assert_allclose(probs["conflation"], fuse.conflation(probs["lstm"], probs["mln"]), rtol=1e-4)
     assert (table["combined_pred"].to_numpy() == probs["combined"].argmax(1)).all()
     assert table["lstm_pred"].dtype == pl.Int16
 

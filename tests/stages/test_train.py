@@ -9,7 +9,7 @@ import torch
 
 from mlnseq.catalog import artifacts
 from mlnseq.model import checkpoints
-from mlnseq.recognition import training_rows as rows
+from mlnseq.choosing import training_rows as rows
 from mlnseq.timeline import sequences
 from mlnseq import train
 from mlnseq.catalog.errors import BadInput, MissingArtifact

@@ -20,7 +20,7 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 def chain_of_workdir(workdir) -> tuple[ChainFactors, np.ndarray, np.ndarray]:
     """The MLN's chain over every frame of a workdir (cut at episodes and splits), the labels and the test rows."""
     from mlnseq.mln.factors import MLNFactors
-    from mlnseq.recognition.workdir_inputs import read_workdir
+    from mlnseq.choosing.workdir_inputs import read_workdir
 
     inputs = read_workdir(workdir, ())
     mln = MLNFactors.from_weights(inputs.mln.weights, inputs.mln.columns, inputs.classes)
@@ -150,7 +150,7 @@ def test_chains_joined_one_after_another_decode_as_each_alone(desk_order):
 def test_chains_decoded_at_once_get_each_chains_own_decoding(desk_order):
     """conflate decodes every method's chain at once (decoding.decode_each): chains with other frame factors and
     other transitions, side by side, get each its own classes, probabilities, dead ends and forbidden transitions."""
-    from mlnseq.recognition import decoding as decoders
+    from mlnseq.fusion import decoding as decoders
 
     factors = head(desk_order[0], 1405 + 1600)
     noise = np.random.default_rng(0).normal(0.0, 1.0, factors.unary.shape)

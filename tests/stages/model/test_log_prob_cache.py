@@ -8,7 +8,7 @@ import numpy as np
 
 from mlnseq.catalog import artifacts
 from mlnseq.model import log_prob_cache
-from mlnseq.recognition.workdir_inputs import read_workdir
+from mlnseq.choosing.workdir_inputs import read_workdir
 
 
 def _linked_copy(source, target):

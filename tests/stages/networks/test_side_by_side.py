@@ -14,9 +14,9 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.methods import PaperFloor, Prior
 from mlnseq.networks import recurrent
 from mlnseq.networks.fitting import Fitting, SideBySide, Together, fit_together
-from mlnseq.recognition import folds as folding
-from mlnseq.recognition.recognizer import prior_input
-from mlnseq.recognition.workdir_inputs import FrameData, mln_class_scores
+from mlnseq.choosing import folds as folding
+from mlnseq.fusion.fuse import prior_input
+from mlnseq.choosing.workdir_inputs import FrameData, mln_class_scores
 from mlnseq.train import Rows, TrainOptions
 
 EPOCHS, BATCH, RATE = 3, 4, 0.1

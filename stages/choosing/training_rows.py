@@ -13,7 +13,7 @@ import numpy as np
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
 from mlnseq.networks.fitting import Fitting, accuracy_and_loss, predict_log_probs
-from mlnseq.recognition.workdir_inputs import FrameData
+from mlnseq.choosing.workdir_inputs import FrameData
 from mlnseq.timeline import sequences
 
 if TYPE_CHECKING:

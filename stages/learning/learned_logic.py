@@ -1,7 +1,7 @@
 """Predicates and formulas learned from the training split, chosen by cross-validation on the folds `mlnseq fit`
 cuts (`binarize --suggest` and `fit` without --spec).
 
-1. **Candidates** (mlnseq.predicates.candidates): per channel (each feature, and the distance between two 3-D
+1. **Candidates** (mlnseq.learning.candidates): per channel (each feature, and the distance between two 3-D
    points) a level and a change over a window, or a gripper predicate, their thresholds by decision stumps.
 2. **A pool**: of the ``PRESELECT`` candidates of best out-of-fold gain (and every gripper), the ``POOL`` whose
    chain alone scores best in the quick stand-in below, at most ``PER_CHANNEL`` per channel (bounded cost on a
@@ -31,11 +31,11 @@ import polars as pl
 
 from mlnseq.catalog.parts import Part
 from mlnseq.mln.chain import chain_starts
-from mlnseq.predicates import candidates as kinds
-from mlnseq.predicates.candidates import Candidate, Frames
+from mlnseq.learning import candidates as kinds
+from mlnseq.learning.candidates import Candidate, Frames
 from mlnseq.predicates.spec import Distance
-from mlnseq.recognition import quick_chain
-from mlnseq.recognition.quick_chain import Split
+from mlnseq.learning import quick_chain
+from mlnseq.learning.quick_chain import Split
 
 PRESELECT = 40  # candidates of best out-of-fold gain whose chains are scored (with every gripper)
 POOL = 20
@@ -96,7 +96,7 @@ class Training:
 def training(frames: pl.DataFrame, n_classes: int) -> Training | None:
     """The search's view of ``frames`` (sorted by episode and frame): None when the training split is too small for
     2 folds (cut as `mlnseq fit` cuts them)."""
-    from mlnseq.recognition import folds as folding
+    from mlnseq.choosing import folds as folding
 
     episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].to_numpy().astype(np.int64)
@@ -182,7 +182,7 @@ def channels(frames: pl.DataFrame) -> tuple[Found, list[Distance]]:
     """(column, predicate name, values, derived) of every feature and of the distance between each pair of the first
     3-D points, and those distances as spec channels."""
     from mlnseq.catalog import artifacts
-    from mlnseq.predicates import suggest
+    from mlnseq.learning import suggest
 
     features = artifacts.feature_columns(frames)
     names = suggest.names_for(features)
@@ -199,7 +199,7 @@ def channels(frames: pl.DataFrame) -> tuple[Found, list[Distance]]:
 def candidates_of(found: Found, view: Frames) -> list[Candidate]:
     """Each channel's candidates (a gripper, or a level and a change; a distance is no gripper) with their out-of-fold
     gains."""
-    from mlnseq.predicates import suggest
+    from mlnseq.learning import suggest
 
     taken: set[str] = set()
     made: list[Candidate] = []
@@ -243,12 +243,12 @@ def exact(chosen: list[Candidate], conjunctions: list[Conjunction], data: Traini
     learned on the other folds (from ``near``'s, a smaller set's, where given), its frames decoded by the filter from
     the other folds' start distribution. Its figures, and each fold's weights."""
     from mlnseq.mln.factors import MLNFactors
-    from mlnseq.recognition.cross_validation import figures_of
-    from mlnseq.recognition.decoding import start_of
-    from mlnseq.recognition.latency import CRITERION
-    from mlnseq.recognition.recognizer import chain_of
+    from mlnseq.choosing.cross_validation import figures_of
+    from mlnseq.fusion.decoding import start_of
+    from mlnseq.choosing.latency import CRITERION
+    from mlnseq.fusion.fuse import chain_of
 
-    from mlnseq.recognition.decoding import decode_each
+    from mlnseq.fusion.decoding import decode_each
 
     view, episodes = data.frames, data.episodes
     mln = formulas(conjunctions)

@@ -1,4 +1,4 @@
-"""The terms of an undecoded frame's margin, log P(a) - log P(b), by the rescale rule (stages/recognition/explaining.py
+"""The terms of an undecoded frame's margin, log P(a) - log P(b), by the rescale rule (stages/explaining/explainer.py
 says why it is exact): the network alone; the MLN's formulas, each its share of the score difference; eq. 16, the
 network's and the MLN's shares of the log-odds difference it adds up."""
 
@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 
 from mlnseq.catalog.methods import NETWORKS, Method
-from mlnseq.recognition.explaining import TINY, Explainer, Gathered, Scores
-from mlnseq.recognition.explanation import Term, TermKind
+from mlnseq.explaining.explainer import TINY, Explainer, Gathered, Scores
+from mlnseq.explaining.terms import Term, TermKind
 
 
 def _logit(p: np.ndarray, epsilon: float) -> np.ndarray:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mlnseq.predicates.candidates import Candidate
+from mlnseq.learning.candidates import Candidate
 from mlnseq.predicates.spec import Bins, Change, Distance, Gripper
 
 DIGEST = "mlnseq-learned: sha256 "  # the last header line, after the comment mark: the digest of every other line

@@ -1,7 +1,7 @@
-"""The terms of a decoded frame's margin (stages/recognition/explaining.py says what they are): its formulas,
+"""The terms of a decoded frame's margin (stages/explaining/explainer.py says what they are): its formulas,
 the network and the start distribution (its unary), the past and the future (the chain's messages), and the hard
 rules that removed classes. A frame's parts (``FrameParts``) come from a whole recording's messages (``decoded``)
-or from a stream's held frames (stages/recognition/explaining_live.py)."""
+or from a stream's held frames (stages/explaining/streaming.py)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.catalog.methods import FUSED, Method
 from mlnseq.mln.lag import FORBID, allowed
-from mlnseq.recognition.explaining import Explainer, Gathered, Scores
-from mlnseq.recognition.explanation import Term, TermKind
+from mlnseq.explaining.explainer import Explainer, Gathered, Scores
+from mlnseq.explaining.terms import Term, TermKind
 
 
 @dataclass(slots=True)

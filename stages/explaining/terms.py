@@ -6,7 +6,7 @@ terms add up to it: each formula (weight x the difference of its true groundings
 network (its weight x the difference of its log-probabilities), the start distribution at a chain's first frame,
 the past (the forward message: what the frames before carry in) and, with a lag or offline, the future (the
 backward message over the frames the decision waited for). A hard rule that removed a class is a term without a
-number. stages/recognition/explaining.py computes them; docs/explain.md reads one.
+number. stages/explaining/explainer.py computes them; docs/explain.md reads one.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mlnseq.catalog import artifacts
-from mlnseq.recognition import latency
+from mlnseq.choosing import latency
 
 from choice_rule import expected_choice  # tests/choice_rule.py
 

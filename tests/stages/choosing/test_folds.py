@@ -13,8 +13,8 @@ import pytest
 from mlnseq.catalog import artifacts
 from mlnseq.model import checkpoints
 from mlnseq import conflate, export, learn_weights, train
-from mlnseq.recognition import folds
-from mlnseq.recognition.cross_validation import FIGURES
+from mlnseq.choosing import folds
+from mlnseq.choosing.cross_validation import FIGURES
 from mlnseq.catalog.errors import BadInput, StaleArtifact
 
 from choice_rule import expected_choice  # tests/choice_rule.py

@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from mlnseq.recognition.explained import explain
-from mlnseq.recognition.explaining import Explainer, Keys, Scores
-from mlnseq.recognition.explanation import Explanation, Term, TermKind
+from mlnseq.explaining.frames import explain
+from mlnseq.explaining.explainer import Explainer, Keys, Scores
+from mlnseq.explaining.terms import Explanation, Term, TermKind
 
 
 MESSAGES = {TermKind.PAST: "frames before (the forward message)",

@@ -1,4 +1,4 @@
-"""binarize --suggest: what it reads off the columns (mlnseq.predicates.suggest; the real DESK Taurus kinematics, 14
+"""binarize --suggest: what it reads off the columns (mlnseq.learning.suggest; the real DESK Taurus kinematics, 14
 channels of two arms, grippers 30 (closed) .. 100 (open)), and the spec and formulas it learns and writes
 (recognition/learned_files.py) on a small recording of the generated 7-joint arm (tests/arm_bags.py: 3 training
 episodes and a test one), read back as written, from the training split only; and the per-class table."""
@@ -13,9 +13,10 @@ import pytest
 
 from mlnseq import binarize, collect
 from mlnseq.catalog import artifacts
-from mlnseq.predicates import learned_spec, separation, suggest
+from mlnseq.learning import learned_spec, suggest
+from mlnseq.predicates import separation
 from mlnseq.predicates.spec import parse_spec
-from mlnseq.recognition import folds as folding
+from mlnseq.choosing import folds as folding
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from mlnseq.predicates import learned_spec
-from mlnseq.recognition import learned_logic
-from mlnseq.recognition.learned_logic import Conjunction, Searched
+from mlnseq.learning import learned_spec
+from mlnseq.learning import learned_logic
+from mlnseq.learning.learned_logic import Conjunction, Searched
 
 FORMULAS_SUFFIX = ".formulas.mln"
 SAID = 5  # formulas said in words

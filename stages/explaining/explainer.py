@@ -1,4 +1,4 @@
-"""A decided frame's margin as the exact sum of its terms (stages/recognition/explanation.py holds the terms).
+"""A decided frame's margin as the exact sum of its terms (stages/explaining/terms.py holds the terms).
 
 Decoded methods (a chain): each frame's decision scores are, up to a constant per frame (stages/mln/chain_messages.py),
 
@@ -34,7 +34,7 @@ from mlnseq.mln.factors import LearnedFormula, frame_space
 from mlnseq.mln.features import PairColumns, read_columns
 from mlnseq.mln.formula_sources import Written
 from mlnseq.mln.formula_truths import Truths, frame_truths, pair_truths
-from mlnseq.recognition.explanation import Term, TermKind
+from mlnseq.explaining.terms import Term, TermKind
 
 TINY = 1e-12  # a score difference this small is no difference: the rescale rule gives it nothing
 

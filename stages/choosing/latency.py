@@ -246,7 +246,7 @@ def start_distribution(workdir: Any) -> Any:
     import polars as pl
 
     from mlnseq.catalog import artifacts
-    from mlnseq.recognition.decoding import start_of
+    from mlnseq.fusion.decoding import start_of
 
     frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
     meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")

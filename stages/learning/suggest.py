@@ -1,5 +1,5 @@
 """What `mlnseq binarize --suggest` reads off the frames' columns before it learns predicates from them
-(mlnseq.predicates.candidates, mlnseq.recognition.learned_logic): short predicate names made from the columns,
+(mlnseq.learning.candidates, mlnseq.learning.learned_logic): short predicate names made from the columns,
 which channels look like a gripper's opening (named gripper, finger, claw or jaw, or most of their frames at their
 two extreme levels), and the 3-D points (columns ending in x, y, z) whose distances are channels too.
 """

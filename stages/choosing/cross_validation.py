@@ -21,11 +21,11 @@ import numpy as np
 from mlnseq.catalog.methods import decoded_name, network_of
 from mlnseq.mln import chain
 from mlnseq.mln.chain_factors import ChainFactors
-from mlnseq.recognition import decoding as decoders
-from mlnseq.recognition.recognizer import chain_of, fuse
+from mlnseq.fusion import decoding as decoders
+from mlnseq.fusion.fuse import chain_of, fuse
 
 if TYPE_CHECKING:
-    from mlnseq.recognition.workdir_inputs import MLNInputs, WorkdirInputs
+    from mlnseq.choosing.workdir_inputs import MLNInputs, WorkdirInputs
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
 # beside them: log_likelihood (nats per frame, of the true labels) and forbidden_transitions (decoded methods)

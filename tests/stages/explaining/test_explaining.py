@@ -17,10 +17,10 @@ from mlnseq.catalog.decoders import Decoder, parse_decoding
 from mlnseq.catalog.methods import Method, MLNMode, PaperFloor
 from mlnseq.mln import chain, classifier
 from mlnseq.mln.factors import MLNFactors, parse_weights
-from mlnseq.recognition.explained import explain
-from mlnseq.recognition.explaining import Explainer, Scores, Scoring
-from mlnseq.recognition.explanation import TermKind
-from mlnseq.recognition.recognizer import EPSILON, chain_of, decode_chain, fuse
+from mlnseq.explaining.frames import explain
+from mlnseq.explaining.explainer import Explainer, Scores, Scoring
+from mlnseq.explaining.terms import TermKind
+from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain, fuse
 
 WORDS = ("w0", "w1", "w2")
 CLASSES = ("a", "b", "c")

@@ -10,9 +10,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from mlnseq.predicates import candidates as kinds
+from mlnseq.learning import candidates as kinds
 from mlnseq.predicates.spec import Bins, Change, Gripper
-from mlnseq.recognition import learned_logic
+from mlnseq.learning import learned_logic
 
 EPISODES, PHASE = 6, 40  # frames per phase: each episode is A, B, A, B
 

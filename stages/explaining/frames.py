@@ -1,5 +1,5 @@
-"""Explanations of a recording's frames: the decoded methods' (stages/recognition/explaining_chain.py) and the
-undecoded ones' (explaining_fusion.py), from what a Scoring scored (stages/recognition/explaining.py)."""
+"""Explanations of a recording's frames: the decoded methods' (stages/explaining/decoded.py) and the
+undecoded ones' (explaining_fusion.py), from what a Scoring scored (stages/explaining/explainer.py)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import Method, network_of
 from mlnseq.mln import chain_messages
 from mlnseq.mln.formula_sources import Written, read_written
-from mlnseq.recognition.decoding import decoding_of
-from mlnseq.recognition.explaining import Explainer, Keys, Scores, Scoring, how
-from mlnseq.recognition.explaining_chain import decoded
-from mlnseq.recognition.explaining_fusion import undecoded
-from mlnseq.recognition.explanation import Explanation
+from mlnseq.fusion.decoding import decoding_of
+from mlnseq.explaining.explainer import Explainer, Keys, Scores, Scoring, how
+from mlnseq.explaining.decoded import decoded
+from mlnseq.explaining.undecoded import undecoded
+from mlnseq.explaining.terms import Explanation
 
 
 def explain(explainer: Explainer, scores: Scores, rows: list[int], versus: int | None = None,

@@ -4,7 +4,7 @@ Each stepped frame is recorded with what its decision reads: its evidence, its d
 in it at an episode's first frame), the network's log-probabilities, the pairwise factor joining the previous frame,
 and the forward vector before it (kept here, in log space, as stages/mln/chain_messages.py computes it). When the
 decoder decides the frame (at once, or once frame t + lag has arrived), its future is the backward message over the
-frames held after it, and its terms are those of a whole recording's frame (stages/recognition/explaining_chain.py):
+frames held after it, and its terms are those of a whole recording's frame (stages/explaining/decoded.py):
 the same numbers. The decoders offline (posterior, Viterbi) stream as the filter, and are explained so.
 """
 
@@ -19,11 +19,11 @@ import numpy as np
 
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.mln.chain_messages import carried_in, moved_back
-from mlnseq.recognition.explained import scoring_of
-from mlnseq.recognition.explaining import Explainer, Scores
-from mlnseq.recognition.explaining_chain import FrameParts, terms_of
-from mlnseq.recognition.explaining_fusion import undecoded
-from mlnseq.recognition.explanation import TermKind, Why, brief
+from mlnseq.explaining.frames import scoring_of
+from mlnseq.explaining.explainer import Explainer, Scores
+from mlnseq.explaining.decoded import FrameParts, terms_of
+from mlnseq.explaining.undecoded import undecoded
+from mlnseq.explaining.terms import TermKind, Why, brief
 
 
 SIZE = attrgetter("size")

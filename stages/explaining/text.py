@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import textwrap
 
-from mlnseq.recognition.explaining_segments import Segment
-from mlnseq.recognition.explanation import Explanation, Term, TermKind
+from mlnseq.explaining.segments import Segment
+from mlnseq.explaining.terms import Explanation, Term, TermKind
 
 WIDTH = 80
 SHOWN = 12  # terms listed one by one at most

@@ -15,11 +15,11 @@ from mlnseq.mln import chain
 from mlnseq.catalog.methods import Method, WeightSource, network_of
 from mlnseq.catalog.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
 from mlnseq.catalog.parts import Part
-from mlnseq.recognition.recognizer import chain_of, decode_chain
+from mlnseq.fusion.fuse import chain_of, decode_chain
 
 if TYPE_CHECKING:
     from mlnseq.mln.factors import MLNFactors
-    from mlnseq.recognition.workdir_inputs import WorkdirInputs
+    from mlnseq.choosing.workdir_inputs import WorkdirInputs
 
 NETWORK_WEIGHTS = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)  # the network factor's weights tried on validation
 
@@ -93,7 +93,7 @@ class WeightDecision:
 
     def choice(self, method: Method, kind: str) -> WeightChoice:
         """The weight of ``method`` (a network method) decoded by ``kind``, and how it was set."""
-        from mlnseq.recognition.cross_validation import test_weight
+        from mlnseq.choosing.cross_validation import test_weight
 
         network = network_of(method)
         if self.fixed is not None:

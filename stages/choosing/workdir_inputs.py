@@ -17,7 +17,7 @@ from mlnseq.timeline import sequences
 from mlnseq.model.checkpoints import Checkpoint, checkpoint_config, load_checkpoint
 from mlnseq.model.log_prob_cache import cached_log_probs
 from mlnseq.catalog.errors import BadInput, StaleArtifact
-from mlnseq.recognition.folds import Folds
+from mlnseq.choosing.folds import Folds
 from mlnseq.catalog.methods import NETWORKS, Method, PaperFloor
 from mlnseq.catalog.notes import MISSING_INPUT, Note
 from mlnseq.catalog.parts import Part
@@ -135,7 +135,7 @@ def paper_floor(workdir: Path, frames_meta: dict[str, Any]) -> PaperFloor:
 def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
     """Frames, the MLN (when weights.parquet exists) and each of ``networks`` that is trained, run over all
     frames; what is absent is left out with a note. PriorLayer needs the MLN for its input."""
-    from mlnseq.recognition.recognizer import prior_input
+    from mlnseq.fusion.fuse import prior_input
 
     workdir = Path(workdir)
     frames_path = workdir / artifacts.FRAMES
@@ -183,7 +183,7 @@ def _read_mln(workdir: Path, frames: pl.DataFrame, result: WorkdirInputs) -> MLN
 def read_folds(workdir: Path, inputs: WorkdirInputs) -> FoldInputs | None:
     """The out-of-fold predictions of the networks trained with folds, and each fold's MLN; None when no network
     was. Networks with other folds than each other, or an out-of-fold file that is not its checkpoint's, are refused."""
-    from mlnseq.recognition import folds as folding
+    from mlnseq.choosing import folds as folding
     from mlnseq.mln import classifier
 
     folded = {n: r for n, r in inputs.networks.items() if r.checkpoint.config.get("folds")}

@@ -20,7 +20,7 @@ import numpy as np
 from mlnseq.mln import chain
 from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.lag import with_start
-from mlnseq.recognition.decoding import start_of
+from mlnseq.fusion.decoding import start_of
 
 L2 = 0.1  # as the CLL learner's default penalty (stages/mln/cll.py DEFAULT_L2), per weight, over the whole split
 LAPLACE = 1.0

@@ -109,7 +109,7 @@ def block_cuts(episodes: np.ndarray, labels: np.ndarray, k: int) -> tuple[list[i
     """Where K blocks of the training rows begin (positions 1 .. n-1, ascending), and how they were cut: the cuts of
     K equal blocks each moved to a task restart, at least cost (the sum of the moves; a segment boundary that is
     not a restart costs half a block more), in order; with too few boundaries, the equal cuts."""
-    from mlnseq.recognition.decoding import start_of
+    from mlnseq.fusion.decoding import start_of
 
     n = len(labels)
     ideal = np.array([round(n * j / k) for j in range(1, k)], dtype=np.float64)
