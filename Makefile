@@ -120,18 +120,20 @@ reproduce: $(SETUP_DONE) ## Set up (without pracmln), then rebuild the paper's r
 report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and the report (no set-up)
 	@$(if $(HAVE_DESK),,echo "DESK Taurus files not found in $(DESK_DIR): the DESK half was skipped (set DESK_DIR=...)")
 
-# Each stage's sources: its own file and the library folders it reads (stages/ holds a file per stage and a
-# folder per shared library), so a change anywhere a stage depends on reruns it.
+# Each stage's sources: its own file and every module of the library folders it imports, directly or through another
+# folder (stages/ holds a file per stage and a folder per library), so a change anywhere a stage depends on reruns it.
+# tests/stages/test_layout.py checks each list against the imports.
 libraries = $(foreach folder,$(1),$(wildcard stages/$(folder)/*.py)) stages/__init__.py
-RECOGNITION_LIBRARIES := catalog timeline predicates mln networks model recognition
+NETWORK_LIBRARIES := catalog timeline mln networks model fusion choosing
 COLLECT_SOURCES := stages/collect.py $(call libraries,catalog sources)
-BINARIZE_SOURCES := stages/binarize.py $(call libraries,catalog predicates)
+BINARIZE_SOURCES := stages/binarize.py $(call libraries,$(NETWORK_LIBRARIES) predicates learning)
 FORMULAS_SOURCES := stages/formulas.py $(call libraries,catalog mln)
-LEARN_SOURCES := stages/learn_weights.py $(call libraries,$(RECOGNITION_LIBRARIES))
-TRAIN_SOURCES := stages/train.py $(call libraries,$(RECOGNITION_LIBRARIES))
-RECOGNIZER_SOURCES := stages/conflate.py $(call libraries,$(RECOGNITION_LIBRARIES))
+LEARN_SOURCES := stages/learn_weights.py $(call libraries,catalog timeline mln fusion choosing)
+TRAIN_SOURCES := stages/train.py $(call libraries,$(NETWORK_LIBRARIES))
+RECOGNIZER_SOURCES := stages/conflate.py $(call libraries,$(NETWORK_LIBRARIES))
 EVAL_SOURCES := stages/eval.py $(call libraries,catalog timeline)
-REPORT_SOURCES := stages/report.py mlnseq_cli/report.py $(call libraries,$(RECOGNITION_LIBRARIES) reporting)
+REPORT_SOURCES := stages/report.py mlnseq_cli/report.py \
+  $(call libraries,$(NETWORK_LIBRARIES) predicates explaining recognition reporting)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(REPORT_SOURCES)
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)

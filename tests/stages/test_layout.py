@@ -177,3 +177,116 @@ def test_the_import_rule_sees_each_form_of_import():
     tree = ast.parse("import mlnseq.train\nfrom mlnseq import formulas\nfrom mlnseq.report import run\n"
                      "def late():\n    from mlnseq.export import run\n")
     assert {stage_of(name) for name in imported_modules(tree)} >= {"train", "formulas", "report", "export"}
+
+
+# --- the plan kept true: docs/layout.md's floors and modules, the Makefile's stage sources ----------------------
+
+LAYOUT_PAGE = REPO / "docs" / "layout.md"
+MAKEFILE = REPO / "Makefile"
+
+
+def documented_floors(page: str) -> dict[str, int]:
+    """Each library folder's floor as the floors block of docs/layout.md draws it."""
+    block = page.split("## The floors", 1)[1].split("```", 2)[1]
+    floors = {}
+    for line in block.splitlines():
+        words = line.split()
+        if words[:1] == ["floor"]:
+            floors |= {word.rstrip("/"): int(words[1]) for word in words[2:] if word.endswith("/")}
+    return floors
+
+
+def folder_imports() -> dict[str, set[str]]:
+    folders = defaultdict(set)
+    for module, targets in module_graph().items():
+        for target in targets:
+            source, dest = library_of(module), library_of(target)
+            if source and dest and source != dest:
+                folders[source].add(dest)
+    return folders
+
+
+def imports_up(floors: dict[str, int], imports: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{source}/ (floor {floors[source]}) imports {dest}/ (floor {floors[dest]})"
+                  for source, targets in imports.items() for dest in targets if floors[dest] >= floors[source])
+
+
+def test_every_library_folder_stands_on_a_documented_floor():
+    floors = documented_floors(LAYOUT_PAGE.read_text())
+    assert set(LIBRARIES) - {"specs"} <= set(floors), set(LIBRARIES) - set(floors)
+
+
+def test_no_import_runs_up_the_documented_floors():
+    assert imports_up(documented_floors(LAYOUT_PAGE.read_text()), folder_imports()) == []
+
+
+def test_the_floor_rule_finds_an_import_up_or_sideways():
+    floors = {"catalog": 0, "mln": 1, "sources": 1}
+    assert imports_up(floors, {"catalog": {"mln"}, "mln": {"sources", "catalog"}}) == [
+        "catalog/ (floor 0) imports mln/ (floor 1)", "mln/ (floor 1) imports sources/ (floor 1)"]
+
+
+def named_by_folder(page: str) -> dict[str, str]:
+    """The text docs/layout.md gives each folder: its row of the folders table and the sections headed by it."""
+    said: dict[str, str] = defaultdict(str)
+    folder = ""
+    for line in page.splitlines():
+        if line.startswith("#"):
+            heading = [word.strip("`:") for word in line.split() if word.strip("`:").startswith("stages/")]
+            folder = heading[0].removeprefix("stages/").strip("/") if heading else ""
+            continue
+        cells = line.split("|")
+        row_folder = cells[1].strip().strip("`").rstrip("/") if line.startswith("|") and len(cells) > 2 else ""
+        said[row_folder if row_folder in LIBRARIES else folder] += line + "\n"
+    return said
+
+
+def unnamed_modules(page: str) -> list[str]:
+    said = named_by_folder(page)
+    missing = [path.name for path in STAGES.glob("*.py") if path.stem != "__init__" and f"`{path.name}`" not in said[""]]
+    for folder in LIBRARIES:
+        missing += [f"{folder}/{path.name}" for path in sorted((STAGES / folder).glob("*.py"))
+                    if path.stem != "__init__" and path.name not in said[folder]]
+    return missing
+
+
+def test_docs_layout_names_every_module_in_its_folder():
+    assert unnamed_modules(LAYOUT_PAGE.read_text()) == []
+
+
+def test_the_naming_rule_finds_a_missing_module():
+    page = LAYOUT_PAGE.read_text()
+    assert unnamed_modules(page.replace("`fuse.py`", "`fused.py`")) == ["fusion/fuse.py"]
+
+
+def makefile_sources(makefile: str) -> dict[str, tuple[set[str], set[str]]]:
+    """Each ``X_SOURCES`` list of the Makefile: its own files and its library folders, variables expanded."""
+    joined = makefile.replace("\\\n", " ")
+    variables = {name.strip(): value.strip() for name, value in
+                 (line.split(":=", 1) for line in joined.splitlines() if ":=" in line and not line.startswith("\t"))}
+    lists = {}
+    for name, value in variables.items():
+        if name.endswith("_SOURCES") and "$(call libraries," in value:
+            for variable, expansion in variables.items():
+                value = value.replace(f"$({variable})", expansion)
+            files, call = value.split("$(call libraries,", 1)
+            lists[name] = (set(files.split()), set(call.split(")", 1)[0].split()))
+    return lists
+
+
+def imported_libraries(start: list[str]) -> set[str]:
+    graph, seen, todo = module_graph(), set(), list(start)
+    while todo:
+        if (module := todo.pop()) not in seen:
+            seen.add(module)
+            todo += graph.get(module, ())
+    return {folder for module in seen if (folder := library_of(module))}
+
+
+def test_the_makefile_stage_sources_follow_the_imports():
+    wrong = {}
+    for name, (files, folders) in makefile_sources(MAKEFILE.read_text()).items():
+        start = [f"mlnseq.{Path(f).stem}" if f.startswith("stages/") else f"mlnseq_cli.{Path(f).stem}" for f in files]
+        if folders != (needed := imported_libraries(start)):
+            wrong[name] = f"has {sorted(folders)}, its stage imports {sorted(needed)}"
+    assert wrong == {}
