@@ -77,10 +77,16 @@ def print_collected(path: Path, collected: stage.Collected) -> None:
     console.print(
         f"[green]collect[/]: wrote {path} ({counted(frames.height, 'frame')}, "
         f"{counted(frames['episode'].n_unique(), 'episode')}, "
-        f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test, "
+        f"{split_sizes.get('train', 0):,} train / {split_sizes.get('test', 0):,} test"
+        f"{f' / {unlabelled:,} unlabelled' if (unlabelled := split_sizes.get('unlabelled', 0)) else ''}, "
         f"{counted(len(collected.meta['features']), 'feature')})"
     )
     console.print(collected.classes_line, markup=False, highlight=False)
+    filled = collected.meta.get("clicks_filled")
+    if filled:
+        console.print(f"clicks: {counted(filled['clicks'], 'click')}, one label each; "
+                      f"{counted(filled['boundaries'], 'boundary', 'boundaries')} between them learned "
+                      f"({filled['method']})", highlight=False)
     for note in collected.meta.get("notes", []):
         console.print(f"note: {note}")
     if "success_rate" in collected.meta:

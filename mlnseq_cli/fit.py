@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.resources
 import inspect
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -19,6 +20,7 @@ from rich.markup import escape
 
 from mlnseq_cli import collect as collect_cli
 from mlnseq.catalog.errors import BadInput
+from mlnseq.sources.splits import FEW_LABELLED, Holdout
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, fail, reported_errors
 
 SUGGESTED_SPEC = "learned.binarize.toml"
@@ -69,7 +71,8 @@ def fit(**flags: Any) -> None:
     if own["output"] is not None and Path(own["output"]).exists():
         raise fail(f"--output {own['output']} exists: remove it or name another file (fit writes a new model)", 2)
     with reported_errors():
-        plan = stages(collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"}), own, workdir)
+        options = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"})
+        plan = stages(replace(options, holdout=Holdout.UNLESS_FEW), own, workdir)  # few labels: all train
         run_plan(plan, own, workdir)
 
 
@@ -83,6 +86,11 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
     collect_options.validate()
     path, collected = collect.run(workdir, collect_options)
     collect_cli.print_collected(path, collected)
+    splits = collected.frames["split"]
+    n_labelled = collected.frames.filter(splits != "unlabelled")["episode"].n_unique()
+    if n_labelled < FEW_LABELLED and not (splits == "test").any():
+        console.print(f"{counted(n_labelled, 'labelled recording')}, fewer than {FEW_LABELLED}: every one trains, "
+                      "none is spent on a test split; the cross-validated figures are the estimate", highlight=False)
     suggested = None if own["spec"] is not None else workdir / SUGGESTED_SPEC
     _, binarized = binarize.run(workdir, binarize.BinarizeOptions(spec=own["spec"], suggest=suggested))
     learned = binarized.meta.get("learned")

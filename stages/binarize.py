@@ -135,6 +135,7 @@ def run(workdir: Path, options: BinarizeOptions) -> tuple[Path, Binarized]:
     options.validate()
     frames_path = Path(workdir) / artifacts.FRAMES
     frames, frames_meta = artifacts.read_table(frames_path, "frames")
+    frames = artifacts.labelled(frames)  # unlabelled recordings are learned from elsewhere (mlnseq.labelling)
     source = frames_meta.get("source", "")
     learned = None
     if options.suggest is not None:

@@ -21,6 +21,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
 from mlnseq.sources.recording import Collected, TableColumns, split_by_position
+from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
 
 
@@ -38,6 +39,7 @@ class CollectOptions:
     columns: TableColumns = TableColumns()  # table: which columns are keys and features
     recordings: SourceOptions = SourceOptions()  # recording sources: labels file, topics, rate...
     cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
+    holdout: Holdout = Holdout.SHARE  # recordings without a split column: UNLESS_FEW (fit) spends none below 5
 
     def validate(self) -> None:
         check_choice("env", self.env, ENVS)
@@ -67,7 +69,11 @@ Progress = Callable[[int, int], None]
 def collect_recordings(options: CollectOptions) -> Collected:
     """Import a user's recordings; ``train_frames``, when given, overrides their split (first K frames train)."""
     recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings)
-    frames, meta = collect_frames(recordings, options.columns.classes)
+    frames, meta = collect_frames(recordings, options.columns.classes, options.holdout)
+    if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
+        from mlnseq.sources import clicks
+
+        frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))
     meta["source"] = options.env
@@ -80,10 +86,15 @@ def collect_recordings(options: CollectOptions) -> Collected:
                             ("skipped_features", "image and video features"),
                             ("empty_columns", "columns without a value"))
           if r.resolved.get(key)),
-        *(note for r in recordings for note in r.resolved.get("notes", []))]))  # a source's own notes
+        *(note for r in recordings for note in r.resolved.get("notes", [])),  # a source's own notes
+        *([unlabelled_note(len(meta["unlabelled_episodes"]))] if meta.get("unlabelled_episodes") else [])]))
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
     return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))
+
+
+def unlabelled_note(n: int) -> str:
+    return f"{n:,} recording{'s' if n != 1 else ''} without labels: used unlabelled (never in a test split or a score)"
 
 
 def table_class_order(columns: TableColumns, classes: list[str]) -> str:

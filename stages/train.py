@@ -287,6 +287,7 @@ def _read_inputs(workdir: Path, options: TrainOptions) -> tuple[pl.DataFrame, di
     and the options with the recordings' paper floor."""
     frames_path = workdir / artifacts.FRAMES
     frames, meta = artifacts.read_table(frames_path, "frames")
+    frames = artifacts.labelled(frames)
     options = replace(options, paper_floor=options.paper_floor or PaperFloor.for_recordings(meta.get("source", "")))
     inputs = [frames_path]
     prior = None

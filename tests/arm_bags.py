@@ -161,8 +161,9 @@ def episode_signals(robot: Robot, seed: int) -> dict[str, np.ndarray]:
             "phase": np.concatenate(episode.phases)}
 
 
-def write_bag(path: Path, robot: Robot, seed: int) -> Path:
-    """One ROS 2 bag (MCAP storage) of one episode of ``robot`` drawn with ``seed``."""
+def write_bag(path: Path, robot: Robot, seed: int, phases: bool = True) -> Path:
+    """One ROS 2 bag (MCAP storage) of one episode of ``robot`` drawn with ``seed``; without /phase when not
+    ``phases`` (a recording nobody labelled)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -175,11 +176,11 @@ def write_bag(path: Path, robot: Robot, seed: int) -> Path:
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
         gripper = writer.add_connection("/gripper/width", Float64.__msgtype__, typestore=store)
-        phase = writer.add_connection("/phase", String.__msgtype__, typestore=store)
+        phase = writer.add_connection("/phase", String.__msgtype__, typestore=store) if phases else None
         previous = None
         for k, label in enumerate(signals["phase"]):
             t = start + k * step
-            if label != previous:
+            if label != previous and phase is not None:
                 previous = label
                 writer.write(phase, t, store.serialize_cdr(String(data=PHASES[label]), String.__msgtype__))
             message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="base"),
@@ -188,6 +189,18 @@ def write_bag(path: Path, robot: Robot, seed: int) -> Path:
             writer.write(joints, t, store.serialize_cdr(message, JointState.__msgtype__))
             writer.write(gripper, t, store.serialize_cdr(Float64(data=float(signals["width"][k])), Float64.__msgtype__))
     return path
+
+
+def clicks(robot: Robot, seeds: dict[str, int], where: float = 0.5) -> list[str]:
+    """One click per phase of each episode (name: seed), at ``where`` of the phase (0: its first frame), as
+    ``episode,frame,label`` lines."""
+    lines = ["episode,frame,label"]
+    for name, seed in seeds.items():
+        phase = episode_signals(robot, seed)["phase"]
+        for index, label in enumerate(PHASES):
+            frames = np.flatnonzero(phase == index)
+            lines.append(f"{name},{frames[int(where * (len(frames) - 1))]},{label}")
+    return lines
 
 
 def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: int = 6, heldout: int = 2,

@@ -1,9 +1,9 @@
 """The workdir's file names, the Parquet schemas, self-describing metadata and atomic write/read.
 
-Every stage reads its inputs from and writes its outputs to one workdir, by the fixed names below.
-Each Parquet artifact carries a JSON metadata entry (key ``mlnseq``) with the schema version, the
-options used, the class and feature names, and a digest of every input it was made from, so a
-reader can refuse an unknown version and name the stage to rerun when an input changed since.
+Every stage reads its inputs from and writes its outputs to one workdir, by the fixed names below. Each Parquet
+artifact carries a JSON metadata entry (key ``mlnseq``): the schema version, the options used, the class and feature
+names, and a digest of every input, so a reader refuses an unknown version and names the stage to rerun when an
+input changed since.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mlnseq.catalog.errors import BadInput, MissingArtifact, StaleArtifact
+from mlnseq.catalog.parts import Part, label_mismatch, labelled  # noqa: F401 (labelled: the stages read it here)
 
 SCHEMA_VERSION = 1
 META_KEY = b"mlnseq"
@@ -343,8 +344,8 @@ def frames_table(keys: dict[str, Any], features: dict[str, Any]) -> pl.DataFrame
 
 def check_frames(frames: pl.DataFrame, meta: dict[str, Any], path: Path) -> None:
     """Refuse frames no stage can use, naming the first bad row: missing or mistyped key columns,
-    non-float or non-finite features, no rows, splits other than train/test, labels outside the
-    classes, a single class, or frames that do not rise strictly within each episode."""
+    non-float or non-finite features, no rows, splits other than train/test (or unlabelled: no label), labels
+    outside the classes, a single class, or frames that do not rise strictly within each episode."""
     fix = f"repair it or rerun `mlnseq {producer_of(path)}`"
 
     def at(mask: pl.Series) -> str:
@@ -367,24 +368,24 @@ def check_frames(frames: pl.DataFrame, meta: dict[str, Any], path: Path) -> None
     if frames.height == 0:
         raise BadInput(f"{path} holds no frames; {fix}")
     for name in KEY_COLUMNS:
-        if frames[name].null_count():
-            raise BadInput(f"{path} column {name!r} is empty at row {int(frames[name].is_null().arg_true()[0])}; {fix}")
+        bad, what = label_mismatch(frames) if name == "label" else (frames[name].is_null(), "empty")
+        if bad.any():
+            raise BadInput(f"{path} column {name!r} is {what} at row {int(bad.arg_true()[0])}; {fix}")
     for name in features:
         bad = frames[name].is_null() | ~frames[name].is_finite()
         if bad.any():
             raise BadInput(f"{path} column {name!r} is empty, NaN or infinite at {at(bad)}; {fix}")
-    bad = ~frames["split"].is_in(SPLITS)
-    if bad.any():
+    if (bad := ~frames["split"].is_in([*SPLITS, Part.UNLABELLED])).any():
         raise BadInput(f"{path} has split {frames['split'].filter(bad)[0]!r} at {at(bad)}; "
-                       f"splits are {', '.join(SPLITS)}; {fix}")
+                       f"splits are {', '.join(SPLITS)} (and {Part.UNLABELLED}); {fix}")
     classes = meta.get("classes") or []
     if classes:
         bad = (frames["label"] < 0) | (frames["label"] >= len(classes))
         if bad.any():
             raise BadInput(f"{path} has label {frames['label'].filter(bad)[0]} at {at(bad)}, outside its "
                            f"{len(classes)} classes 0..{len(classes) - 1}; {fix}")
-    if frames["label"].n_unique() < 2:
-        raise BadInput(f"{path} holds a single class (label {frames['label'][0]}); mlnseq needs two or more")
+    if (given := frames["label"].drop_nulls()).n_unique() < 2:
+        raise BadInput(f"{path} holds a single class (label {given[0]}); mlnseq needs two or more")
     episode, frame = frames["episode"], frames["frame"]
     same = (episode == episode.shift(1)).fill_null(False)
     bad = same & (frame <= frame.shift(1)).fill_null(False)

@@ -248,7 +248,7 @@ def start_distribution(workdir: Any) -> Any:
     from mlnseq.catalog import artifacts
     from mlnseq.fusion.decoding import start_of
 
-    frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
+    frames = artifacts.labelled(pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"]))
     meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
     train = frames["split"].to_numpy() != "test"
     return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,

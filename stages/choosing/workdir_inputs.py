@@ -140,6 +140,7 @@ def read_workdir(workdir: Path, networks: Sequence[str]) -> WorkdirInputs:
     workdir = Path(workdir)
     frames_path = workdir / artifacts.FRAMES
     frames, meta = artifacts.read_table(frames_path, "frames")
+    frames = artifacts.labelled(frames)
     data = FrameData.from_frames(frames)
     floor = paper_floor(workdir, meta)
     result = WorkdirInputs(frames.select(artifacts.KEY_COLUMNS), data, meta, None, {}, [frames_path], floor)

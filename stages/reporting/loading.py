@@ -112,7 +112,7 @@ def _read_dataset(folder: Path, found: _Found) -> None:
     """A dataset folder's frames, predicates and weights: what they hold and the options that made them."""
     frames_path = folder / artifacts.FRAMES
     _, meta = artifacts.read_table(frames_path, "frames")
-    frames = pl.read_parquet(frames_path, columns=["split"])
+    frames = artifacts.labelled(pl.read_parquet(frames_path, columns=["split"]))
     predicates = folder / artifacts.PREDICATES
     predicates_meta = artifacts.read_metadata(predicates) if predicates.exists() else {}
     found.datasets[folder.name] = {**meta, "n_frames": frames.height,

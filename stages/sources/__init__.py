@@ -134,6 +134,7 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
     if options.labels is not None:
         from mlnseq.sources import intervals
 
-        recordings = intervals.apply(recordings, intervals.read(Path(options.labels)), options.unit(env),
+        found = intervals.read(Path(options.labels), options.labels_unit)
+        recordings = intervals.apply(recordings, found, options.unit(env),
                                      options.unlabelled)
     return recordings

@@ -1,5 +1,7 @@
 """Labels as time intervals: ``episode,start,end,label`` rows (CSV or TSV), or a folder of JIGSAWS-style
-``start end label`` files named by episode, applied to recordings.
+``start end label`` files named by episode, applied to recordings; and one click per phase: ``episode,frame,label``
+(or ``time``) rows, each saying "this frame is in this phase" (``mlnseq.sources.clicks``). A file may mix both,
+episode by episode. An episode of ``--source`` that the file does not name is read unlabelled.
 
 Units: ``frames`` counts a frame's position in its episode from 0, an interval holding ``start`` to ``end``
 inclusive (the JIGSAWS convention); ``seconds`` is the recording's time, an interval holding
@@ -20,6 +22,7 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import Recording
 
 COLUMNS = ("episode", "start", "end", "label")
+POINT_COLUMNS = {"frame": "frames", "time": "seconds"}  # a click's column, and its unit unless --labels-unit says
 
 
 @dataclass(frozen=True)
@@ -28,10 +31,12 @@ class Interval:
     end: float
     label: str | int
     where: str  # file and line, for messages
+    unit: str | None = None  # a click (start == end): its own unit, from its column's name; None: an interval
 
 
-def read(path: Path) -> dict[str, list[Interval]]:
-    """The intervals of ``path`` by episode id (as text), in start order; overlaps and reversed ends refused."""
+def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
+    """The intervals and clicks of ``path`` by episode id (as text), in start order; overlaps, reversed ends and two
+    labels at one click refused. ``unit``: --labels-unit as given (None: a click's column names its unit)."""
     path = Path(path)
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() == ".txt")
@@ -46,12 +51,17 @@ def read(path: Path) -> dict[str, list[Interval]]:
                             schema_overrides={"episode": pl.String})  # ids as written: 001 is not 1
     except Exception as error:  # polars raises many types for unreadable files
         raise BadInput(f"{path}: cannot read it as intervals ({str(error).strip().splitlines()[0][:120]})") from error
-    missing = [c for c in COLUMNS if c not in table.columns]
+    point = next((c for c in POINT_COLUMNS if c in table.columns), None)
+    spans = [c for c in ("start", "end") if c in table.columns]
+    missing = [c for c in COLUMNS if c not in table.columns and (point is None or c not in ("start", "end"))]
     if missing:
-        raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; intervals need {','.join(COLUMNS)}")
-    for name in ("start", "end"):
+        raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; intervals need {','.join(COLUMNS)}, "
+                       "one click per phase episode,frame,label (or time)")
+    for name in [*spans, *([point] if point else [])]:
         values = table[name].cast(pl.Float64, strict=False)
-        bad = values.is_null() | ~values.is_finite().fill_null(False)
+        bad = (values.is_null() & table[name].is_not_null()) | ~values.is_finite().fill_null(True)
+        if point is None:
+            bad = bad | values.is_null()
         if bad.any():
             row = int(bad.arg_true()[0])
             raise BadInput(f"{path}:{row + 2}: {name} {table[name][row]!r} is not a number")
@@ -60,9 +70,22 @@ def read(path: Path) -> dict[str, list[Interval]]:
         raise BadInput(f"{path}:{int(table['label'].is_null().arg_true()[0]) + 2}: empty label")
     by_episode: dict[str, list[Interval]] = {}
     for line, row in enumerate(table.iter_rows(named=True), start=2):
-        by_episode.setdefault(str(row["episode"]), []).append(
-            Interval(row["start"], row["end"], row["label"], f"{path}:{line}"))
+        by_episode.setdefault(str(row["episode"]), []).append(_row(row, point, spans, unit, f"{path}:{line}"))
     return {episode: checked(found) for episode, found in by_episode.items()}
+
+
+def _row(row: dict, point: str | None, spans: list[str], unit: str | None, where: str) -> Interval:
+    """One line as an interval (start and end given) or a click (its point column given, start and end empty)."""
+    if spans and any(row[c] is not None for c in spans):
+        empty = [c for c in ("start", "end") if row.get(c) is None]
+        if empty:
+            raise BadInput(f"{where}: {empty[0]} is empty; give start and end (an interval) or only "
+                           f"{point or 'frame'} (a click)")
+        return Interval(row["start"], row["end"], row["label"], where)
+    if point is None or row[point] is None:
+        raise BadInput(f"{where}: neither start,end nor {point or 'frame'} given; an interval needs start and end, "
+                       "a click its frame")
+    return Interval(row[point], row[point], row["label"], where, unit or POINT_COLUMNS[point])
 
 
 def transcription(path: Path, first_frame: int = 0) -> list[Interval]:
@@ -93,6 +116,14 @@ def checked(found: list[Interval]) -> list[Interval]:
     for interval in found:
         if interval.end < interval.start:
             raise BadInput(f"{interval.where}: ends ({interval.end:g}) before it starts ({interval.start:g})")
+    clicks = [i for i in found if i.unit is not None]
+    if clicks:
+        from mlnseq.sources.clicks import checked_clicks
+
+        if len(clicks) < len(found):
+            raise BadInput(f"{clicks[0].where}: a click in an episode that has intervals too; give an episode "
+                           "intervals or clicks, not both")
+        return checked_clicks(clicks)
     ordered = sorted(found, key=lambda i: i.start)
     for before, after in zip(ordered, ordered[1:]):
         if after.start < before.end:
@@ -102,41 +133,69 @@ def checked(found: list[Interval]) -> list[Interval]:
 
 def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], unit: str,
           unlabelled: str | None = None) -> list[Recording]:
-    """Each recording labelled from its episode's intervals; frames outside every interval dropped or
-    labelled ``unlabelled``. Every episode needs intervals, and every interval's episode a recording."""
+    """Each recording labelled from its episode's intervals (frames outside every interval dropped or labelled
+    ``unlabelled``) or clicks (``mlnseq.sources.clicks``); the episodes the labels do not name read unlabelled, a
+    recording of their own. Every interval's episode needs a recording."""
+    from mlnseq.sources import clicks
+
+    clicks.check_classes(intervals)
     seen: set[str] = set()
-    labelled = []
+    found_parts = []
     for recording in recordings:
         episodes = recording.episode.cast(pl.String).to_numpy()
-        keep = np.zeros(len(episodes), dtype=bool)
+        keep, named, clicked = (np.zeros(len(episodes), dtype=bool) for _ in range(3))
         labels = np.full(len(episodes), unlabelled, dtype=object)
         for episode in dict.fromkeys(episodes.tolist()):
-            rows = np.flatnonzero(episodes == episode)
-            found = intervals.get(episode, intervals.get(_as_written(episode, intervals, recording.episode)))
-            if found is None:
-                known = ", ".join(list(intervals)[:5])
-                raise BadInput(f"{recording.path}: episode {episode!r} has no interval in --labels "
-                               f"(its episodes: {known}{', ...' if len(intervals) > 5 else ''})")
-            seen.add(episode if episode in intervals else _as_written(episode, intervals, recording.episode))
-            key = np.arange(len(rows), dtype=np.float64) if unit == "frames" else recording.time.to_numpy()[rows]
-            _label_episode(key, found, unit, rows, labels, keep, f"{recording.path} episode {episode!r}")
-        if unlabelled is not None:
-            keep[:] = True
-        mask = pl.Series(keep)
-        values = labels[keep].tolist()
-        label_series = (pl.Series("label", values, dtype=pl.Int64) if all(isinstance(v, int) for v in values)
-                        else pl.Series("label", [str(v) for v in values], dtype=pl.String))
-        labelled.append(dataclasses.replace(
-            recording, features=recording.features.filter(mask), episode=recording.episode.filter(mask),
-            time=recording.time.filter(mask), label=label_series,
-            split=None if recording.split is None else recording.split.filter(mask),
-            row=(recording.row if recording.row is not None else pl.int_range(len(keep), eager=True)).filter(mask)))
-        if not keep.any():
+            name = episode if episode in intervals else _as_written(episode, intervals, recording.episode)
+            if name is None:
+                continue
+            rows, found = np.flatnonzero(episodes == episode), intervals[name]
+            what = f"{recording.path} episode {episode!r}"
+            seen.add(name)
+            named[rows] = True
+            own_unit = found[0].unit or unit
+            key = np.arange(len(rows), dtype=np.float64) if own_unit == "frames" else recording.time.to_numpy()[rows]
+            if found[0].unit is not None:
+                clicks.label_episode(key, found, rows, labels, keep, clicked, what)
+            else:
+                _label_episode(key, found, unit, rows, labels, keep, what)
+        if named.any() and not keep[named].any():
             raise BadInput(f"{recording.path}: no frame falls in an interval of --labels")
+        if unlabelled is not None:
+            keep |= named
+        keep &= named
+        if keep.any():
+            values = labels[keep].tolist()
+            label_series = (pl.Series("label", values, dtype=pl.Int64) if all(isinstance(v, int) for v in values)
+                            else pl.Series("label", [str(v) for v in values], dtype=pl.String))
+            found_parts.append(_part(recording, keep, label_series,
+                                     {"clicks": np.flatnonzero(clicked[keep]).tolist()} if clicked.any() else {}))
+        if not named.all():
+            found_parts.append(_part(recording, ~named, None, {}))
+    if not seen:
+        ids = list(dict.fromkeys(str(e) for r in recordings for e in r.episode.unique(maintain_order=True).to_list()))
+        first = next(iter(intervals.values()))[0].where.rsplit(":", 1)[0]
+        raise BadInput(f"--labels {first} names no recording of --source (its episodes: {_some(list(intervals))}; "
+                       f"the recordings': {_some(ids)}); name the episodes as --source's recordings are named")
     unused = [e for e in intervals if e not in seen]
     if unused:
         raise BadInput(f"{intervals[unused[0]][0].where}: episode {unused[0]!r} is in no recording")
-    return labelled
+    return found_parts
+
+
+def _some(names: list[str]) -> str:
+    return ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+
+
+def _part(recording: Recording, mask: np.ndarray, label: pl.Series | None, resolved: dict) -> Recording:
+    """The rows of ``recording`` in ``mask``, with ``label`` (None: unlabelled)."""
+    rows = pl.Series(mask)
+    return dataclasses.replace(
+        recording, features=recording.features.filter(rows), episode=recording.episode.filter(rows),
+        time=recording.time.filter(rows), label=label,
+        split=None if recording.split is None else recording.split.filter(rows),
+        row=(recording.row if recording.row is not None else pl.int_range(len(mask), eager=True)).filter(rows),
+        resolved={**recording.resolved, **resolved})
 
 
 def _as_written(episode: str, intervals: dict[str, list[Interval]], ids: pl.Series) -> str | None:

@@ -67,8 +67,10 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
                 label_topic = options.label_topic if label is not Labels.NONE else None
-                if label is Labels.OPTIONAL and label_topic not in reader.topics:
-                    label_topic = None  # new recordings without their phases: unlabelled
+                without = label_topic is not None and label_topic not in reader.topics
+                if without:  # recordings without their phases: unlabelled (collect says why if none has them)
+                    listed = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(reader.topics.items()))
+                    without, label_topic = f"{path}: no topic {label_topic!r}; its topics are {listed}", None
                 reading = Reading(topics, rate, label_topic, options.unlabelled, options.max_hold, columns.features)
                 try:
                     recording = read_bag(reader, path, reading, joints)
@@ -79,6 +81,8 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
             text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
+        if without and label is Labels.REQUIRED:
+            recording.resolved["unlabelled"] = without
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
         joints = recording.resolved["joints"]
         recordings.append(recording)

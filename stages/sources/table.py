@@ -22,10 +22,11 @@ import pyarrow.parquet as pq
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.parts import Part
 from mlnseq.sources.recording import Labels, Recording, TableColumns
+from mlnseq.sources.splits import Holdout, split_of
 
 TABLE_SUFFIXES = (".csv", ".parquet")
-DEFAULT_TRAIN_SHARE = 0.7
 MAX_CLASSES = int(np.iinfo(np.int16).max) + 1  # frames.parquet keeps a label as Int16: 0 .. 32,767
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # features are stored as float32: a larger value would be inf
 
@@ -162,6 +163,10 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         label_col = columns.label if labelled else None
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
+        why = None
+        if missing and label is Labels.REQUIRED and missing[0] == columns.label:  # a file without labels: unlabelled
+            why = f"{path}: no column {columns.label!r}; columns are {', '.join(table.columns)}"
+            label_col, missing = None, missing[1:]
         if missing:
             raise BadInput(f"{path}: no column {', '.join(map(repr, missing))}; columns are {', '.join(table.columns)}"
                            + _without_hint(missing, episode_col, time_col))
@@ -193,7 +198,8 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
             split=table["split"].cast(pl.String) if "split" in table.columns else None,
             row=rows, where=where,
             resolved={"empty_columns": [c for c in table.columns if c not in keys and c not in names
-                                        and table[c].null_count() == table.height]},
+                                        and table[c].null_count() == table.height],
+                      **({"unlabelled": why} if why else {})},
         ))
     return recordings
 
@@ -206,9 +212,11 @@ def _without_hint(missing: list[str], episode: str | None, time: str | None) -> 
 
 # ---- the one assembly --------------------------------------------------------------------------------------
 
-def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = ()) -> tuple[pl.DataFrame, dict]:
-    """Frames for ``collect``: every frame labelled, two classes or more, the split from the source or by position."""
-    table, meta, _ = _assemble(recordings, classes, Labels.REQUIRED)
+def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = (),
+                   holdout: Holdout = Holdout.SHARE) -> tuple[pl.DataFrame, dict]:
+    """Frames for ``collect``: labelled recordings (two classes or more) with the split from the source or as
+    ``holdout`` draws it, and recordings without labels in the split ``unlabelled`` with a null label."""
+    table, meta, _ = _assemble(recordings, classes, Labels.REQUIRED, holdout)
     return table, meta
 
 
@@ -218,11 +226,8 @@ def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> 
     return _assemble(recordings, classes, Labels.OPTIONAL)
 
 
-def _assemble(recordings: list[Recording], classes: tuple[str, ...],
-              labels_wanted: Labels) -> tuple[pl.DataFrame, dict, np.ndarray]:
-    """Labels.REQUIRED: frames to train on (labelled, two classes or more, the split from the source or by
-    position); Labels.OPTIONAL: frames to predict (one class enough, every frame test)."""
-    for_prediction = labels_wanted is Labels.OPTIONAL
+def _check_recordings(recordings: list[Recording], for_prediction: bool) -> None:
+    """The same features everywhere; for predict labels on all or none, for collect on one at least."""
     if not recordings:
         raise BadInput("no recording to read")
     feature_names = recordings[0].features.columns
@@ -231,19 +236,36 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...],
         if recording.features.columns != feature_names:
             raise BadInput(f"{recording.path}: feature columns {recording.features.columns} differ from "
                            f"{recordings[0].path}'s {feature_names}")
-        if (recording.label is not None) != labelled:
+        if for_prediction and (recording.label is not None) != labelled:
             raise BadInput(f"{recording.path}: {'has no' if labelled else 'has'} labels, unlike {recordings[0].path}")
-    if not labelled and not for_prediction:
+    if not for_prediction and all(r.label is None for r in recordings):
+        why = recordings[0].resolved.get("unlabelled")  # the reader's own word: a missing column or topic
+        if why:
+            raise BadInput(why)
         how = ("name a std_msgs/String topic of phase names with --label-topic" if "rate" in recordings[0].resolved
                else "give a label column")  # a bag's reader resolves its clock
         raise BadInput(f"{recordings[0].path}: no labels; {how}, or label intervals with --labels")
+
+
+def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_wanted: Labels,
+              holdout: Holdout = Holdout.SHARE) -> tuple[pl.DataFrame, dict, np.ndarray]:
+    """Labels.REQUIRED: frames to train on (labelled, two classes or more, the split from the source or as
+    ``holdout`` draws it; recordings without labels unlabelled); Labels.OPTIONAL: frames to predict (one class
+    enough, every frame test)."""
+    for_prediction = labels_wanted is Labels.OPTIONAL
+    _check_recordings(recordings, for_prediction)
+    feature_names = recordings[0].features.columns
+    with_labels = [r for r in recordings if r.label is not None]
     episode_ids = _common_dtype([r.episode for r in recordings])
-    labels = _common_dtype([r.label for r in recordings]) if labelled else None
+    kind = _common_dtype([r.label for r in with_labels]).dtype if with_labels else pl.Int64
+    has_label = np.concatenate([np.full(r.features.height, r.label is not None) for r in recordings])
     where = {str(r.path): r.where for r in recordings}
     frames = pl.DataFrame({
         "episode": episode_ids,
         "time": pl.concat([r.time.cast(pl.Float64) for r in recordings]),
-        "label": labels if labels is not None else pl.Series([-1] * len(episode_ids)),
+        "label": (pl.concat([r.label.cast(kind) if r.label is not None else pl.Series([None] * r.features.height,
+                                                                                      dtype=kind)
+                             for r in recordings]) if with_labels else pl.Series([-1] * len(episode_ids))),
         "split": pl.concat([r.split.cast(pl.String) if r.split is not None else pl.Series([None] * r.features.height,
                                                                                           dtype=pl.String)
                             for r in recordings]),
@@ -253,23 +275,36 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...],
     })
     at = lambda row: where[row["file"]].format(file=row["file"], row=row["row"])  # noqa: E731
     _check_time(frames, at)
-    if labelled:
-        indices, names = _label_indices(frames, classes, at, min_classes=1 if for_prediction else 2)
-    else:
-        indices, names = np.full(frames.height, -1, dtype=np.int16), list(classes)
+    indices, names = np.full(frames.height, -1, dtype=np.int16), list(classes)
+    if with_labels:
+        indices[has_label], names = _label_indices(frames.filter(pl.Series(has_label)), classes, at,
+                                                   min_classes=1 if for_prediction else 2)
     ids = frames["episode"].unique(maintain_order=True)
     episode_index = frames["episode"].replace_strict(ids, pl.int_range(len(ids), eager=True),
                                                      return_dtype=pl.Int32).to_numpy()
     within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
-    split = np.full(frames.height, "test") if for_prediction else _split(frames, episode_index, at)
+    split = np.full(frames.height, "test", dtype=object)
+    if not for_prediction:
+        split[:] = Part.UNLABELLED
+        split[has_label] = split_of(frames.filter(pl.Series(has_label)), episode_index[has_label], at, holdout)
     features = pl.concat([r.features for r in recordings], how="vertical_relaxed")
-    keys = {"episode": episode_index, "frame": within, "label": indices, "split": split}
+    keys = {"episode": episode_index, "frame": within, "label": indices, "split": split.astype(str)}
     table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})
+    if not has_label.all() and not for_prediction:
+        table = table.with_columns(label=pl.when(pl.Series(has_label)).then(pl.col("label")))
     order = np.lexsort((within, episode_index))
     table = table[order]
     files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
     meta = {"source": "table", "source_files": files, "classes": names, "features": list(feature_names),
-            "labelled": labelled, "episode_names": ids.to_list()}
+            "labelled": bool(with_labels), "episode_names": ids.to_list()}
+    unlabelled = ids.filter(ids.is_in(frames["episode"].filter(pl.Series(~has_label)).implode())).to_list()
+    if unlabelled and not for_prediction:
+        meta["unlabelled_episodes"] = unlabelled
+    clicked = np.concatenate([np.isin(np.arange(r.features.height), r.resolved.get("clicks", []))
+                              for r in recordings])[order]
+    if clicked.any() and not for_prediction:  # one click per phase: which labels were given, the rest filled
+        meta["clicks"] = [list(map(int, row)) for row in table.filter(pl.Series(clicked))
+                          .select("episode", "frame", "label").rows()]
     return table, meta, frames["time"].to_numpy()[order]
 
 
@@ -285,29 +320,6 @@ def _common_dtype(series: list[pl.Series]) -> pl.Series:
     if all(s.dtype.is_numeric() for s in series):
         return pl.concat([s.cast(pl.Float64) for s in series])
     return pl.concat([s.cast(pl.String) for s in series])
-
-
-def _split(frames: pl.DataFrame, episode_index: np.ndarray, at) -> np.ndarray:
-    """A ``split`` column of the source if it has one, else the first 70 % of episodes train.
-
-    With a single episode, the first 70 % of its frames train.
-    """
-    given = frames["split"]
-    if given.is_null().any() and given.is_not_null().any():
-        first = frames.filter(given.is_null()).row(0, named=True)
-        raise BadInput(f"{at(first)}: empty split; give every row train or test, or drop the column")
-    if given.is_not_null().all():
-        bad = ~given.is_in(list(artifacts.SPLITS))
-        if bad.any():
-            first = frames.filter(bad).row(0, named=True)
-            raise BadInput(f"{at(first)}: split {first['split']!r} is neither train nor test")
-        return given.to_numpy()
-    n_episodes = int(episode_index.max()) + 1
-    if n_episodes == 1:
-        position = np.arange(len(episode_index)) < round(DEFAULT_TRAIN_SHARE * len(episode_index))
-    else:
-        position = episode_index < max(1, round(DEFAULT_TRAIN_SHARE * n_episodes))
-    return np.where(position, "train", "test")
 
 
 def _check_time(frames: pl.DataFrame, at) -> None:

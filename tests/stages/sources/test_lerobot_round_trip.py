@@ -169,16 +169,19 @@ def mixed(lerobot_data, tmp_path_factory) -> Path:
     return root
 
 
-def test_episodes_without_annotations_are_left_out_of_training_with_a_note(mixed, lerobot_data, tmp_path):
-    frames, meta = subtask_frames(mixed)
-    assert frames["episode"].n_unique() == 5 and frames.height == 174 + 133 + 146 + 172 + 145
-    assert meta["notes"] == ["3 of 8 episodes have no subtask annotations: left out of training (predict recognises "
-                             "them)"]
+def test_episodes_without_annotations_are_read_unlabelled_with_a_note(mixed, lerobot_data, tmp_path):
     everything, _ = subtask_frames(lerobot_data / "pick-place-annotated")
+    read, meta = subtask_frames(mixed)
+    frames = read.filter(pl.col("split") != "unlabelled")
+    assert frames["episode"].n_unique() == 5 and frames.height == 174 + 133 + 146 + 172 + 145
+    bare = read.filter(pl.col("split") == "unlabelled")
+    assert bare["episode"].unique().sort().to_list() == [5, 6, 7] and bare["label"].null_count() == bare.height
+    assert bare.height == everything.filter(pl.col("episode") >= 5).height  # every frame of theirs, none dropped
+    assert meta["notes"] == ["3 recordings without labels: used unlabelled (never in a test split or a score)"]
     assert frames.drop("split").equals(everything.filter(pl.col("episode") < 5).drop("split"))
     done = CliRunner().invoke(app, ["collect", "--env", "lerobot", "--source", str(mixed), "--labels", "subtask",
                                     "-w", str(tmp_path)])
-    assert done.exit_code == 0 and "note: 3 of 8 episodes have no subtask annotations" in " ".join(done.output.split())
+    assert done.exit_code == 0 and "note: 3 recordings without labels: used unlabelled" in " ".join(done.output.split())
 
 
 def test_annotated_episodes_keep_their_annotations_unless_replaced(mixed, model, lerobot_data, tmp_path):

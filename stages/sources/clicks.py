@@ -1,0 +1,145 @@
+"""One click per phase: ``episode,frame,label`` (or ``time``) rows of a labels file, each saying "this frame is in
+this phase". Between two clicks of an episode the phases follow each other in click order: the frames up to the
+first click are its phase, those from the last click on the last's, and between two clicks of different phases
+one boundary falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``,
+then frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
+
+Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best
+into two parts of their own means (the least-squares change point of the standardised features: the two phases
+look different, nothing else is assumed); ``refill`` moves it where a model's per-frame class log-probabilities
+say (the most likely boundary given the clicks: a decoding with the click constraints), so that a network trained
+on the filled labels places them again, an EM step. The clicked frames never change."""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.parts import Part
+
+
+def checked_clicks(found: list) -> list:
+    """An episode's clicks in time order, a repeated one once; two labels at one frame refused."""
+    ordered = sorted(found, key=lambda i: i.start)
+    kept = ordered[:1]
+    for click in ordered[1:]:
+        before = kept[-1]
+        if click.start == before.start:
+            if click.label != before.label:
+                raise BadInput(f"{click.where}: a second label at {click.unit} {click.start:g} ({click.label!r}; "
+                               f"{before.where} says {before.label!r}); give one label a frame")
+            continue
+        kept.append(click)
+    return kept
+
+
+def positions(key: np.ndarray, found: list, what: str) -> np.ndarray:
+    """Each click's frame in its episode (``key``: positions 0, 1, ... or the frames' times); outside refused."""
+    unit = found[0].unit
+    if unit == "frames":
+        last = key[-1]
+        at = [int(c.start) if c.start == int(c.start) else -1 for c in found]
+    else:
+        last = key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
+        at = [int(np.searchsorted(key, c.start, side="right")) - 1 for c in found]
+    for click, index in zip(found, at):
+        if not (key[0] <= click.start <= last + 1e-9) or not 0 <= index < len(key):
+            raise BadInput(f"{click.where}: click at {click.start:g} falls outside {what} ({key[0]:g}..{last:g} "
+                           f"{unit})")
+    for (a, click_a), (b, click_b) in zip(zip(at, found), zip(at[1:], found[1:])):
+        if a == b and click_a.label != click_b.label:
+            raise BadInput(f"{click_b.where}: a second label at the frame of {click_a.where} ({click_b.label!r}, "
+                           f"{click_a.label!r}); give one label a frame")
+    return np.asarray(at, dtype=np.int64)
+
+
+def halfway(n: int, at: np.ndarray, labels: list) -> np.ndarray:
+    """The n frames' labels from clicks at frames ``at`` (ascending) of ``labels``: each boundary halfway."""
+    cuts = (at[:-1] + at[1:] + 1) // 2
+    return np.asarray(labels, dtype=object)[np.searchsorted(cuts, np.arange(n), side="right")]
+
+
+def label_episode(key: np.ndarray, found: list, rows: np.ndarray, labels: np.ndarray, keep: np.ndarray,
+                  clicked: np.ndarray, what: str) -> None:
+    """Label an episode's ``rows`` from its clicks (``found``, in order), marking the clicked rows."""
+    at = positions(key, found, what)
+    labels[rows] = halfway(len(rows), at, [c.label for c in found])
+    keep[rows] = True
+    clicked[rows[at]] = True
+
+
+def check_classes(intervals: dict[str, list]) -> None:
+    """A click of a class no other episode of the labels file has is refused (a typo, or a phase nothing else shows)
+    when the file labels two episodes or more."""
+    if len(intervals) < 2:
+        return
+    episodes_of: dict = {}
+    for episode, found in intervals.items():
+        for interval in found:
+            episodes_of.setdefault(interval.label, set()).add(episode)
+    for episode, found in intervals.items():
+        for click in (i for i in found if i.unit is not None):
+            if episodes_of[click.label] == {episode}:
+                others = sorted(map(str, (c for c, e in episodes_of.items() if e != {episode})))
+                raise BadInput(f"{click.where}: class {click.label!r} is clicked in episode {episode!r} only, no "
+                               f"other episode has it (theirs: {', '.join(others[:8])}); correct it, or label another "
+                               "episode with it")
+
+
+def free_spans(clicks: list[list[int]]) -> list[tuple[int, int, int, int, int]]:
+    """The boundaries to learn: (episode, first frame, last frame, phase before, phase after) for every two
+    consecutive clicks of an episode in different phases; the boundary is the first frame of the later phase, in
+    first+1 .. last."""
+    ordered = sorted(map(tuple, clicks))
+    return [(e1, f1, f2, c1, c2) for (e1, f1, c1), (e2, f2, c2) in zip(ordered, ordered[1:]) if e1 == e2 and c1 != c2]
+
+
+def change_point(z: np.ndarray) -> int:
+    """The t in 1 .. n-1 splitting rows ``z`` [n, F] into two parts of least summed squared distance to their means."""
+    n = len(z)
+    total = np.cumsum(z, axis=0)
+    left, sizes = total[:-1], np.arange(1, n)
+    right = total[-1] - left
+    return int(np.argmax((left * left).sum(axis=1) / sizes + (right * right).sum(axis=1) / (n - sizes))) + 1
+
+
+def best_boundary(log_probs: np.ndarray, before: int, after: int) -> int:
+    """The t in 1 .. n-1 maximising sum(log_probs[:t, before]) + sum(log_probs[t:, after]) over a span whose first
+    frame is in ``before`` and last in ``after``."""
+    return int(np.argmax(np.cumsum(log_probs[:, before] - log_probs[:, after])[:-1])) + 1
+
+
+def _spans_rows(frames: pl.DataFrame, clicks: list[list[int]]) -> list[tuple[np.ndarray, int, int]]:
+    episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
+    return [(np.flatnonzero((episodes == e) & (positions >= first) & (positions <= last)), before, after)
+            for e, first, last, before, after in free_spans(clicks)]
+
+
+def _relabelled(frames: pl.DataFrame, labels: np.ndarray) -> pl.DataFrame:
+    labelled = pl.Series((frames["split"] != Part.UNLABELLED).to_numpy())
+    return frames.with_columns(label=pl.when(labelled).then(pl.Series(labels, dtype=pl.Int16)))
+
+
+def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
+    """frames.parquet with every boundary between two clicks placed at its change point, and a record of how."""
+    features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
+    z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
+    labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
+    spans = _spans_rows(frames, clicks)
+    for rows, before, after in spans:
+        t = change_point(z[rows])
+        labels[rows[:t]], labels[rows[t:]] = before, after
+    return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks",
+                                         "clicks": len(clicks), "boundaries": len(spans)}
+
+
+def refill(frames: pl.DataFrame, clicks: list[list[int]], log_probs: np.ndarray) -> pl.DataFrame:
+    """The boundaries placed again where per-frame class ``log_probs`` [n, C] (one row per row of ``frames``: a
+    network's or a fused recogniser's, out of fold where it can be) say."""
+    labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
+    for rows, before, after in _spans_rows(frames, clicks):
+        t = best_boundary(log_probs[rows], before, after)
+        labels[rows[:t]], labels[rows[t:]] = before, after
+    return _relabelled(frames, labels)

@@ -1,0 +1,128 @@
+"""One click per phase (--labels of episode,frame,label or episode,time,label rows, mixed with intervals or not):
+the clicked frames kept as given, the boundaries between them learned, and bad clicks refused in one line. On the
+generated arm's bags (tests/arm_bags.py), whose /phase topic is the truth the clicks are drawn from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from mlnseq import collect
+from mlnseq.catalog.errors import BadInput
+from mlnseq.sources import SourceOptions, clicks
+
+pytest.importorskip("rosbags")
+
+SEEDS = {f"episode_{k + 1}": 5200 + k for k in range(4)}
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory) -> dict:
+    """Four bags, their frames labelled by /phase (the truth) and one click per phase of each, in the middle of
+    its phase (``middle.csv``) or a quarter into it (``quarter.csv``)."""
+    import arm_bags
+
+    root = tmp_path_factory.mktemp("clicks")
+    robot = arm_bags.ROBOTS["panda"]
+    for name, seed in SEEDS.items():
+        arm_bags.write_bag(root / "bags" / name, robot, seed)
+    (root / "middle.csv").write_text("\n".join(arm_bags.clicks(robot, SEEDS)) + "\n")
+    (root / "quarter.csv").write_text("\n".join(arm_bags.clicks(robot, SEEDS, 0.25)) + "\n")
+    truth = read(root / "bags", label_topic="/phase")
+    return {"root": root, "bags": root / "bags", "truth": truth, "rate": robot.rate, "robot": robot}
+
+
+def read(source: Path, **options) -> collect.Collected:
+    return collect.collect(collect.CollectOptions(env="rosbag", source=source, recordings=SourceOptions(**options)))
+
+
+def accuracy(collected: collect.Collected, truth: collect.Collected) -> float:
+    names, true_names = np.asarray(collected.meta["classes"]), np.asarray(truth.meta["classes"])
+    return float(np.mean(names[collected.frames["label"].to_numpy()] == true_names[truth.frames["label"].to_numpy()]))
+
+
+def halfway_accuracy(collected: collect.Collected, truth: collect.Collected) -> float:
+    """The labels a click file gives with every boundary halfway between its two clicks (nothing learned)."""
+    frames, labels = collected.frames, collected.frames["label"].to_numpy().copy()
+    for episode in range(frames["episode"].max() + 1):
+        given = sorted((f, c) for e, f, c in collected.meta["clicks"] if e == episode)
+        rows = np.flatnonzero(frames["episode"].to_numpy() == episode)
+        labels[rows] = clicks.halfway(len(rows), np.array([f for f, _ in given]), [c for _, c in given])
+    names = np.asarray(collected.meta["classes"])
+    return float(np.mean(names[labels.astype(int)] == np.asarray(truth.meta["classes"])[truth.frames["label"]]))
+
+
+def test_clicks_label_every_frame_keeping_the_clicked_ones(arm):
+    found = read(arm["bags"], labels=arm["root"] / "middle.csv")  # the column `frame`: frames
+    assert found.frames.height == arm["truth"].frames.height and found.frames["label"].null_count() == 0
+    given = found.meta["clicks"]
+    assert len(given) == 4 * 5 and found.meta["clicks_filled"]["boundaries"] == 4 * 4
+    frames = found.frames
+    for episode, frame, label in given:
+        row = frames.filter((pl.col("episode") == episode) & (pl.col("frame") == frame))
+        assert row["label"].item() == label
+    truth = arm["truth"]
+    truth_of = dict(zip(zip(truth.frames["episode"], truth.frames["frame"]), truth.frames["label"]))
+    assert all(found.meta["classes"][c] == truth.meta["classes"][truth_of[(e, f)]] for e, f, c in given)
+
+
+@pytest.mark.parametrize("name", ["middle.csv", "quarter.csv"])
+def test_boundaries_are_learned_better_than_halfway(arm, name):
+    found = read(arm["bags"], labels=arm["root"] / name)
+    learned, halfway = accuracy(found, arm["truth"]), halfway_accuracy(found, arm["truth"])
+    assert learned > 0.85 and learned > halfway + 0.01, (learned, halfway)
+
+
+def test_refill_puts_each_boundary_where_the_log_probabilities_say(arm):
+    found, truth = read(arm["bags"], labels=arm["root"] / "middle.csv"), arm["truth"]
+    mapping = {t: found.meta["classes"].index(truth.meta["classes"][t]) for t in range(5)}
+    labels = np.array([mapping[t] for t in truth.frames["label"].to_numpy()])
+    log_probs = np.log(np.full((len(labels), 5), 0.05))
+    log_probs[np.arange(len(labels)), labels] = np.log(0.8)
+    again = clicks.refill(found.frames, found.meta["clicks"], log_probs)
+    assert np.array_equal(again["label"].to_numpy(), labels)
+
+
+def test_clicks_in_seconds_mixed_with_intervals(arm, tmp_path):
+    rate = arm["rate"]
+    lines = (arm["root"] / "middle.csv").read_text().splitlines()
+    rows = ["episode,start,end,time,label"]
+    for line in lines[1:]:
+        episode, frame, label = line.split(",")
+        if episode != "episode_1":
+            rows.append(f"{episode},,,{int(frame) / rate:.4f},{label}")
+    truth = arm["truth"].frames.filter(pl.col("episode") == 0)
+    names = np.asarray(arm["truth"].meta["classes"])[truth["label"].to_numpy()]
+    change = np.r_[0, np.flatnonzero(names[1:] != names[:-1]) + 1, len(names)]
+    rows += [f"episode_1,{a / rate:.4f},{b / rate:.4f},,{names[a]}" for a, b in zip(change, change[1:])]
+    (tmp_path / "mixed.csv").write_text("\n".join(rows) + "\n")
+    found = read(arm["bags"], labels=tmp_path / "mixed.csv")  # a rosbag's default unit: seconds
+    assert len(found.meta["clicks"]) == 3 * 5 and {e for e, _, _ in found.meta["clicks"]} == {1, 2, 3}
+    first = found.frames.filter(pl.col("episode") == 0)
+    assert list(np.asarray(found.meta["classes"])[first["label"].to_numpy()]) == list(names)  # intervals as given
+    assert accuracy(found, arm["truth"]) > 0.85
+
+
+@pytest.mark.parametrize(("line", "needle"), [
+    ("episode_2,99999,grasp", r"clicks.csv:\d+: click at 99999 falls outside .*episode_2'? \(0..\d+ frames\)"),
+    ("episode_2,{first},place", r"clicks.csv:\d+: a second label at frames \d+ \('place'; .*clicks.csv:\d+ says "),
+    ("episode_3,{first},grsap", r"clicks.csv:\d+: class 'grsap' is clicked in episode 'episode_3' only"),
+])
+def test_bad_clicks_are_refused_in_one_line(arm, tmp_path, line, needle):
+    lines = (arm["root"] / "middle.csv").read_text().splitlines()
+    first = lines[6].split(",")[1]  # episode_2's first click, in reach
+    lines.append(line.format(first=first))
+    (tmp_path / "clicks.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(BadInput, match=needle) as refused:
+        read(arm["bags"], labels=tmp_path / "clicks.csv")
+    assert "\n" not in str(refused.value)
+
+
+def test_a_click_in_an_episode_with_intervals_is_refused(arm, tmp_path):
+    (tmp_path / "both.csv").write_text("episode,start,end,frame,label\nepisode_1,0,10,,reach\n"
+                                       "episode_1,,,40,grasp\n")
+    with pytest.raises(BadInput, match=r"both.csv:3: a click in an episode that has intervals too"):
+        read(arm["bags"], labels=tmp_path / "both.csv", labels_unit="frames")
