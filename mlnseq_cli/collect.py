@@ -12,6 +12,7 @@ from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reporte
 from mlnseq import collect as stage
 from mlnseq.sources import labels_option
 from mlnseq.sources.holds import MAX_HOLD_S
+from mlnseq.sources.splits import Holdout
 
 
 def collect(
@@ -34,6 +35,7 @@ def collect(
     topics: Annotated[Optional[str], typer.Option(help="rosbag: topics to read, comma-separated \\[default: every topic with numeric fields].")] = None,
     rate: Annotated[Optional[float], typer.Option(help="rosbag: the frames' clock in Hz \\[default: the first topic's rate].")] = None,
     label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of phase names, each holding until the next.")] = None,
+    holdout: Annotated[Optional[str], typer.Option(help="Recordings without a split column: share (the first 70 % of the labelled recordings train, the rest test), unless-few (share from 5 labelled recordings on; fewer: all train) or none (all train) \\[default: share; fit: unless-few].", show_default=False)] = None,
     max_hold: Annotated[float, typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the value is missing and the frame dropped. Each topic or joint that stops early, starts late or goes silent is a note.")] = MAX_HOLD_S,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
@@ -42,7 +44,7 @@ def collect(
                               train_frames=train_frames, goals=goals, cache=cache, label_column=label_column,
                               episode_column=episode_column, time_column=time_column, classes=classes,
                               features=features, labels=labels, labels_unit=labels_unit, unlabelled=unlabelled,
-                              topics=topics, rate=rate, label_topic=label_topic, max_hold=max_hold)
+                              topics=topics, rate=rate, label_topic=label_topic, max_hold=max_hold, holdout=holdout)
     with reported_errors():
         options.validate()
         with Progress(
@@ -59,10 +61,11 @@ def collect(
 def collect_options(*, label_column: str, episode_column: Optional[str], time_column: Optional[str],
                     classes: Optional[str], features: Optional[str], labels: Optional[Path], labels_unit: Optional[str],
                     unlabelled: Optional[str], topics: Optional[str], rate: Optional[float], label_topic: Optional[str],
-                    max_hold: float = MAX_HOLD_S, **rest) -> stage.CollectOptions:
+                    max_hold: float = MAX_HOLD_S, holdout: Optional[str] = None,
+                    default_holdout: Holdout = Holdout.SHARE, **rest) -> stage.CollectOptions:
     """The stage's options from the command's flags (also `mlnseq fit`'s source flags)."""
     return stage.CollectOptions(
-        **rest,
+        **rest, holdout=default_holdout if holdout is None else holdout_of(holdout),
         columns=stage.TableColumns(label=label_column, episode=episode_column, time=time_column,
                                    classes=_names(classes), features=_names(features)),
         recordings=stage.SourceOptions(**labels_option(labels), labels_unit=labels_unit, unlabelled=unlabelled,
@@ -91,6 +94,14 @@ def print_collected(path: Path, collected: stage.Collected) -> None:
         console.print(f"note: {note}")
     if "success_rate" in collected.meta:
         console.print(f"episodes that succeeded: {collected.meta['success_rate']:.1%}")
+
+
+def holdout_of(text: str) -> Holdout:
+    try:
+        return Holdout(text)
+    except ValueError:
+        raise typer.BadParameter(f"{text!r}: choose {', '.join(h.value for h in Holdout)}",
+                                 param_hint="--holdout") from None
 
 
 def _names(text: Optional[str]) -> tuple[str, ...]:

@@ -20,7 +20,7 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
-from mlnseq.sources.recording import Collected, TableColumns, split_by_position
+from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
 
@@ -68,7 +68,7 @@ Progress = Callable[[int, int], None]
 
 def collect_recordings(options: CollectOptions) -> Collected:
     """Import a user's recordings; ``train_frames``, when given, overrides their split (first K frames train)."""
-    recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings)
+    recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings, Labels.SOME)
     frames, meta = collect_frames(recordings, options.columns.classes, options.holdout)
     if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
         from mlnseq.sources import clicks

@@ -41,6 +41,8 @@ LEARNED_MLN = "learned.mln"
 MODELS_DIR = "models"
 PREDICTIONS = "predictions.parquet"
 METRICS = "metrics.parquet"
+LABEL_NEXT = "label_next.csv"  # the unlabelled recordings ranked by what labelling each would teach (fit)
+UNLABELLED_INTERVALS = "unlabelled.intervals.csv"  # their predicted phases, predict --intervals' form (fit)
 
 # Which stage writes each artifact, so a missing or stale one names the command to run.
 PRODUCED_BY = {
@@ -56,12 +58,8 @@ PRODUCED_BY = {
     METRICS: "eval",
 }
 
-KEY_SCHEMA: dict[str, pl.DataType] = {
-    "episode": pl.Int32(),
-    "frame": pl.Int32(),
-    "label": pl.Int16(),
-    "split": pl.String(),
-}
+KEY_SCHEMA: dict[str, pl.DataType] = {"episode": pl.Int32(), "frame": pl.Int32(), "label": pl.Int16(),
+                                      "split": pl.String()}
 KEY_COLUMNS = tuple(KEY_SCHEMA)
 SPLITS = ("train", "test")
 

@@ -34,7 +34,7 @@ def read_kinematics(path: Path) -> np.ndarray:
 def read(source: Path, columns: TableColumns, options, label: Labels = Labels.REQUIRED) -> list[Recording]:
     """Every trial of a JIGSAWS task folder; labelled from its transcription (``with_labels``), frames
     outside every gesture dropped or given ``options.unlabelled``; a trial without a transcription is unlabelled
-    (predict: then all must be). ``label``: required (collect), optional (predict) or none."""
+    (collect: ``Labels.SOME``; predict: then all must be). ``label``: required, some, optional or none."""
     folder = Path(source) / KINEMATICS
     if not folder.is_dir():
         raise BadInput(f"--source {source}: no {KINEMATICS} folder; point it at a JIGSAWS task folder "
@@ -58,9 +58,11 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
                               episode=pl.Series([path.stem] * len(values)), time=(rows - 1) / RATE, row=rows,
                               where="{file}:{row}")
         transcript = Path(source) / TRANSCRIPTIONS / path.name
-        if not transcript.is_file() and label is Labels.REQUIRED:  # a trial without a transcription: unlabelled
+        if not transcript.is_file() and label is Labels.SOME:  # a trial without a transcription: unlabelled
             recording.resolved["unlabelled"] = f"{path}: no transcription {transcript}"
-        elif label is not Labels.NONE and transcript.is_file():
+        elif label is Labels.REQUIRED or (label is not Labels.NONE and transcript.is_file()):
+            if not transcript.is_file():
+                raise BadInput(f"{path}: no transcription {transcript}; label every trial, or leave it out")
             found = intervals.transcription(transcript, first_frame=1)
             recording = intervals.apply([recording], {path.stem: intervals.checked(found)}, "frames",
                                         options.unlabelled)[0]

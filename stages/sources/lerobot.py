@@ -159,8 +159,8 @@ def _active(table: pl.DataFrame, time: pl.Series, style: str, path: Path) -> tup
 def _with_annotations(recordings: list[Recording], subtasks: list, style: str, label: Labels, unlabelled: str | None,
                       source: Path) -> list[Recording]:
     """Recordings labelled by their ``style`` annotations. For predict (labels optional) all or none: labelled only
-    when every frame is. For collect: episodes without annotations read unlabelled, frames before an episode's first
-    annotation left out (or labelled ``unlabelled``), each with a note."""
+    when every frame is. Else episodes without annotations read unlabelled (``Labels.SOME``, collect) or left out,
+    frames before an episode's first annotation left out (or labelled ``unlabelled``), each with a note."""
     if label is Labels.OPTIONAL:
         complete = all(found is not None and found[1].all() and (unlabelled is not None or not found[0].null_count())
                        for found in subtasks)
@@ -169,10 +169,11 @@ def _with_annotations(recordings: list[Recording], subtasks: list, style: str, l
     if all(found is None for found in subtasks):
         raise BadInput(f"{source}: no {language.PERSISTENT} column, so no {style} annotations to label frames with; "
                        "annotate episodes with LeRobot's tools, or give label intervals with --labels FILE")
-    kept, bare, early = [], [], 0
+    kept, bare, left_out, early = [], [], set(), 0
     for recording, found in zip(recordings, subtasks):
         n = recording.features.height
         labels, annotated = found or (pl.Series([None] * n, dtype=pl.String), pl.Series([False] * n))
+        left_out |= set(recording.episode.filter(~annotated).to_list())
         early += int((annotated & labels.is_null()).sum()) if unlabelled is None else 0
         keep = annotated & (labels.is_not_null() | (unlabelled is not None))
         if keep.any():
@@ -180,14 +181,16 @@ def _with_annotations(recordings: list[Recording], subtasks: list, style: str, l
                 recording, features=recording.features.filter(keep), episode=recording.episode.filter(keep),
                 time=recording.time.filter(keep), label=_filled(labels, unlabelled).filter(keep),
                 row=pl.int_range(n, eager=True).filter(keep)))
-        if not annotated.all():  # episodes without annotations: read unlabelled
+        if not annotated.all() and label is Labels.SOME:  # episodes without annotations: read unlabelled
             bare.append(dataclasses.replace(
                 recording, features=recording.features.filter(~annotated), episode=recording.episode.filter(~annotated),
                 time=recording.time.filter(~annotated), label=None, row=pl.int_range(n, eager=True).filter(~annotated)))
     if not kept:
         raise BadInput(f"{source}: no episode has {style} annotations ({language.PERSISTENT} rows of style {style}); "
                        "annotate some with LeRobot's tools, or give label intervals with --labels FILE")
-    notes = []  # episodes without annotations: collect says how many it read unlabelled
+    total = len({e for r in recordings for e in r.episode.unique().to_list()})
+    notes = [f"{len(left_out)} of {total} episodes have no {style} annotations: left out of training (predict "
+             "recognises them)"] if left_out and label is Labels.REQUIRED else []  # SOME: collect says them
     if early:
         notes.append(f"{early:,} frames before their episode's first {style} left out (--unlabelled CLASS keeps them)")
     return [dataclasses.replace(r, resolved={**r.resolved, "notes": notes}) for r in kept + bare]

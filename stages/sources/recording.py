@@ -15,7 +15,8 @@ import polars as pl
 class Labels(Enum):
     """Whether a reader reads the recordings' own labels."""
 
-    REQUIRED = "required"  # collect: every recording is labelled
+    REQUIRED = "required"  # every recording is labelled (predict given --label-column)
+    SOME = "some"  # collect: recordings carry labels where they have them, the others are read unlabelled
     OPTIONAL = "optional"  # predict: read where the recordings carry them (then all must)
     NONE = "none"  # not read: ``--labels`` intervals give them, or there are none
 

@@ -67,7 +67,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
         try:
             with AnyReader([path], default_typestore=typestore) as reader:
                 label_topic = options.label_topic if label is not Labels.NONE else None
-                without = label_topic is not None and label_topic not in reader.topics
+                without = label is not Labels.REQUIRED and label_topic is not None and label_topic not in reader.topics
                 if without:  # recordings without their phases: unlabelled (collect says why if none has them)
                     listed = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(reader.topics.items()))
                     without, label_topic = f"{path}: no topic {label_topic!r}; its topics are {listed}", None
@@ -81,7 +81,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
         except Exception as error:  # rosbags raises its own and struct/EOF errors for truncated files
             text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise BadInput(f"{path}: cannot read it as a ROS bag ({text[:160]})") from error
-        if without and label is Labels.REQUIRED:
+        if without and label is Labels.SOME:
             recording.resolved["unlabelled"] = without
         topics, rate = tuple(recording.resolved["topics"]), recording.resolved["rate"]
         joints = recording.resolved["joints"]

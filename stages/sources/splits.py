@@ -19,6 +19,7 @@ class Holdout(StrEnum):
 
     SHARE = "share"  # the first 70 % of the labelled episodes train, the rest test (one episode: of its frames)
     UNLESS_FEW = "unless-few"  # as SHARE from FEW_LABELLED labelled episodes on; below, every labelled frame trains
+    NONE = "none"  # every labelled frame trains: no test split
 
 
 FEW_LABELLED = 5  # below this many labelled recordings, UNLESS_FEW spends none on a test split
@@ -44,7 +45,7 @@ def split_of(frames: pl.DataFrame, episode_index: np.ndarray, at,
         return given.to_numpy()
     order = np.unique(episode_index, return_inverse=True)[1]  # the labelled episodes numbered 0, 1, ... in order
     n_episodes = int(order.max()) + 1
-    if holdout is Holdout.UNLESS_FEW and n_episodes < FEW_LABELLED:
+    if holdout is Holdout.NONE or (holdout is Holdout.UNLESS_FEW and n_episodes < FEW_LABELLED):
         return np.full(len(order), "train")
     if n_episodes == 1:
         position = np.arange(len(order)) < round(DEFAULT_TRAIN_SHARE * len(order))

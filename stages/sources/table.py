@@ -151,7 +151,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
     """A user's CSV/Parquet file or folder as recordings; with ``Labels.OPTIONAL`` the label column is read if
     the first file has it."""
     files = table_files(Path(source))
-    labelled = label is Labels.REQUIRED
+    labelled = label in (Labels.REQUIRED, Labels.SOME)
     recordings = []
     for file_number, path in enumerate(files):
         table = read_one(path)
@@ -164,7 +164,7 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
         why = None
-        if missing and label is Labels.REQUIRED and missing[0] == columns.label:  # a file without labels: unlabelled
+        if missing and label is Labels.SOME and missing[0] == columns.label:  # a file without labels: unlabelled
             why = f"{path}: no column {columns.label!r}; columns are {', '.join(table.columns)}"
             label_col, missing = None, missing[1:]
         if missing:
