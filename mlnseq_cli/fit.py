@@ -79,6 +79,7 @@ def fit(**flags: Any) -> None:
 def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str, Any]:
     """Collect and binarize, then the options of the stages after them (K chosen from the frames)."""
     from mlnseq import binarize, collect
+    from mlnseq.catalog import artifacts
     from mlnseq.choosing import folds as folding
     from mlnseq.choosing.latency import rate_of
     from mlnseq_cli.binarize import print_learned
@@ -101,7 +102,7 @@ def stages(collect_options: Any, own: dict[str, Any], workdir: Path) -> dict[str
     console.print(f"[green]binarize[/]: {counted(len(columns), 'predicate')}, "
                   f"{counted(sum(map(len, columns.values())), 'column')} from {said}; "
                   f"`mlnseq binarize --table -w {workdir}` shows which separate which classes", highlight=False)
-    frames = collected.frames
+    frames = artifacts.labelled(collected.frames)  # recordings without labels are in no fold
     episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
     k = own["folds"] if own["folds"] is not None else folding.suggested(episodes, splits)
     if k:

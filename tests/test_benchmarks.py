@@ -16,6 +16,7 @@ LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "collect": "desk import: 22,329 frames",
     "decode": "decode: the 25 lagged, posterior and legal decodings",
     "first_day": "first day: 1 dataset(s) measured",
+    "labels": "labels: 1 arm(s) measured",
     "networks": "tcn ",
     "recordings": "peak memory:",
     "scale": "| train: one stream epoch",

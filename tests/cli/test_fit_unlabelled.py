@@ -47,3 +47,14 @@ def test_unlabelled_recordings_change_no_figure(bags, tmp_path):
     assert set(mixed["split"]) == {"train"} and mixed["episode"].unique().sort().to_list() == [1, 2, 4, 5]
     assert mixed.drop("episode").equals(alone.drop("episode"))
     assert mixed_meta["cross_validation"] == alone_meta["cross_validation"]
+
+
+def test_one_labelled_recording_beside_unlabelled_ones_is_cut_into_blocks(bags, tmp_path):
+    import shutil
+
+    one = tmp_path / "one"
+    for name in ("episode_1", "episode_2", "episode_4"):  # episode_2 alone has /phase
+        shutil.copytree(bags / "mixed" / name, one / name)
+    (tmp_path / "hand.toml").write_text((bags / "hand.toml").read_text())
+    said = fit(tmp_path, "one", tmp_path / "work")
+    assert "folds: 5 folds by block" in said and "1 labelled recording, fewer than 5" in said
