@@ -61,11 +61,10 @@ def collect(
 def collect_options(*, label_column: str, episode_column: Optional[str], time_column: Optional[str],
                     classes: Optional[str], features: Optional[str], labels: Optional[Path], labels_unit: Optional[str],
                     unlabelled: Optional[str], topics: Optional[str], rate: Optional[float], label_topic: Optional[str],
-                    max_hold: float = MAX_HOLD_S, holdout: Optional[str] = None,
-                    default_holdout: Holdout = Holdout.SHARE, **rest) -> stage.CollectOptions:
+                    max_hold: float = MAX_HOLD_S, holdout: Optional[str] = None, **rest) -> stage.CollectOptions:
     """The stage's options from the command's flags (also `mlnseq fit`'s source flags)."""
     return stage.CollectOptions(
-        **rest, holdout=default_holdout if holdout is None else holdout_of(holdout),
+        **rest, holdout=None if holdout is None else holdout_of(holdout),
         columns=stage.TableColumns(label=label_column, episode=episode_column, time=time_column,
                                    classes=_names(classes), features=_names(features)),
         recordings=stage.SourceOptions(**labels_option(labels), labels_unit=labels_unit, unlabelled=unlabelled,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.resources
 import inspect
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -70,9 +71,8 @@ def fit(**flags: Any) -> None:
     if own["output"] is not None and Path(own["output"]).exists():
         raise fail(f"--output {own['output']} exists: remove it or name another file (fit writes a new model)", 2)
     with reported_errors():
-        options = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"},
-                                              default_holdout=Holdout.UNLESS_FEW)  # few labels: every one trains
-        plan = stages(options, own, workdir)
+        options = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"})
+        plan = stages(replace(options, holdout=options.holdout or Holdout.UNLESS_FEW), own, workdir)  # few labels
         run_plan(plan, own, workdir)
 
 

@@ -39,7 +39,7 @@ class CollectOptions:
     columns: TableColumns = TableColumns()  # table: which columns are keys and features
     recordings: SourceOptions = SourceOptions()  # recording sources: labels file, topics, rate...
     cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
-    holdout: Holdout = Holdout.SHARE  # recordings without a split column: UNLESS_FEW (fit) spends none below 5
+    holdout: Holdout | None = None  # recordings without a split column; None: SHARE (fit: UNLESS_FEW)
 
     def validate(self) -> None:
         check_choice("env", self.env, ENVS)
@@ -69,7 +69,7 @@ Progress = Callable[[int, int], None]
 def collect_recordings(options: CollectOptions) -> Collected:
     """Import a user's recordings; ``train_frames``, when given, overrides their split (first K frames train)."""
     recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings, Labels.SOME)
-    frames, meta = collect_frames(recordings, options.columns.classes, options.holdout)
+    frames, meta = collect_frames(recordings, options.columns.classes, options.holdout or Holdout.SHARE)
     if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
         from mlnseq.sources import clicks
 
