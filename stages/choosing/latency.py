@@ -246,10 +246,9 @@ def start_distribution(workdir: Any) -> Any:
     import polars as pl
 
     from mlnseq.catalog import artifacts
-    from mlnseq.fusion.decoding import start_of
+    from mlnseq.fusion.decoding import training_start
 
     frames = pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"])
     meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
-    train = frames["split"].to_numpy() != "test"
-    return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,
-                    len(meta["classes"]))
+    return training_start(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(),
+                          frames["split"].to_numpy(), len(meta["classes"]))
