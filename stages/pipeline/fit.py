@@ -65,12 +65,12 @@ class FitOptions:
         given = [n for n in ("latency", "lag") if getattr(self, n) is not None] + (["offline"] if self.offline else [])
         if len(given) > 1:
             raise BadInput(f"give one of --latency, --lag and --offline, not {' and '.join('--' + g for g in given)}")
+        if self.output is not None and Path(self.output).exists() and not self.force:
+            raise BadInput(f"--output {self.output} exists: pass --force to overwrite it, or name another file")
         if self.spec is not None and not Path(self.spec).is_file():
             raise BadInput(f"--spec {self.spec} not found: point it at a .binarize.toml file")
         if self.formulas is not None and not Path(self.formulas).is_file():
             raise BadInput(f"--formulas {self.formulas} not found: give a .mln file of formulas")
-        if self.output is not None and Path(self.output).exists() and not self.force:
-            raise BadInput(f"--output {self.output} exists: pass --force to overwrite it, or name another file")
         self.train_options(self.folds).validate()
 
     def train_options(self, folds: int | None) -> TrainOptions:
@@ -206,12 +206,16 @@ def _export(workdir: Path, options: FitOptions, k: int, budget: int | None
     the runner-up and the network alone."""
     from mlnseq import export
     from mlnseq.catalog import artifacts
+    from mlnseq.model import model_file
+    from mlnseq.model.manifest import MANIFEST
 
     output = options.output if options.output is not None else workdir / MODEL
     method, decoding = latency.FALLBACK
     exported = export.run(workdir, export.ExportOptions(method=latency.AUTO, lag=budget, output=output, force=True)
                           if k else export.ExportOptions(method=method, decode=decoding.decoder.value, output=output,
                                                          force=True))
+    entries = model_file.read_model(exported.path)  # the manifest as written, its members and formulas counted
+    exported = replace(exported, manifest=model_file.parse_manifest(entries[MANIFEST], exported.path))
     chosen = exported.manifest.chosen_by_cross_validation
     if chosen is None:
         return exported, None
