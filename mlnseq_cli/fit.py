@@ -13,7 +13,6 @@ from rich.markup import escape
 
 from mlnseq_cli import collect as collect_cli
 from mlnseq_cli.binarize import print_learned
-from mlnseq_cli.collect import print_collected
 from mlnseq_cli.conflate import summary
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from mlnseq_cli.train import epoch_progress
@@ -63,7 +62,7 @@ class Printed(pipeline.Observer):
     """Each stage's line as it finishes."""
 
     def collected(self, step: pipeline.Collecting) -> None:
-        print_collected(step.path, step.collected)
+        collect_cli.print_collected(step.path, step.collected)
 
     def binarized(self, step: pipeline.Binarizing) -> None:
         if step.learned:

@@ -175,7 +175,7 @@ def fit_budget(lag: int | None, latency_s: float | None, offline: bool, rate_hz:
     decided as it comes)."""
     if offline:
         return None
-    return 0 if lag is None and latency_s is None else budget_frames(lag, latency_s, rate_hz, "the recordings")
+    return 0 if lag is None and latency_s is None else budget_frames(lag, latency_s, rate_hz, "the source")
 
 
 def scored_within(budget: int | None, hard_rules: bool) -> tuple[tuple[Decoder, ...], tuple[int, ...]]:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from mlnseq.catalog.errors import BadInput
-from mlnseq.catalog.methods import decoded_name
+from mlnseq.catalog.methods import Method, decoded_name
 from mlnseq.catalog.notes import MISSING_INPUT
 from mlnseq.choosing import latency
 from mlnseq.pipeline.steps import (Binarizing, Collecting, Fitted, Folding, FormulasFrom, Formulating, TestFigures,
@@ -133,7 +133,8 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     observer.conflated(conflated)
     exported, standing = _export(workdir, options, folding.k, collected.budget)
     method, decoding = latency.FALLBACK
-    test = held_out(workdir, [standing.chosen.name if standing else decoded_name(method, decoding.name), "lstm"])
+    test = held_out(workdir, [standing.chosen.name if standing else decoded_name(method, decoding.name),
+                              Method.NETWORK.value])
     return Fitted(exported, standing, test, collected, binarized, folding, formulas, weights, trained, conflated)
 
 
