@@ -132,8 +132,7 @@ LEARN_SOURCES := stages/learn_weights.py $(call libraries,catalog timeline mln f
 TRAIN_SOURCES := stages/train.py $(call libraries,$(NETWORK_LIBRARIES))
 RECOGNIZER_SOURCES := stages/conflate.py $(call libraries,$(NETWORK_LIBRARIES))
 EVAL_SOURCES := stages/eval.py $(call libraries,catalog timeline)
-REPORT_SOURCES := stages/report.py mlnseq_cli/report.py \
-  $(call libraries,$(NETWORK_LIBRARIES) predicates explaining recognition reporting)
+REPORT_SOURCES := stages/report.py mlnseq_cli/report.py $(call libraries,$(NETWORK_LIBRARIES) explaining reporting)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(REPORT_SOURCES)
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)

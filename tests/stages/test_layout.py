@@ -287,11 +287,13 @@ def makefile_sources(makefile: str) -> dict[str, tuple[set[str], set[str]]]:
 
 
 def imported_libraries(start: list[str]) -> set[str]:
+    """The library folders ``start`` imports, directly or through other modules; the package's own __init__ (in
+    every list) is not followed: it names the Python API's entry points lazily, for Python callers."""
     graph, seen, todo = module_graph(), set(), list(start)
     while todo:
         if (module := todo.pop()) not in seen:
             seen.add(module)
-            todo += graph.get(module, ())
+            todo += graph.get(module, ()) if module != "mlnseq" else ()
     return {folder for module in seen if (folder := library_of(module))}
 
 
