@@ -61,12 +61,17 @@ def runs(classes: np.ndarray) -> list[list[int]]:
 
 def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: set[str]) -> list[dict]:
     """The recordings' rows: id, frames, seconds, confidence, rank to label (1 first) and why, labelled, saved.
-    ``ranks``: the workdir's label_next.csv (episode: rank, reason); else the least sure is labelled first."""
-    order = sorted(range(len(recordings)), key=lambda i: recordings[i].confidence)
+    ``ranks``: the workdir's label_next.csv (episode: rank, reason), whose recordings come first in its order; the
+    others after them, the least sure first."""
+    others = sorted((i for i, r in enumerate(recordings) if r.id not in ranks), key=lambda i: recordings[i].confidence)
+    after = max((rank for rank, _ in ranks.values()), default=0)
     rows = []
     for index, recording in enumerate(recordings):
-        rank, reason = ranks.get(recording.id, (order.index(index) + 1, "the model is least sure of it"
-                                                if order.index(index) == 0 else "by how sure the model is"))
+        if recording.id in ranks:
+            rank, reason = ranks[recording.id]
+        else:
+            rank = after + others.index(index) + 1
+            reason = "ranked by how sure the model is (the least sure first)"
         time = recording.time
         rows.append({"index": index, "id": recording.id, "frames": int(len(time)),
                      "seconds": float(time[-1] - time[0]) if len(time) else 0.0,

@@ -235,3 +235,17 @@ def test_bad_input_is_one_line(trials, tmp_path):
     assert "inside the source" in refused(model, "--source", csv, "--port", "0", "--save", csv)
     assert "--source" in refused(model, "--port", "0")
     assert not (tmp_path / "a.csv").exists() and not (folder / "labels.csv").exists()
+
+
+def test_a_fits_workdir_is_reviewed_in_the_order_its_label_next_csv_ranks(trials, tmp_path):
+    workdir = tmp_path / "work"
+    done = mlnseq("collect", "--env", "table", "--source", trials["csv"], "--episode-column", "trial",
+                  "--time-column", "t", "--label-column", "phase", "-w", workdir)
+    assert done.returncode == 0, done.stderr
+    (workdir / "label_next.csv").write_text("episode,rank,reason\n11,1,the glitch\n9,2,unsure at the grasp\n")
+    with served(trials["model"], "-w", workdir, cwd=tmp_path) as (url, printed):
+        assert f"saves go to {tmp_path / 'work.labels.csv'}" in printed[0]
+        status, body = request(url, "GET", "/api/recordings", {})
+    rows = json.loads(body)["recordings"]
+    assert status == 200 and [(r["id"], r["rank"]) for r in rows] == [("11", 1), ("9", 2), ("10", 3)]
+    assert rows[0]["reason"] == "the glitch" and rows[2]["labelled"]
