@@ -249,3 +249,45 @@ def test_a_fits_workdir_is_reviewed_in_the_order_its_label_next_csv_ranks(trials
     rows = json.loads(body)["recordings"]
     assert status == 200 and [(r["id"], r["rank"]) for r in rows] == [("11", 1), ("9", 2), ("10", 3)]
     assert rows[0]["reason"] == "the glitch" and rows[2]["labelled"]
+
+
+def click_band(page, frame: int) -> None:
+    """A click on the labels band at the middle of ``frame``."""
+    box = page.locator("#bands").bounding_box()
+    x = page.evaluate(f"(xOf({frame}) + xOf({frame} + 1)) / 2")
+    page.mouse.click(box["x"] + x, box["y"] + 48)
+
+
+@needs_browser
+def test_a_segment_relabelled_split_and_merged_with_undo_is_saved_as_shown(trials, tmp_path):
+    saved = tmp_path / "labels.csv"
+    trial = TRIALS[1]
+    (_, before, _), (a, b, _), (_, c, _), (d, e, _) = phase_runs(trials["csv"], trial)
+    split = a + 4
+    with served(trials["model"], "--source", trials["csv"], "--save", saved) as (url, _):
+        with browser() as page:
+            opened(page, url)
+            show(page, trial)
+            click_band(page, (a + b) // 2)
+            assert page.evaluate("window.review.segment") == 1
+            page.keyboard.press("3")  # grasp -> lift
+            over = page.locator(".channel .u-over").first.bounding_box()
+            x = page.evaluate(f"window.review.plots[1].valToPos(window.review.data.time[{split}], 'x')")
+            page.mouse.click(over["x"] + x, over["y"] + over["height"] / 2)  # explain a frame: the split's place
+            assert until(page, "window.review.explained")["frame"] == split
+            click_band(page, (a + b) // 2)
+            page.keyboard.press("s")
+            click_band(page, a + 2)
+            page.keyboard.press("2")  # its first part: grasp again
+            click_band(page, (split + b) // 2)
+            page.keyboard.press("m")  # the rest merged with the lift after it
+            page.keyboard.press("z")
+            assert len(page.evaluate("window.review.edit")) == 5  # the merge undone
+            page.keyboard.press("m")
+            assert page.evaluate("window.review.edit") == [[0, before, 0], [a, split - 1, 1], [split, c, 2],
+                                                           [d, e, 3]]
+            page.click("#save")
+            until(page, "window.review.saved")
+            assert page.errors == []
+    assert pl.read_csv(saved).rows() == [(trial, 0, before, "approach"), (trial, a, split - 1, "grasp"),
+                                         (trial, split, c, "lift"), (trial, d, e, "release")]
