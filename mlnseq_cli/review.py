@@ -15,6 +15,7 @@ def review(
     source: Annotated[Optional[Path], typer.Option(help="The recordings, read as `predict` reads them (as the model's recordings were read) \\[default: those of -w WORKDIR's fit].")] = None,
     workdir: Annotated[Optional[Path], typer.Option("--workdir", "-w", help="A fit's workdir: its recordings, ranked to label as its label_next.csv ranks them where it has one.", file_okay=False)] = None,
     save: Annotated[Optional[Path], typer.Option(help="The labels file a save writes (episode,start,end,label: what `collect --labels` reads); read back at the start if it exists \\[default: the source's name + .labels.csv here, or WORKDIR.labels.csv beside the workdir].", dir_okay=False)] = None,
+    save_lerobot: Annotated[Optional[Path], typer.Option(help="A LeRobot (v3.0) source: each save also writes a copy of the dataset to this folder with the saved labels as the saved episodes' subtask annotations and the model's phases as the others' (their own annotations kept), as `predict --write-lerobot` writes them.", file_okay=False)] = None,
     host: Annotated[str, typer.Option(help="The address to listen on; only this machine reaches the page unless it says otherwise.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="The port (0: any free one).")] = 8750,
     decode: Annotated[Optional[str], typer.Option(help="A decoder (e.g. smooth-legal@5) \\[default: the model's].")] = None,
@@ -29,7 +30,8 @@ def review(
     from mlnseq import review as stage
 
     overrides = {k: v for k, v in dict(topics=_names(topics), rate=rate).items() if v not in (None, ())}
-    options = stage.ReviewOptions(model=model, source=source, workdir=workdir, save=save, host=host, port=port,
+    options = stage.ReviewOptions(model=model, source=source, workdir=workdir, save=save,
+                                  save_lerobot=save_lerobot, host=host, port=port,
                                   decode=decode, env=env, label_column=label_column, episode_column=episode_column,
                                   time_column=time_column, overrides=overrides)
 

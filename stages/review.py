@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from mlnseq import sources
-from mlnseq.catalog import artifacts
+from mlnseq.catalog import artifacts, folders
 from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.explaining.explainer import Explainer, Keys, Scores
@@ -45,6 +45,7 @@ class ReviewOptions:
     source: Path | None = None  # default: the recordings of ``workdir``'s fit
     workdir: Path | None = None  # a fit's workdir: its recordings, ranked by its label_next.csv
     save: Path | None = None  # the labels file; default: SOURCE's name + .labels.csv here, or beside WORKDIR
+    save_lerobot: Path | None = None  # a LeRobot source: also a copy of it with the labels as subtask annotations
     host: str = "127.0.0.1"
     port: int = 8750  # 0: any free port
     decode: str | None = None
@@ -141,9 +142,9 @@ class Review:
     """The page's site: its files, the recordings' table and views, a frame's explanation and the save."""
 
     def __init__(self, model: Recognizer, recordings: list[Recording], labels: corrections.LabelsFile,
-                 ranks: dict[str, tuple[int, str]], decode: str | None):
+                 ranks: dict[str, tuple[int, str]], decode: str | None, lerobot: tuple[Path, Path] | None = None):
         self.model, self.recordings, self.labels, self.ranks = model, recordings, labels, ranks
-        self.decode = decode
+        self.decode, self.lerobot = decode, lerobot  # lerobot: (the source dataset, its annotated copy)
         self.classes = list(model.classes)
         self.files = page_files()
         self.routes: dict[str, Callable[[Mapping[str, list[str]]], Reply]] = {
@@ -197,7 +198,29 @@ class Review:
         names = corrections.labels_of(body.get("segments"), len(decided.time), self.classes)
         count = self.labels.put(decided.id, decided.time, names)
         path = self.labels.write()
-        return Reply.json({"saved": str(path), "episode": decided.id, "rows": count})
+        written = {} if self.lerobot is None else {"lerobot": str(self.annotated_copy())}
+        return Reply.json({"saved": str(path), "episode": decided.id, "rows": count, **written})
+
+    def annotated_copy(self) -> Path:
+        """The LeRobot source copied with the saved labels as the saved episodes' subtask annotations (over their
+        own), the model's phases as the others' (their own kept), as `predict --write-lerobot` writes them."""
+        from mlnseq.sources import lerobot_writer
+
+        source, out = self.lerobot
+        episodes, names, replaced = [], [], set()
+        classes = np.asarray(self.classes, dtype=object)
+        for recording in self.recordings:
+            decided, episode = recording.decided, recording.keys.episode[0]
+            saved = self.labels.saved(decided.id, decided.time, self.classes)
+            whole = saved is not None and bool((saved >= 0).all())
+            replaced |= {episode} if whole else set()
+            names.append(classes[saved if whole else decided.path])
+            episodes.append(np.full(len(decided.path), episode))
+        predicted = lerobot_writer.Predicted(np.concatenate(episodes), np.concatenate(names), None,
+                                             tuple(self.classes))
+        with folders.atomic_folder(out) as staging:
+            lerobot_writer.write(staging, source, predicted, replace=frozenset(replaced))
+        return out
 
 
 @dataclass(frozen=True)
@@ -219,6 +242,8 @@ def prepare(options: ReviewOptions) -> tuple[Review, GuardedServer]:
     env, columns, source_options, label = reading_of(model, options)
     save = options.save_path()
     corrections.check_path(save, source, [Path(options.model), *filter(None, [source_options.labels])])
+    if options.save_lerobot is not None:
+        _check_lerobot(options, env, source, save)
     recordings = sources.read(env, source, columns, source_options, label=label)
     frames, meta, times = prediction_frames(recordings, columns.classes)
     for path in meta["source_files"]:
@@ -227,8 +252,22 @@ def prepare(options: ReviewOptions) -> tuple[Review, GuardedServer]:
     decided = decide(model, frames, list(meta["episode_names"]), times, options.decode)
     for recording in decided:  # a labels file that does not fit the recordings is refused now, not at a click
         labels.saved(recording.decided.id, recording.decided.time, list(model.classes))
-    site = Review(model, decided, labels, ranks_of(options.workdir), options.decode)
+    lerobot = None if options.save_lerobot is None else (source, Path(options.save_lerobot))
+    site = Review(model, decided, labels, ranks_of(options.workdir), options.decode, lerobot)
     return site, GuardedServer(options.host, options.port, site, options.body_limit)
+
+
+def _check_lerobot(options: ReviewOptions, env: str, source: Path, save: Path) -> None:
+    """--save-lerobot OUT: a LeRobot source, and OUT a folder of its own (an earlier review's copy is replaced)."""
+    from mlnseq.sources import lerobot_writer
+
+    if env != "lerobot":
+        raise BadInput(f"--save-lerobot writes LeRobot datasets, but --source {source} is read as --env {env}")
+    try:
+        lerobot_writer.check_target(source, Path(options.save_lerobot), True, {"--save": save,
+                                                                              "the model": options.model})
+    except BadInput as error:
+        raise BadInput(str(error).replace("--write-lerobot", "--save-lerobot")) from None
 
 
 def run(options: ReviewOptions, started: Callable[[Started], None] | None = None) -> str:

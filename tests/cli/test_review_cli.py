@@ -291,3 +291,68 @@ def test_a_segment_relabelled_split_and_merged_with_undo_is_saved_as_shown(trial
             assert page.errors == []
     assert pl.read_csv(saved).rows() == [(trial, 0, before, "approach"), (trial, a, split - 1, "grasp"),
                                          (trial, split, c, "lift"), (trial, d, e, "release")]
+
+
+@pytest.fixture(scope="module")
+def lerobot_model(shared_data, tmp_path_factory) -> dict[str, Path]:
+    """An MLN filter model of LeRobot 0.6.1's annotated pick-place dataset (its own subtask annotations as labels,
+    predicates and formulas learned by binarize --suggest; no network): it remembers reading the annotations."""
+    from mlnseq import binarize, collect, export, formulas, learn_weights
+    from mlnseq.sources import SourceOptions
+
+    source = shared_data / "lerobot-0.6.1" / "pick-place-annotated"
+    workdir = tmp_path_factory.mktemp("lerobot") / "work"
+    collect.run(workdir, collect.CollectOptions(env="lerobot", source=source,
+                                                recordings=SourceOptions(annotations="subtask")))
+    binarize.run(workdir, binarize.BinarizeOptions(suggest=workdir / "learned.binarize.toml"))
+    formulas.run(workdir, formulas.FormulasOptions())
+    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
+    model = export.run(workdir, export.ExportOptions(method="mln", decode="filter",
+                                                     output=workdir.parent / "arm.mlnseq")).path
+    return {"model": model, "source": source}
+
+
+def subtasks(dataset: Path) -> tuple[pl.DataFrame, list[str]]:
+    from mlnseq import collect
+    from mlnseq.sources import SourceOptions
+
+    collected = collect.collect(collect.CollectOptions(env="lerobot", source=dataset,
+                                                       recordings=SourceOptions(annotations="subtask")))
+    return collected.frames, collected.meta["classes"]
+
+
+def test_a_lerobot_source_saved_is_also_its_subtask_annotations_in_a_copy(lerobot_model, tmp_path):
+    import hashlib
+
+    source, out = lerobot_model["source"], tmp_path / "annotated"
+    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(source.rglob("*")) if p.is_file()}
+    with served(lerobot_model["model"], "--source", source, "--save", tmp_path / "labels.csv", "--save-lerobot",
+                out) as (url, _):
+        rows = json.loads(request(url, "GET", "/api/recordings", {})[1])["recordings"]
+        index = next(r["index"] for r in rows if r["id"] == "0")
+        view = json.loads(request(url, "GET", f"/api/recording?index={index}", {})[1])
+        edit = [list(run) for run in view["labels"]]
+        edit[0][1] += 5  # the first boundary five frames later
+        edit[1][0] += 5
+        body = json.dumps({"index": index, "segments": [[a, b, view["classes"][k]] for a, b, k in edit]}).encode()
+        status, answer = request(url, "POST", "/api/save", {"Content-Type": "application/json",
+                                                            "Content-Length": str(len(body))}, body)
+        assert status == 200 and json.loads(answer)["lerobot"] == str(out)
+    frames, classes = subtasks(out)
+    own, own_classes = subtasks(source)
+    assert classes == own_classes == view["classes"]
+    first = frames.filter(pl.col("episode") == 0)["label"].to_list()
+    assert first == [k for a, b, k in edit for _ in range(a, b + 1)]
+    assert frames.filter(pl.col("episode") != 0).equals(own.filter(pl.col("episode") != 0))  # their own kept
+    assert first != own.filter(pl.col("episode") == 0)["label"].to_list()
+    after = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(source.rglob("*")) if p.is_file()}
+    assert after == before  # the source is only read
+
+
+def test_save_lerobot_needs_a_lerobot_source_and_a_folder_outside_it(trials, lerobot_model, tmp_path):
+    assert "--save-lerobot writes LeRobot datasets" in refused(
+        trials["model"], "--source", trials["csv"], "--port", "0", "--save", tmp_path / "a.csv", "--save-lerobot",
+        tmp_path / "out")
+    source = lerobot_model["source"]
+    assert "--save-lerobot" in refused(lerobot_model["model"], "--source", source, "--port", "0", "--save",
+                                       tmp_path / "b.csv", "--save-lerobot", source / "copy")
