@@ -100,17 +100,16 @@ def ranks_of(workdir: Path | None) -> dict[str, tuple[int, str]]:
 
 
 @dataclass
-class Recording:
+class Reviewed:
     """A recording under review: as decided, and what explaining its frames needs."""
 
     decided: views.Decided
-    features: np.ndarray
     keys: Keys
     scores: Scores
     explainer: Explainer | None = None
 
 
-def decide(model: Recognizer, frames: Any, names: list, times: np.ndarray, decode: str | None) -> list[Recording]:
+def decide(model: Recognizer, frames: Any, names: list, times: np.ndarray, decode: str | None) -> list[Reviewed]:
     """Each recording decided on its own, as `explain` decides it."""
     found = []
     episodes = frames["episode"].to_numpy()
@@ -122,7 +121,7 @@ def decide(model: Recognizer, frames: Any, names: list, times: np.ndarray, decod
         labels = frames["label"].to_numpy()[rows].astype(np.int64)
         decided = views.Decided(str(name), keys.time, features, np.asarray(scores.path, dtype=np.int64),
                                 np.asarray(scores.probabilities), labels if (labels >= 0).any() else None)
-        found.append(Recording(decided, features, keys, scores))
+        found.append(Reviewed(decided, keys, scores))
     return found
 
 
@@ -141,7 +140,7 @@ def page_files() -> dict[str, tuple[str, bytes]]:
 class Review:
     """The page's site: its files, the recordings' table and views, a frame's explanation and the save."""
 
-    def __init__(self, model: Recognizer, recordings: list[Recording], labels: corrections.LabelsFile,
+    def __init__(self, model: Recognizer, recordings: list[Reviewed], labels: corrections.LabelsFile,
                  ranks: dict[str, tuple[int, str]], decode: str | None, lerobot: tuple[Path, Path] | None = None):
         self.model, self.recordings, self.labels, self.ranks = model, recordings, labels, ranks
         self.decode, self.lerobot = decode, lerobot  # lerobot: (the source dataset, its annotated copy)
@@ -159,7 +158,7 @@ class Review:
     def post(self, path: str, body: Any) -> Reply | None:
         return self.saved(body) if path == "/api/save" else None
 
-    def _recording(self, query: Mapping[str, list[str]]) -> Recording:
+    def _recording(self, query: Mapping[str, list[str]]) -> Reviewed:
         text = (query.get("index") or [""])[0]
         if not text.isdigit() or int(text) >= len(self.recordings):
             raise BadInput(f"index {text!r}: choose a recording 0-{len(self.recordings) - 1}")
