@@ -29,7 +29,16 @@ REPO = Path(__file__).resolve().parents[2]
 TRIALS = (9, 10, 11)  # the last three trials; 11 holds the glitch of own_data_glitch (a restarted chain)
 CLASSES = ["approach", "grasp", "lift", "release"]
 FIGURE = REPO / "docs" / "figures" / "review.png"  # made by `make docs-figures`
-needs_browser = pytest.mark.skipif(review_browser.missing() is not None, reason=review_browser.missing() or "")
+
+
+@pytest.fixture
+def needs_browser() -> None:
+    """Skip, saying why, where chromium or Playwright is missing; under CI (CI=true), fail instead."""
+    why = review_browser.missing()
+    if why is not None:
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(why)
+        pytest.skip(why)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +66,7 @@ def phase_runs(csv: Path, trial: int) -> list[list[int]]:
     return runs
 
 
-@needs_browser
+@pytest.mark.usefixtures("needs_browser")
 def test_the_page_shows_every_recording_and_phase_and_draws_the_channels(trials, tmp_path):
     with served(trials["model"], "--source", trials["csv"], "--save", tmp_path / "labels.csv") as (url, printed):
         assert "3 recordings" in printed[0] and url.startswith("http://127.0.0.1:")
@@ -98,7 +107,7 @@ def drag(page, boundary: int, frame: int) -> None:
     page.mouse.up()
 
 
-@needs_browser
+@pytest.mark.usefixtures("needs_browser")
 def test_boundaries_moved_by_keyboard_and_mouse_are_saved_and_read_back_by_collect(trials, tmp_path):
     saved = tmp_path / "labels.csv"
     runs = phase_runs(trials["csv"], TRIALS[0])
@@ -146,7 +155,7 @@ def test_boundaries_moved_by_keyboard_and_mouse_are_saved_and_read_back_by_colle
     assert frames.height == sum(b - a + 1 for runs_ in [expected, *others] for a, b, _ in runs_)
 
 
-@needs_browser
+@pytest.mark.usefixtures("needs_browser")
 def test_a_click_shows_the_terms_explain_json_prints_for_that_frame(trials, tmp_path):
     with served(trials["model"], "--source", trials["csv"], "--save", tmp_path / "labels.csv") as (url, _):
         with browser() as page:
@@ -258,7 +267,7 @@ def click_band(page, frame: int) -> None:
     page.mouse.click(box["x"] + x, box["y"] + 48)
 
 
-@needs_browser
+@pytest.mark.usefixtures("needs_browser")
 def test_a_segment_relabelled_split_and_merged_with_undo_is_saved_as_shown(trials, tmp_path):
     saved = tmp_path / "labels.csv"
     trial = TRIALS[1]
