@@ -119,7 +119,7 @@ class GuardedServer(ThreadingHTTPServer):
         if not value:
             return False
         name, port = split_host(value)
-        return name in self.names and port == self.port
+        return name in self.names and (port if port is not None else 80) == self.port  # a browser leaves out :80
 
     def allowed_origin(self, value: str | None) -> bool:
         if value is None:
