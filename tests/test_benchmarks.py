@@ -18,6 +18,7 @@ LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "first_day": "first day: 1 dataset(s) measured",
     "networks": "tcn ",
     "recordings": "peak memory:",
+    "review": "review: ",  # its figure, or why it skipped (no chromium)
     "scale": "| train: one stream epoch",
     "startup": "mlnseq --help:",
     "train": "fetch (5 episodes):",

@@ -304,3 +304,10 @@ def test_the_makefile_stage_sources_follow_the_imports():
         if folders != (needed := imported_libraries(start)):
             wrong[name] = f"has {sorted(folders)}, its stage imports {sorted(needed)}"
     assert wrong == {}
+
+
+def test_the_wheel_packages_every_library_folder():
+    import tomllib
+
+    packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    assert {f"mlnseq.{folder}" for folder in LIBRARIES} - set(packages) == set()
