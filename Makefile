@@ -37,7 +37,8 @@ dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package ind
 	@ls dist/mlnseq-*.whl
 
 docs-figures: setup ## Rerun the docs' commands and write what they print into the pages' quoted outputs and figures
-	MLNSEQ_DOCS_FIGURES=write $(VENV)/bin/pytest -q -p no:cacheprovider tests/docs/test_docs_run.py tests/docs/test_docs_recordings.py
+	MLNSEQ_DOCS_FIGURES=write $(VENV)/bin/pytest -q -p no:cacheprovider tests/docs/test_docs_run.py tests/docs/test_docs_recordings.py \
+	  "tests/cli/test_review_cli.py::test_a_click_shows_the_terms_explain_json_prints_for_that_frame"
 	@git status --short README.md docs
 
 bench: setup ## Run the benchmarks (figures and ratios measured side by side)
@@ -132,8 +133,7 @@ LEARN_SOURCES := stages/learn_weights.py $(call libraries,catalog timeline mln f
 TRAIN_SOURCES := stages/train.py $(call libraries,$(NETWORK_LIBRARIES))
 RECOGNIZER_SOURCES := stages/conflate.py $(call libraries,$(NETWORK_LIBRARIES))
 EVAL_SOURCES := stages/eval.py $(call libraries,catalog timeline)
-REPORT_SOURCES := stages/report.py mlnseq_cli/report.py \
-  $(call libraries,$(NETWORK_LIBRARIES) predicates explaining recognition reporting)
+REPORT_SOURCES := stages/report.py mlnseq_cli/report.py $(call libraries,$(NETWORK_LIBRARIES) explaining reporting)
 
 $(REPORT): $(SEED_DIRS:%=%/metrics.parquet) $(REPORT_SOURCES)
 	$(STAGE) report --runs $(RUNS) --out $(REPORTS)

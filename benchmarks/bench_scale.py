@@ -69,7 +69,8 @@ def measure(workdir: Path, n: int) -> dict[str, float | None]:
     from mlnseq.mln.factors import MLNFactors
     from mlnseq.model.checkpoints import load_checkpoint
     from mlnseq.networks.fitting import Fitting, resolve_device
-    from mlnseq.fusion.fuse import chain_of, decode_chain
+    from mlnseq.fusion.decoding import decode
+    from mlnseq.fusion.fuse import chain_of
     from mlnseq.timeline import metrics, sequences
 
     frames = pl.read_parquet(workdir / artifacts.FRAMES)
@@ -104,7 +105,7 @@ def measure(workdir: Path, n: int) -> dict[str, float | None]:
         lambda: log_p.append(checkpoint.network.log_probs([slice(0, n)], features, None)))
     mln = MLNFactors.from_weights(weights, columns, classes)
     seconds["conflate: Viterbi (conflation)"] = _timed(
-        lambda: decode_chain("viterbi", chain_of("conflation", mln, evidence, starts, log_p[0], 1.0)))
+        lambda: decode(chain_of("conflation", mln, evidence, starts, log_p[0], 1.0), "viterbi"))
 
     config = networks.make_config("lstm", n_features=features.shape[1], n_classes=len(classes), hidden_size=32,
                                   prior_layer=False, smoothing=0.0)

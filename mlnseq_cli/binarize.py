@@ -53,15 +53,18 @@ def binarize(
 
 
 def print_learned(learned: dict, spec: Path) -> None:
-    """What --suggest learned: the search in one line, then its predicates and strongest formulas, one line each."""
+    """What --suggest learned: the search in one line, then its predicates and strongest formulas, one line each (the
+    formulas file named beside ``spec``, as it was given)."""
+    from mlnseq.learning.learned_files import formulas_path
+
     found = learned.get("cross_validated") or {}
     how = (f"by {learned['folds']} cross-validation (the MLN alone, {found.get('decoder', 'filter')}: frame accuracy "
            f"{found['frame_accuracy']:.1f} %)" if learned.get("folds") and found else
            "without cross-validation (too few training frames for 2 folds)")
     console.print(f"binarize: learned {counted(len(learned['predicates']), 'predicate')} and "
                   f"{counted(len(learned['conjunctions']), 'conjunction')} of {learned['candidates']} candidates on "
-                  f"{counted(learned['channels'], 'channel')} {how}: {spec} and {learned['formulas']} (edit them, then "
-                  f"--spec {spec} and `mlnseq formulas --spec {learned['formulas']}`)", highlight=False)
+                  f"{counted(learned['channels'], 'channel')} {how}: {spec} and {formulas_path(spec)} (edit them, then "
+                  f"--spec {spec} and `mlnseq formulas --spec {formulas_path(spec)}`)", highlight=False)
     for line in learned.get("said", []):
         console.print(f"  {line}", highlight=False)
 

@@ -15,6 +15,7 @@ from rich.console import Console
 
 from mlnseq.catalog.artifacts import DEFAULT_WORKDIR
 from mlnseq.catalog.errors import MlnseqError, missing_extra
+from mlnseq.catalog.notes import counted  # noqa: F401  (every command's summary counts with it)
 
 # soft_wrap: a printed line is never broken at the terminal's width (a summary names a file people copy and
 # grep; the terminal folds a long line itself); tables still fit the width.
@@ -25,11 +26,6 @@ WorkdirOption = Annotated[
     typer.Option("--workdir", "-w", help="Folder holding this dataset's artifacts.", file_okay=False),
 ]
 DEFAULT = DEFAULT_WORKDIR
-
-
-def counted(n: int, one: str, many: str | None = None) -> str:
-    """``n`` and the noun, singular for one: ``counted(1, "episode")`` is "1 episode"."""
-    return f"{n:,} {one if n == 1 else many or one + 's'}"
 
 
 def verbose() -> bool:

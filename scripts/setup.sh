@@ -40,5 +40,12 @@ if system_ok && ! command -v slurmctld >/dev/null; then
   { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge >/dev/null; } \
     || echo "setup: slurm-wlm and munge not installed (the SLURM cluster test needs them)"
 fi
+# mlnseq review's browser tests drive Debian's chromium through Playwright (the test extra's Python package, never
+# `playwright install`, which downloads a browser): installed where apt-get is and we are root; elsewhere they skip.
+if system_ok && ! command -v chromium >/dev/null; then
+  echo "setup: apt-get install chromium (headless, for mlnseq review's browser tests; NO_SYSTEM=1 skips this)"
+  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
+    || echo "setup: chromium not installed (mlnseq review's browser tests will skip, saying so)"
+fi
 touch .venv/.setup-done
 echo "setup: .venv ready"

@@ -18,6 +18,22 @@ polars, pyarrow: no torch)::
 ``recognizer.classes`` the classes. A frame with a missing, non-numeric or non-finite value raises
 ``mlnseq.BadInput`` naming the feature, and leaves the recogniser's state untouched.
 
+``mlnseq.fit`` makes a model file from labelled recordings, as ``mlnseq fit`` does (it needs the ``train`` extra);
+its source options are collect's (``mlnseq.collect.CollectOptions``)::
+
+    from mlnseq.collect import CollectOptions, SourceOptions
+
+    source = CollectOptions(env="rosbag", source="bags", recordings=SourceOptions(label_topic="/phase"))
+    fitted = mlnseq.fit(source, "arm-work", mlnseq.FitOptions(epochs=100, lag=5, output="arm.mlnseq"))
+    fitted.path, fitted.method                             # the model file; what it chose ("conflation+filter")
+    fitted.standing.chosen.figures                         # its cross-validated figures (runner_up, network_alone)
+    fitted.test                                            # the choice's and the network alone's on the test split
+    fitted.said                                            # the lines `mlnseq fit` prints about the choice
+
+Each stage's result is in it (``fitted.collected`` ... ``fitted.conflated``); ``observer=`` (an
+``mlnseq.pipeline.fit.Observer``) hears each stage as it finishes. Bad options raise ``mlnseq.BadInput`` before any
+work.
+
 Inside, the package's modules are the pipeline's stages, one per command (``mlnseq.collect`` ...
 ``mlnseq.stream``: a pure function on data and a small ``run`` doing the file I/O), and its folders the
 libraries they share (docs/layout.md).
@@ -31,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from mlnseq.recognition.recognizer import Recognizer
 
-__all__ = ["load", "Recognizer", "Prediction", "BadInput"]
+__all__ = ["load", "fit", "FitOptions", "Recognizer", "Prediction", "BadInput"]
 
 # The MLN engine's small matrix products run fastest on one BLAS thread; several threads contend on a
 # shared 2-core machine and made weight learning 30 times slower under load. Users may still override.
@@ -53,6 +69,10 @@ def __getattr__(name: str) -> Any:
         from mlnseq.recognition import recognizer
 
         return getattr(recognizer, name)
+    if name in ("fit", "FitOptions"):  # the one caller of the pipeline beside the command line
+        from mlnseq.pipeline import fit
+
+        return getattr(fit, name)
     if name == "BadInput":
         from mlnseq.catalog.errors import BadInput
 

@@ -168,7 +168,7 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
     weights = WeightDecision(inputs, mln, network_weight_option)
     result.notes += weights.notes(list(networks))
     split_parts = np.where(data.splits == Part.TEST, Part.TEST, Part.TRAIN)
-    start = decoders.start_of(data.labels, data.episodes, data.splits != "test", len(inputs.classes))
+    start = decoders.training_start(data.labels, data.episodes, data.splits, len(inputs.classes))
     result.start = start.tolist()
     test = data.splits == "test"
     # one chain per method and weight, decoded with every decoding that weight serves; the chains served by the same
@@ -186,7 +186,7 @@ def _decode(inputs: WorkdirInputs, decoding: list[str], available: list[str], ne
             factors = chain_of(method, mln, mln_inputs.evidence, chain.chain_starts(data.episodes, rows),
                                networks[network].log_probs if network is not None else None, weight, start)
             chains.setdefault(tuple(kinds), []).append((method, factors))
-    decoded: dict[tuple[str, str], tuple[chain.ChainFactors, decoders.Decoded]] = {}
+    decoded: dict[tuple[str, str], tuple[chain.ChainFactors, chain.Decoded]] = {}
     for kinds, group in chains.items():
         for (method, factors), outs in zip(group, decoders.decode_each([f for _, f in group], kinds)):
             decoded.update({(method, kind): (factors, out) for kind, out in zip(kinds, outs)})

@@ -76,7 +76,7 @@ class TrainOptions:
     learning_rate: float = 0.1
     val_fraction: float = 0.2
     smoothing: float = 0.0  # tcn: weight of MS-TCN's smoothing loss
-    folds: int | None = None  # cross-validation folds (recognition/folds.py); None: stream mode's default, 0: none
+    folds: int | None = None  # cross-validation folds (choosing/folds.py); None: stream mode's default, 0: none
     paper_floor: PaperFloor | None = None  # the MLN sums' floor (PaperFloor); None: the dataset's
 
     def __post_init__(self) -> None:

@@ -19,6 +19,7 @@ LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "labels": "labels: 1 arm(s) measured",
     "networks": "tcn ",
     "recordings": "peak memory:",
+    "review": "review: ",  # its figure, or why it skipped (no chromium)
     "scale": "| train: one stream epoch",
     "startup": "mlnseq --help:",
     "train": "fetch (5 episodes):",

@@ -82,7 +82,9 @@ def mlnseq(installed: dict[str, Path], *args: str | Path, **where) -> subprocess
 def test_the_wheel_installs_the_package_mlnseq_and_nothing_generic(installed):
     names = zipfile.ZipFile(installed["wheel"]).namelist()
     assert {name.split("/")[0] for name in names} == {"mlnseq", "mlnseq_cli", "mlnseq-0.1.0.dist-info"}
-    for spec in ("mlnseq/specs/fetch.binarize.toml", "mlnseq/specs/desk.binarize.toml", "mlnseq/specs/paper.mln"):
+    for spec in ("mlnseq/specs/fetch.binarize.toml", "mlnseq/specs/desk.binarize.toml", "mlnseq/specs/paper.mln",
+                 *(f"mlnseq/reviewing/page/{page}" for page in ("index.html", "review.js", "review.css",
+                                                                "uPlot.iife.min.js", "uPlot.min.css"))):
         assert spec in names
     assert sorted(path.name for path in installed["target"].iterdir()) == ["bin", "mlnseq", "mlnseq-0.1.0.dist-info",
                                                                           "mlnseq_cli"]
@@ -293,3 +295,28 @@ def test_a_rerun_recording_on_the_base_install_names_the_recordings_extra(instal
         "error: writing a Rerun recording needs rerun-sdk, which is not installed: pip install '.[recordings]' in "
         "mlnseq's checkout, or pip install 'mlnseq-0.1.0-py3-none-any.whl[recordings]' beside the wheel"]
     assert not (tmp_path / "p.rrd").exists()
+
+
+def test_review_serves_its_page_on_the_base_install(installed, light, model, desk_test_recording, tmp_path):
+    import signal
+    import urllib.request
+
+    recording = tmp_path / "head.csv"
+    recording.write_text("".join(desk_test_recording.read_text().splitlines(keepends=True)[:RECORDED + 1]))
+    env = {**os.environ, "PYTHONPATH": f"{installed['target']}{os.pathsep}{light}"}
+    process = subprocess.Popen([sys.executable, "-S", "-m", "mlnseq_cli.main", "review", str(model), "--source",
+                                str(recording), "--port", "0", "--save", str(tmp_path / "labels.csv")], cwd=tmp_path,
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = process.stdout.readline()
+        assert " at http://127.0.0.1:" in line, (line, process.stderr.read() if process.poll() is not None else "")
+        url = line.split(" at ")[1].split()[0]
+        pages = {path: urllib.request.urlopen(url + path, timeout=30).read() for path in
+                 ("", "uPlot.iife.min.js", "api/recordings", "api/explain?index=0&frame=1000")}
+    finally:
+        process.send_signal(signal.SIGTERM)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0, err
+    assert b"/uPlot.iife.min.js" in pages[""] and len(pages["uPlot.iife.min.js"]) > 40_000
+    assert json.loads(pages["api/recordings"])["recordings"][0]["frames"] == RECORDED
+    assert json.loads(pages["api/explain?index=0&frame=1000"])["frame"] == 1000

@@ -20,6 +20,11 @@ class Note:
         return self.text
 
 
+def counted(n: int, one: str, many: str | None = None) -> str:
+    """``n`` and the noun, singular for one: ``counted(1, "episode")`` is "1 episode"."""
+    return f"{n:,} {one if n == 1 else many or one + 's'}"
+
+
 def texts(notes: list[Note], *codes: str) -> list[str]:
     """The texts of the notes with one of ``codes`` (all notes' when none is given)."""
     return [n.text for n in notes if not codes or n.code in codes]

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mlnseq.catalog.methods import decoded_name, network_of
-from mlnseq.mln import chain
+from mlnseq.mln import chain, lag
 from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.fusion import decoding as decoders
 from mlnseq.fusion.fuse import chain_of, fuse
@@ -29,13 +29,6 @@ if TYPE_CHECKING:
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
 # beside them: log_likelihood (nats per frame, of the true labels) and forbidden_transitions (decoded methods)
-
-
-def chains(mask: np.ndarray, episodes: np.ndarray, fold: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, starts) of the chains over the rows ``mask`` selects: cut at episodes, folds and gaps."""
-    rows = np.flatnonzero(mask)
-    starts = chain.chain_starts(episodes[rows], fold[rows]) | np.r_[True, np.diff(rows) > 1]
-    return rows, starts
 
 
 def oof_weight(chains: Sequence[ChainFactors], log_p: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> float:
@@ -80,16 +73,15 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
     forbidden = dict.fromkeys((name for name in predicted if "+" in name), 0)
     decoded = [d for d in decodes if d != "none"]
     held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]] = {}  # method -> each fold's rows and chain (weight 0)
-    for k in range(folds.k):
-        held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
-        rows, starts = chains(held, data.episodes, folds.fold)
+    for k, fold in enumerate(folds.masks()):
+        rows, starts = fold.rows, fold.starts(data.episodes)
         fold_mln: MLNInputs | None = cv.mln[k] if cv.mln else None
         p_mln = None if fold_mln is None else np.exp(classifier.class_log_probs(fold_mln.scores, mln_mode,
                                                                                   inputs.paper_floor))
         factors = None
         if fold_mln is not None and any(d != "none" for d in decodes):
             factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
-        start = decoders.start_of(data.labels, data.episodes, fit, n_classes)
+        start = fold.start(data.labels, data.episodes, n_classes)
         truth = data.labels[rows]
         for method in usable:
             network = network_of(method)
@@ -108,9 +100,10 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
         held_out[method] = weighted(held_out[method], cv.log_probs.get(network_of(method)), data.labels, fixed_weight,
                                     [result.fold_weights.setdefault(decoded_name(method, d), []) for d in decoded])
     _decode_held_out(held_out, decoded, data.labels, predicted, likelihood, forbidden)
-    rows, starts = chains(folds.fold >= 0, data.episodes, folds.fold)
+    rows = np.flatnonzero(folds.fold >= 0)
+    starts = chain.chain_starts(data.episodes, folds.fold, rows=rows)
     scored: dict[tuple[bytes, bool], dict[str, float]] = {}  # methods predicting alike (decoders often agree): once
-    held_by_fold = [folds.fold == k for k in range(folds.k)]
+    held_by_fold = [fold.held for fold in folds.masks()]
     for name, values in predicted.items():
         network = network_of(name.partition("+")[0])
         key = (values[rows].tobytes(), network is None or inputs.networks[network].checkpoint.mode != "segment")
@@ -147,13 +140,13 @@ def _decode_held_out(held_out: dict[str, list[tuple[np.ndarray, ChainFactors]]],
     classes, log-likelihoods of the true labels and forbidden transitions per decoding."""
     methods = list(held_out)
     joined = [ChainFactors.joined([chained for _, chained in held_out[m]]) for m in methods]
-    for method, outs in zip(methods, decoders.decode_each(joined, decodes)):
+    for method, chained, outs in zip(methods, joined, decoders.decode_each(joined, decodes)):
         rows = np.concatenate([part_rows for part_rows, _ in held_out[method]])
         for decode, out in zip(decodes, outs):
             name = decoded_name(method, decode)
             predicted[name][rows] = out.path
             likelihood[name][rows] = _log_likelihoods(out.probabilities, labels[rows])
-            forbidden[name] += out.forbidden
+            forbidden[name] += lag.forbidden_transitions(chained, out.path)
 
 
 def _log_likelihoods(probabilities: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -172,12 +165,12 @@ def test_weight(method: str, inputs: WorkdirInputs) -> float:
     cv, data, folds = inputs.folds, inputs.data, inputs.folds.folds
     log_p = cv.log_probs[network_of(method)]
     parts, network = [], []
-    for k, fold_mln in enumerate(cv.mln):
-        held, fit = folds.fold == k, (folds.fold >= 0) & (folds.fold != k)
-        rows, starts = chains(held, data.episodes, folds.fold)
+    for fold, fold_mln in zip(folds.masks(), cv.mln):
+        rows = fold.rows
         factors = MLNFactors.from_weights(fold_mln.weights, fold_mln.columns, inputs.classes)
-        start = decoders.start_of(data.labels, data.episodes, fit, len(inputs.classes))
-        parts.append(chain_of(method, factors, fold_mln.evidence[rows], starts, log_p[rows], 0.0, start))
+        start = fold.start(data.labels, data.episodes, len(inputs.classes))
+        parts.append(chain_of(method, factors, fold_mln.evidence[rows], fold.starts(data.episodes), log_p[rows], 0.0,
+                              start))
         network.append(rows)
     return oof_weight(parts, [log_p[rows] for rows in network], [data.labels[rows] for rows in network])
 

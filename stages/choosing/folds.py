@@ -4,7 +4,8 @@ starts, or the labels return to the class episodes start with) nearest to K equa
 nearest segment boundaries, never inside a segment where the split has enough of them. The assignment depends
 only on the frames' episodes, splits, labels and on K, so train (the fold networks), learn-weights (each fold's
 MLN weights) and conflate (the out-of-fold decoding) cut the same folds; every artifact made from them records
-them."""
+them. A fold is its fit rows (the other folds') and its held-out rows (``masks``): every cross-validation, conflate's
+and the logic learner's, loops over these."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
+from mlnseq.mln.chain import chain_starts
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
 
@@ -47,9 +49,44 @@ class Folds:
         """What was cut, for summaries: ``4 folds by episode`` or ``5 folds by block``."""
         return describe(self.record())
 
+    def masks(self) -> list[Fold]:
+        """Each fold's fit and held-out rows (:func:`masks`)."""
+        return masks(self.fold)
+
     def splits(self, k: int) -> np.ndarray:
         """The splits with fold ``k``'s rows marked ``heldout``: what a fold's network and MLN are fitted without."""
         return np.where(self.fold == k, Part.HELDOUT, np.where(self.fold >= 0, Part.TRAIN, Part.TEST))
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One fold of the training split: the rows its model is fitted on (the other folds') and the rows it is held
+    out on (its own)."""
+
+    fit: np.ndarray  # bool [n]
+    held: np.ndarray  # bool [n]
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The held-out rows' indices."""
+        return np.flatnonzero(self.held)
+
+    def starts(self, episodes: np.ndarray) -> np.ndarray:
+        """bool [held-out rows]: where their chains start (an episode, or where the fold resumes)."""
+        return chain_starts(episodes, rows=self.rows)
+
+    def start(self, labels: np.ndarray, episodes: np.ndarray, n_classes: int) -> np.ndarray:
+        """The start distribution (log [C]) fitted on the fit rows."""
+        from mlnseq.fusion.decoding import start_of
+
+        return start_of(labels, episodes, self.fit, n_classes)
+
+
+def masks(fold: np.ndarray) -> list[Fold]:
+    """Each fold of ``fold`` (every row's fold, -1 outside the training split) in order: its fit rows (the other
+    folds') and its held-out rows. The one way a fold is made: every cross-validation loops over these."""
+    fold = np.asarray(fold)
+    return [Fold((fold >= 0) & (fold != k), fold == k) for k in range(int(fold.max()) + 1)]
 
 
 CUT_WORDS = {"restarts": " at task restarts", "mixed": " at task restarts and segment ends",
@@ -113,7 +150,7 @@ def block_cuts(episodes: np.ndarray, labels: np.ndarray, k: int) -> tuple[list[i
 
     n = len(labels)
     ideal = np.array([round(n * j / k) for j in range(1, k)], dtype=np.float64)
-    new_episode = np.r_[True, episodes[1:] != episodes[:-1]]
+    new_episode = chain_starts(episodes)
     start_class = int(np.argmax(start_of(labels, episodes, np.ones(n, dtype=bool), int(labels.max()) + 1)))
     changed = np.r_[False, labels[1:] != labels[:-1]] | new_episode
     restart = new_episode | (changed & (labels == start_class))
@@ -170,8 +207,8 @@ def missing_classes(folds: Folds, labels: np.ndarray, classes: list[str]) -> lis
     """A warning per fold whose fit part lacks a class the training split has."""
     train = folds.fold >= 0
     warnings = []
-    for k in range(folds.k):
-        missing = sorted(set(labels[train].tolist()) - set(labels[train & (folds.fold != k)].tolist()))
+    for k, fold in enumerate(folds.masks()):
+        missing = sorted(set(labels[train].tolist()) - set(labels[fold.fit].tolist()))
         if missing:
             warnings.append(f"fold {k}: its fit part lacks class{'es' if len(missing) > 1 else ''} "
                             f"{', '.join(classes[c] for c in missing)}; its out-of-fold predictions are written "

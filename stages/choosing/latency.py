@@ -21,8 +21,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from mlnseq.catalog.decoders import Decoder, Decoding, parse_decoding
+from mlnseq.catalog.decoders import DEFAULT_LAGS, ONLINE, Decoder, Decoding, parse_decoding
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.methods import Method
 
 CRITERION = ("segment_accuracy", "frame_accuracy", "edit")
 
@@ -165,6 +166,51 @@ def frames(candidate: Candidate) -> float:
     return value if value == value else -math.inf
 
 
+# --- fit's budget, what conflate scores within it, and the choice said back -----------------------------------
+FALLBACK = (Method.CONFLATION, Decoding(Decoder.FILTER))  # without folds nothing is chosen: network and MLN, filtered
+
+
+def fit_budget(lag: int | None, latency_s: float | None, offline: bool, rate_hz: float | None) -> int | None:
+    """fit's budget in frames: None offline (no budget), else --lag or --latency at ``rate_hz``, else 0 (each frame
+    decided as it comes)."""
+    if offline:
+        return None
+    return 0 if lag is None and latency_s is None else budget_frames(lag, latency_s, rate_hz, "the source")
+
+
+def scored_within(budget: int | None, hard_rules: bool) -> tuple[tuple[Decoder, ...], tuple[int, ...]]:
+    """The decoders and lags conflate scores for a budget: undecoded, the online decoders (all, offline too, without
+    a budget), the -legal forms only where the chain has hard rules (without, they decode as the free forms); at
+    conflate's default lags within the budget and at the budget itself."""
+    decoders = tuple(d for d in Decoder if (hard_rules or d.free is d)
+                     and (budget is None or d is Decoder.NONE or d in ONLINE))
+    return decoders, DEFAULT_LAGS if budget is None else tuple(sorted({n for n in DEFAULT_LAGS if n <= budget}
+                                                                      | {budget}))
+
+
+@dataclass(frozen=True)
+class Standing:
+    """A choice as fit says it: the choice, the runner-up and the network alone (where neither of them), with their
+    cross-validated figures, ranked as ``best`` takes them among ``among`` candidates."""
+
+    chosen: Candidate
+    runner_up: Candidate | None
+    network_alone: Candidate | None
+    among: int
+
+
+def standing(cross_validation: dict[str, Any], chosen: str, among: Any) -> Standing:
+    """export's choice ``chosen`` among the names ``among``, read back from a predictions table's cross-validated
+    figures (``cross_validation`` of its metadata)."""
+    names = set(among)
+    order = ranked([c for c in candidates(cross_validation["figures"], cross_validation.get("fold_frame_accuracy"))
+                    if c.name in names])
+    best_one = next(c for c in order if c.name == chosen)
+    others = [c for c in order if c is not best_one]
+    alone = next((c for c in others[1:] if c.method == Method.NETWORK and c.decoding.decoder is Decoder.NONE), None)
+    return Standing(best_one, others[0] if others else None, alone, len(order))
+
+
 AUTO = "auto"  # export --method auto: the method, decoder and lag with the best cross-validated figures
 SCORED_ALWAYS = ("none", "filter", "viterbi")  # decoders export runs without asking conflate whether it scored them
 
@@ -246,10 +292,9 @@ def start_distribution(workdir: Any) -> Any:
     import polars as pl
 
     from mlnseq.catalog import artifacts
-    from mlnseq.fusion.decoding import start_of
+    from mlnseq.fusion.decoding import training_start
 
     frames = artifacts.labelled(pl.read_parquet(workdir / artifacts.FRAMES, columns=["episode", "label", "split"]))
     meta = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")
-    train = frames["split"].to_numpy() != "test"
-    return start_of(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(), train,
-                    len(meta["classes"]))
+    return training_start(frames["label"].to_numpy().astype(np.int64), frames["episode"].to_numpy(),
+                          frames["split"].to_numpy(), len(meta["classes"]))

@@ -15,7 +15,8 @@ from mlnseq.mln import chain
 from mlnseq.catalog.methods import Method, WeightSource, network_of
 from mlnseq.catalog.notes import UNIFORM_TRANSITIONS, WEIGHT_NOT_CHOSEN, Note
 from mlnseq.catalog.parts import Part
-from mlnseq.fusion.fuse import chain_of, decode_chain
+from mlnseq.fusion.decoding import decode
+from mlnseq.fusion.fuse import chain_of
 
 if TYPE_CHECKING:
     from mlnseq.mln.factors import MLNFactors
@@ -38,18 +39,18 @@ class WeightChoice:
                 "tried": {str(w): a for w, a in self.tried.items()}}
 
 
-def choose_on_validation(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndarray,
-                         log_p_network: np.ndarray, labels: np.ndarray, validation: np.ndarray) -> WeightChoice:
-    """The weight in NETWORK_WEIGHTS with the best frame accuracy on the ``validation`` rows (ties: the one
-    nearest 1); with no validation row the weight is 1. Test rows are never passed here."""
+def choose_on_validation(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, episodes: np.ndarray,
+                         parts: np.ndarray, log_p_network: np.ndarray, labels: np.ndarray) -> WeightChoice:
+    """The weight in NETWORK_WEIGHTS with the best frame accuracy on the rows ``parts`` marks val, never test (ties:
+    the one nearest 1), their chains cut where validation resumes too; with no validation row the weight is 1."""
+    validation = parts == Part.VAL
     if not validation.any():
         return WeightChoice(1.0, None, {}, WeightSource.FIXED)
-    rows = np.flatnonzero(validation)
-    starts = starts[rows] | np.r_[True, np.diff(rows) > 1]  # a chain also starts where validation resumes
+    starts = chain.chain_starts(episodes, parts, rows=validation)
     tried = {}
     for weight in NETWORK_WEIGHTS:
         factors = chain_of(method, mln, evidence[validation], starts, log_p_network[validation], weight)
-        tried[weight] = float((decode_chain(kind, factors).path == labels[validation]).mean())
+        tried[weight] = float((decode(factors, kind).path == labels[validation]).mean())
     best = max(tried, key=lambda w: (tried[w], -abs(np.log(w))))
     return WeightChoice(best, tried[best], tried)
 
@@ -59,8 +60,7 @@ def choose(method: str, kind: str, mln: MLNFactors, evidence: np.ndarray, episod
     """A decoded network method's weight: ``fixed`` when given, else chosen on the rows ``parts`` marks val."""
     if fixed is not None:
         return WeightChoice(fixed, None, {}, WeightSource.FIXED)
-    return choose_on_validation(method, kind, mln, evidence, chain.chain_starts(episodes, parts), log_p_network,
-                                labels, parts == Part.VAL)
+    return choose_on_validation(method, kind, mln, evidence, episodes, parts, log_p_network, labels)
 
 
 def decoding_notes(temporal: bool, unvalidated: list[str]) -> list[Note]:

@@ -1,5 +1,5 @@
 """Explanations of a recording's frames: the decoded methods' (stages/explaining/decoded.py) and the
-undecoded ones' (explaining_fusion.py), from what a Scoring scored (stages/explaining/explainer.py)."""
+undecoded ones' (stages/explaining/undecoded.py), from what a Scoring scored (stages/explaining/explainer.py)."""
 
 from __future__ import annotations
 

@@ -13,6 +13,7 @@ import numpy as np
 from mlnseq.explaining.frames import explain
 from mlnseq.explaining.explainer import Explainer, Keys, Scores
 from mlnseq.explaining.terms import Explanation, Term, TermKind
+from mlnseq.timeline import sequences
 
 
 MESSAGES = {TermKind.PAST: "frames before (the forward message)",
@@ -55,13 +56,6 @@ def _said(term: Term) -> str:
     return (term.text if term.kind in (TermKind.FORMULA, TermKind.HARD_RULE) else MESSAGES[term.kind]) + where
 
 
-def runs(episodes: list, classes: list[str]) -> list[tuple[int, int]]:
-    """(first row, last row) of each run of one class within an episode, in row order (intervals.segments' runs)."""
-    ids, labels = np.asarray(episodes, dtype=object), np.asarray(classes, dtype=object)
-    change = np.flatnonzero((ids[1:] != ids[:-1]) | (labels[1:] != labels[:-1])) + 1
-    return [(int(a), int(b) - 1) for a, b in zip(np.r_[0, change], np.r_[change, len(ids)])]
-
-
 def held_by(explanations: list[Explanation]) -> tuple[Term, ...]:
     """Each term's mean contribution over ``explanations`` (a formula by its text and line, a message by its kind),
     largest first; hard rules left out."""
@@ -86,7 +80,8 @@ def segments(explainer: Explainer, scores: Scores, explanations: list[Explanatio
     names = [e.chosen for e in explanations]
     episodes = list(keys.episode)
     classes = list(explainer.scoring.classes)
-    for first, last in runs(episodes, names):
+    for run in sequences.runs(np.asarray(episodes, dtype=object), np.asarray(names, dtype=object)):
+        first, last = run.start, run.stop - 1
         index = 0 if episodes[first] != previous else index + 1
         previous = episodes[first]
         ended = None

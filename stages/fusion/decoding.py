@@ -10,24 +10,16 @@ counted with one added to every class (Laplace), as log-probabilities added to e
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from mlnseq.catalog.decoders import Decoder, Decoding, parse_decoding
+from mlnseq.catalog.parts import Part
 from mlnseq.mln import chain, lag
 
 LIKELIHOOD_FLOOR = 1e-4  # a true label's probability counts as at least this in the log-likelihood
 
-
-@dataclass(frozen=True)
-class Decoded:
-    """A decoded chain: classes [T], class probabilities [T, C], dead ends [R] and forbidden transitions emitted."""
-
-    path: np.ndarray
-    probabilities: np.ndarray
-    restarts: np.ndarray
-    forbidden: int
+WHOLE_CHAIN = {Decoder.FILTER: chain.decode_filter, Decoder.VITERBI: chain.decode_viterbi}  # the others: lag.py
 
 
 def decoding_of(name: str | Decoding) -> Decoding:
@@ -35,37 +27,35 @@ def decoding_of(name: str | Decoding) -> Decoding:
     return name if isinstance(name, Decoding) else parse_decoding(name, "decoding")
 
 
-def decode(factors: chain.ChainFactors, decoding: str | Decoding) -> Decoded:
-    """Decode ``factors`` (its start distribution already added: ``lag.with_start``) with ``decoding``."""
+def decode(factors: chain.ChainFactors, decoding: str | Decoding) -> chain.Decoded:
+    """Decode ``factors`` (its start distribution already added: ``lag.with_start``) with ``decoding``: class
+    probabilities [T, C], classes [T] and the frames where a dead end restarted the chain. Filter is online (each
+    frame from the frames up to it), viterbi offline (the most probable path, with forward-backward marginals as
+    probabilities); the lagged, posterior and legal decoders are stages/mln/lag.py's."""
     return decode_all(factors, [decoding])[0]
 
 
-def decode_all(factors: chain.ChainFactors, decodings: Sequence[str | Decoding]) -> list[Decoded]:
+def decode_all(factors: chain.ChainFactors, decodings: Sequence[str | Decoding]) -> list[chain.Decoded]:
     """``decode`` with each of ``decodings``; the lagged, posterior and legal ones share their passes
     (``lag.decode_all``)."""
     return decode_each([factors], decodings)[0]
 
 
-def decode_each(parts: Sequence[chain.ChainFactors], decodings: Sequence[str | Decoding]) -> list[list[Decoded]]:
+def decode_each(parts: Sequence[chain.ChainFactors], decodings: Sequence[str | Decoding]) -> list[list[chain.Decoded]]:
     """``decode_all`` of each of ``parts``. The lagged, posterior and legal decoders run every part at once, as one
     chain of the parts one after another (lag.py's passes are row by row, so each part gets the classes it gets
     alone); filter and Viterbi, whose scan spans its whole input, run each part alone."""
     wanted = [decoding_of(d) for d in decodings]
-    lagged = [d for d in wanted if d.decoder not in (Decoder.FILTER, Decoder.VITERBI)]
+    lagged = [d for d in wanted if d.decoder not in WHOLE_CHAIN]
     together = lag.decode_all(chain.ChainFactors.joined(parts), lagged) if lagged and parts else []
     ends = np.cumsum([len(part.link) for part in parts])
     out = []
     for part, stop in zip(parts, ends):
         start = stop - len(part.link)
-        shared = {d: lag.LagDecoded(got.path[start:stop], got.probabilities[start:stop],
-                                    got.restarts[(got.restarts >= start) & (got.restarts < stop)] - start)
+        shared = {d: chain.Decoded(got.probabilities[start:stop], got.path[start:stop],
+                                   got.restarts[(got.restarts >= start) & (got.restarts < stop)] - start)
                   for d, got in zip(lagged, together)}
-        decoded = []
-        for decoding in wanted:
-            got = shared[decoding] if decoding in shared else chain.decode(part, decoding.decoder.value)
-            forbidden = lag.forbidden_transitions(part, got.path)
-            decoded.append(Decoded(got.path, got.probabilities, got.restarts, forbidden))
-        out.append(decoded)
+        out.append([shared[d] if d in shared else WHOLE_CHAIN[d.decoder](part) for d in wanted])
     return out
 
 
@@ -81,3 +71,9 @@ def start_of(labels: np.ndarray, episodes: np.ndarray, rows: np.ndarray, n_class
     rows = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
     first = chain.chain_starts(np.asarray(episodes)[rows])
     return lag.fit_start(np.asarray(labels)[rows], first, n_classes)
+
+
+def training_start(labels: np.ndarray, episodes: np.ndarray, splits: np.ndarray, n_classes: int) -> np.ndarray:
+    """The start distribution a recogniser decodes with (log [C]): ``start_of`` the frames outside the test split
+    (conflate fits it, export writes it)."""
+    return start_of(labels, episodes, np.asarray(splits) != Part.TEST, n_classes)

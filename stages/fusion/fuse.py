@@ -1,5 +1,6 @@
-"""What every recogniser path shares: the MLN input of PriorLayer, fusion (eq. 16), a decoded method's chain and
-its decoding (conflate over a workdir, `Recognizer` over a model file, cross-validation over folds)."""
+"""What every recogniser path shares: the MLN input of PriorLayer, fusion (eq. 16) and a decoded method's chain
+(conflate over a workdir, `Recognizer` over a model file, cross-validation over folds), decoded by
+stages/fusion/decoding.py."""
 
 from __future__ import annotations
 
@@ -71,18 +72,6 @@ def chain_of(method: str, mln: MLNFactors, evidence: np.ndarray, starts: np.ndar
 
     factors = mln.chain(evidence, starts)
     return with_start(replace(factors, unary=frame_factor(method, factors.unary, log_p_network, weight)), start)
-
-
-def decode_chain(kind: str, factors: chain.ChainFactors) -> chain.Decoded:
-    """Class probabilities [T, C], predicted classes [T] and the frames where a dead end restarted the chain:
-    filter is online (each frame from the frames up to it); viterbi is offline (the most probable path, with
-    forward-backward marginals as probabilities)."""
-    if kind in ("filter", "viterbi"):
-        return chain.decode(factors, kind)
-    from mlnseq.fusion.decoding import decode  # the lagged, posterior and legal decoders
-
-    decoded = decode(factors, kind)
-    return chain.Decoded(decoded.probabilities, decoded.path, decoded.restarts)
 
 
 def restart_note(name: str, restarts: Sequence[tuple[Any, int]], shown: int = 5) -> str:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mlnseq.choosing.folds import masks
 from mlnseq.predicates.rules import looked_back
 from mlnseq.predicates.spec import Bins, Change, Gripper
 
@@ -39,7 +40,7 @@ class Frames:
     """The training split as the candidates see it: every frame (episodes in order), which train, their classes,
     each episode's first frame and the folds (-1 outside the training split)."""
 
-    train: np.ndarray  # bool [n]
+    train: np.ndarray  # bool [n]: fold >= 0
     labels: np.ndarray  # [n] class index
     first: np.ndarray  # bool [n]
     fold: np.ndarray  # [n]
@@ -85,11 +86,10 @@ def learned(make, name: str, channel: str, values: np.ndarray, frames: Frames) -
     found = make(name, channel, values, frames)
     if found is None:
         return None
-    k = int(frames.fold.max()) + 1
-    by_fold = tuple(make(name, channel, values, replace(frames, train=frames.train & (frames.fold != j)))
-                    for j in range(k))
+    folds = masks(frames.fold)
+    by_fold = tuple(make(name, channel, values, replace(frames, train=fold.fit)) for fold in folds)
     found = replace(found, by_fold=by_fold)
-    return replace(found, oof=oof_gain(found, frames)) if k else found
+    return replace(found, oof=oof_gain(found, frames)) if folds else found
 
 
 def entropy(counts: np.ndarray) -> np.ndarray:
@@ -113,9 +113,9 @@ def oof_gain(candidate: Candidate, frames: Frames) -> float:
     """Out-of-fold gain: each fold's classes given the candidate learned without it, by the other folds' counts
     (Laplace), as log-likelihood above the other folds' class prior, nats per training frame."""
     total, count = 0.0, 0
-    for k in range(len(candidate.by_fold)):
+    for k, fold in enumerate(masks(frames.fold)):
         codes, n_values = candidate.fold_codes(k)
-        fit, held = frames.train & (frames.fold != k), frames.fold == k
+        fit, held = fold.fit, fold.held
         table = np.bincount(codes[fit] * frames.n_classes + frames.labels[fit],
                             minlength=n_values * frames.n_classes).reshape(n_values, frames.n_classes) + LAPLACE
         given = np.log(table / table.sum(axis=1, keepdims=True))

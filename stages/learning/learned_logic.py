@@ -7,7 +7,7 @@ cuts (`binarize --suggest` and `fit` without --spec).
    chain alone scores best in the quick stand-in below, at most ``PER_CHANNEL`` per channel (bounded cost on a
    hundred channels: a few passes over the frames per candidate, then ``PRESELECT`` quick scores).
 3. **Forward selection**: at each step the ``VERIFIED`` candidates (or all grippers at once) of best score in a
-   quick stand-in for the chain's cross-validation (recognition/quick_chain.py) are scored exactly: the MLN of the
+   quick stand-in for the chain's cross-validation (learning/quick_chain.py) are scored exactly: the MLN of the
    per-frame template and learned transitions, its weights learned by the chain's exact likelihood on each fold's
    other folds (as `learn-weights --folds`), each held-out fold decoded by the filter and the lag-0 Viterbi (as
    conflate's cross-validation of mln+filter; the better counts); the best is added while it raises the
@@ -30,6 +30,7 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog.parts import Part
+from mlnseq.choosing import folds as folding
 from mlnseq.mln.chain import chain_starts
 from mlnseq.learning import candidates as kinds
 from mlnseq.learning.candidates import Candidate, Frames
@@ -88,29 +89,23 @@ class Training:
     split: Split  # the training rows only
     rows: np.ndarray  # the training rows' indices into the frames
     episodes: np.ndarray
-    fold_splits: list[np.ndarray]  # per fold, every frame's split with that fold held out
-    describe: str
-    record: dict
+    folds: folding.Folds
 
 
 def training(frames: pl.DataFrame, n_classes: int) -> Training | None:
     """The search's view of ``frames`` (sorted by episode and frame): None when the training split is too small for
     2 folds (cut as `mlnseq fit` cuts them)."""
-    from mlnseq.choosing import folds as folding
-
     episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].to_numpy().astype(np.int64)
     k = folding.suggested(episodes, splits)
     if not k:
         return None
     folds = folding.assign(episodes, splits, labels, k)
-    first = np.r_[True, episodes[1:] != episodes[:-1]]
-    view = Frames(folds.fold >= 0, labels, first, folds.fold, n_classes)
+    view = Frames(folds.fold >= 0, labels, chain_starts(episodes), folds.fold, n_classes)
     rows = np.flatnonzero(folds.fold >= 0)
-    starts = chain_starts(episodes[rows], folds.fold[rows]) | np.r_[True, np.diff(rows) > 1]
-    split = Split(labels[rows], starts, folds.fold[rows], episodes[rows], n_classes)
-    return Training(view, split, rows, episodes, [folds.splits(j) for j in range(k)], folds.describe(),
-                    folds.record())
+    split = Split(labels[rows], chain_starts(episodes, folds.fold, rows=rows), folds.fold[rows], episodes[rows],
+                  n_classes)
+    return Training(view, split, rows, episodes, folds)
 
 
 def pool(found: list[Candidate], data: Training) -> list[Candidate]:
@@ -244,34 +239,30 @@ def exact(chosen: list[Candidate], conjunctions: list[Conjunction], data: Traini
     the other folds' start distribution. Its figures, and each fold's weights."""
     from mlnseq.mln.factors import MLNFactors
     from mlnseq.choosing.cross_validation import figures_of
-    from mlnseq.fusion.decoding import start_of
-    from mlnseq.choosing.latency import CRITERION
+    from mlnseq.choosing.latency import criterion
+    from mlnseq.fusion.decoding import decode_all
     from mlnseq.fusion.fuse import chain_of
-
-    from mlnseq.fusion.decoding import decode_each
 
     view, episodes = data.frames, data.episodes
     mln = formulas(conjunctions)
     predicted = {d: np.zeros(len(view.labels), dtype=np.int64) for d in DECODERS}
     learned = []
-    for k, splits in enumerate(data.fold_splits):
+    for k, fold in enumerate(data.folds.masks()):
         evidence, columns = evidence_of(chosen, len(view.labels), fold=k), columns_of(chosen, k)
-        fit, held = splits == Part.TRAIN, np.flatnonzero(splits == Part.HELDOUT)
-        weights = fold_weights(evidence[fit], view.labels[fit], chain_starts(episodes, splits)[fit], columns, mln,
+        fit, held = fold.fit, fold.rows
+        weights = fold_weights(evidence[fit], view.labels[fit], chain_starts(episodes, rows=fit), columns, mln,
                                view.n_classes, None if near is None else near[k])
         learned.append(dict(weights.select("formula", "weight").iter_rows()))
         factors = MLNFactors.from_weights(weights, columns, view.n_classes)
-        starts = chain_starts(episodes[held]) | np.r_[True, np.diff(held) > 1]
-        start = start_of(view.labels, episodes, fit, view.n_classes)
-        chained = chain_of("mln", factors, evidence[held], starts, None, 0.0, start)
-        for decoding, out in zip(DECODERS, decode_each([chained], DECODERS)[0]):
+        start = fold.start(view.labels, episodes, view.n_classes)
+        chained = chain_of("mln", factors, evidence[held], fold.starts(episodes), None, 0.0, start)
+        for decoding, out in zip(DECODERS, decode_all(chained, DECODERS)):
             predicted[decoding][held] = out.path
     scored = []
     for decoding in DECODERS:
         figures = figures_of(predicted[decoding][data.rows], data.split.labels, data.split.starts, view.n_classes,
                              True)
-        scored.append({**figures, "criterion": sum(figures[k] for k in CRITERION) / len(CRITERION),
-                       "decoder": decoding})
+        scored.append({**figures, "criterion": criterion(figures), "decoder": decoding})
     return max(scored, key=lambda f: f[SCORE]), learned
 
 
@@ -336,7 +327,8 @@ def search(frames: pl.DataFrame, n_classes: int) -> Searched | None:
         return None
     found, distances = channels(frames)
     made = candidates_of(found, data.frames)
-    searched = Searched([], candidates=len(made), channels=len(found), folds=data.describe, fold_record=data.record)
+    searched = Searched([], candidates=len(made), channels=len(found), folds=data.folds.describe(),
+                        fold_record=data.folds.record())
     near = None
     for chosen, (figures, near) in forward(pool(made, data), data):
         searched.path.append({"predicates": [c.predicate.name for c in chosen], **figures})
@@ -381,7 +373,7 @@ def uncrossed(frames: pl.DataFrame, n_classes: int) -> Searched:
     train = train if train.any() else np.ones(frames.height, dtype=bool)
     episodes = frames["episode"].to_numpy()
     labels = frames["label"].to_numpy().astype(np.int64)
-    view = Frames(train, labels, np.r_[True, episodes[1:] != episodes[:-1]], np.where(train, 0, -1), n_classes)
+    view = Frames(train, labels, chain_starts(episodes), np.where(train, 0, -1), n_classes)
     found, distances = channels(frames)
     made = sorted(candidates_of(found, view), key=lambda c: (c.kind != "gripper", -c.gain))
     kept, seen = [], set()

@@ -8,7 +8,7 @@ transitions. Measured against the exact score on random sets of 1 to 4 DESK and 
 correlation 0.89 and 0.87 (0.87 and 0.79 without the weight).
 Trained piece by piece rather than by the chain's exact likelihood (stages/mln/cll.py), it costs a few
 milliseconds per fold, so a forward selection can try dozens of sets; the sets it finds are then scored
-exactly (recognition/learned_logic.py).
+exactly (learning/learned_logic.py).
 """
 
 from __future__ import annotations
@@ -17,10 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mlnseq.catalog.decoders import Decoder, Decoding
+from mlnseq.choosing.folds import masks
+from mlnseq.fusion.decoding import LIKELIHOOD_FLOOR, decode
 from mlnseq.mln import chain
 from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.lag import with_start
-from mlnseq.fusion.decoding import start_of
 
 L2 = 0.1  # as the CLL learner's default penalty (stages/mln/cll.py DEFAULT_L2), per weight, over the whole split
 LAPLACE = 1.0
@@ -39,6 +41,11 @@ class Split:
     @property
     def k(self) -> int:
         return int(self.fold.max()) + 1
+
+    @property
+    def chains(self) -> np.ndarray:
+        """[n] the chain each frame belongs to (numbered from 1)."""
+        return np.cumsum(self.starts)
 
 
 def one_hot(codes: list[np.ndarray], sizes: list[int], n: int | None = None) -> np.ndarray:
@@ -105,23 +112,22 @@ def out_of_fold(evidence: list[np.ndarray], split: Split) -> tuple[np.ndarray, n
     frames' evidence as learned without that fold (``evidence[k]``)."""
     n, c = len(split.labels), split.n_classes
     predicted, likelihood = np.zeros(n, dtype=np.int64), np.zeros(n)
-    for k in range(split.k):
-        held, fit = split.fold == k, split.fold != k
-        rows = np.flatnonzero(held)
+    for k, fold in enumerate(masks(split.fold)):
+        fit, rows = fold.fit, fold.rows
         prior = np.log((np.bincount(split.labels[fit], minlength=c) + LAPLACE) / (fit.sum() + c * LAPLACE))
         pairwise = transitions(split.labels, split.starts, fit, c)[None]
         fitted = np.flatnonzero(fit)
         own = class_log_probs(evidence[k], split.labels, fit, c, np.r_[fitted, rows]) - prior
-        fit_link = np.where(split.starts[fitted] | np.r_[True, np.diff(fitted) > 1], -1, 0)
+        fit_link = np.where(chain.chain_starts(split.chains, rows=fitted), -1, 0)
         scale = evidence_weight(chain.ChainFactors(own[:len(fitted)], pairwise, fit_link), split.labels[fitted])
         unary = scale * own[len(fitted):]
-        starts = split.starts[rows] | np.r_[True, np.diff(rows) > 1]
-        link = np.where(starts, -1, 0)
+        link = np.where(chain.chain_starts(split.chains, rows=rows), -1, 0)
         factors = chain.ChainFactors(unary, pairwise, link)
-        start = start_of(split.labels, split.episodes, fit, c)
-        decoded = chain.decode(with_start(factors, start), "filter")
+        start = fold.start(split.labels, split.episodes, c)
+        decoded = decode(with_start(factors, start), Decoding(Decoder.FILTER))
         predicted[rows] = decoded.path
-        likelihood[rows] = np.log(np.maximum(decoded.probabilities[np.arange(len(rows)), split.labels[rows]], 1e-4))
+        truth = decoded.probabilities[np.arange(len(rows)), split.labels[rows]]
+        likelihood[rows] = np.log(np.maximum(truth, LIKELIHOOD_FLOOR))
     return predicted, likelihood
 
 
@@ -148,9 +154,8 @@ def per_frame_log_likelihood(evidence: list[np.ndarray], split: Split) -> float:
     """Mean out-of-fold log p(true class | evidence) of the per-frame regression alone (no chain), ``evidence[k]``
     as learned without fold k."""
     total = 0.0
-    for k in range(split.k):
-        held, fit = split.fold == k, split.fold != k
-        rows = np.flatnonzero(held)
-        log_p = class_log_probs(evidence[k], split.labels, fit, split.n_classes, rows)
+    for k, fold in enumerate(masks(split.fold)):
+        rows = fold.rows
+        log_p = class_log_probs(evidence[k], split.labels, fold.fit, split.n_classes, rows)
         total += float(log_p[np.arange(len(rows)), split.labels[rows]].sum())
     return total / len(split.labels)

@@ -9,9 +9,10 @@ Dead ends (a frame where no class is possible given the previous frames: hard ru
 other or the previous state) restart the chain at that frame from its unary alone, without the
 forbidding transition; a frame whose unary is -inf everywhere becomes uniform. ``Filter`` does this one
 frame at a time; the batch functions find the same frames and then treat them as chain starts, so they
-agree (``decode`` also says which frames they were). Where the scan's block products underflow although
-every frame stays possible (a chain the hard rules hold in a few states for hundreds of frames, their
-probabilities far below e^-745 within a block), the forward pass runs frame by frame instead, as ``Filter``.
+agree (``decode_filter`` and ``decode_viterbi`` also say which frames they were). Where the scan's block
+products underflow although every frame stays possible (a chain the hard rules hold in a few states for
+hundreds of frames, their probabilities far below e^-745 within a block), the forward pass runs frame by
+frame instead, as ``Filter``.
 The scan that computes them, one numpy call per level of a binary tree over the steps (about
 2 log2 T calls in all), is stages/mln/chain_scan.py; the factors and the filter are
 stages/mln/chain_factors.py; the moments only the CLL learner needs are stages/mln/chain_moments.py.
@@ -26,8 +27,8 @@ import numpy as np
 from mlnseq.mln.chain_factors import CLIP, ChainFactors, Filter, _restarted
 from mlnseq.mln.chain_scan import _Dead, _forward, _smoothed, _viterbi_once
 
-__all__ = ["CLIP", "ChainFactors", "Filter", "chain_starts", "filtered", "log_partition", "path_score", "smoothed",
-           "viterbi"]
+__all__ = ["CLIP", "ChainFactors", "Decoded", "Filter", "chain_starts", "decode_filter", "decode_viterbi", "filtered",
+           "log_partition", "path_score", "smoothed", "viterbi"]
 
 
 def filtered(factors: ChainFactors) -> np.ndarray:
@@ -65,11 +66,17 @@ def viterbi(factors: ChainFactors) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Decoded:
-    """A decoded chain: class probabilities, the predicted classes and where a dead end restarted the chain."""
+    """A decoded chain, by any decoder (stages/fusion/decoding.py dispatches): class probabilities, the predicted
+    classes and where a dead end restarted the chain."""
 
-    probabilities: np.ndarray  # [T, C] filter: p(y_t | frames up to t); viterbi: p(y_t | all frames of its chain)
+    probabilities: np.ndarray  # [T, C] filter: p(y_t | frames up to t); viterbi: p(y_t | all frames of its chain);
+    # the lagged and posterior decoders (lag.py): their decision scores turned into probabilities
     path: np.ndarray  # [T] int64 filter: each frame's most probable class; viterbi: the most probable path
     restarts: np.ndarray  # [R] int64 the frames where no class was possible given the previous ones: a new chain
+
+    @classmethod
+    def empty(cls, n_classes: int) -> Decoded:
+        return cls(np.zeros((0, n_classes)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
 
 
 def dead_ends(original: ChainFactors, restarted: ChainFactors) -> np.ndarray:
@@ -77,31 +84,44 @@ def dead_ends(original: ChainFactors, restarted: ChainFactors) -> np.ndarray:
     return np.flatnonzero((restarted.link != original.link) | ~np.isfinite(original.unary).any(axis=1))
 
 
-def decode(factors: ChainFactors, kind: str) -> Decoded:
-    """Decode online (``filter``, as ``Filter`` does frame by frame) or offline (``viterbi``, with the
-    forward-backward marginals as probabilities), restarting the chain at each dead end as ``Filter`` does."""
-    if kind not in ("filter", "viterbi"):
-        raise ValueError(f"unknown decoding {kind!r}: filter or viterbi")
+def decode_filter(factors: ChainFactors) -> Decoded:
+    """Decode online, as ``Filter`` does frame by frame, restarting the chain at each dead end as it does."""
     if len(factors.link) == 0:
-        return Decoded(np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        return Decoded.empty(factors.n_classes)
     forward = _forward(factors)
-    restarts = dead_ends(factors, forward.factors)
-    with np.errstate(divide="ignore"):  # exp of the log-probabilities `filtered` and `smoothed` give: the same numbers
-        if kind == "filter":
-            probabilities = np.exp(np.log(forward.alpha))
-            return Decoded(probabilities, probabilities.argmax(axis=1), restarts)
-        return Decoded(np.exp(np.log(_smoothed(forward)[0])), viterbi(forward.factors), restarts)
+    with np.errstate(divide="ignore"):  # exp of the log-probabilities `filtered` gives: the same numbers
+        probabilities = np.exp(np.log(forward.alpha))
+    return Decoded(probabilities, probabilities.argmax(axis=1), dead_ends(factors, forward.factors))
 
 
-def chain_starts(episode: np.ndarray, split: np.ndarray | None = None) -> np.ndarray:
+def decode_viterbi(factors: ChainFactors) -> Decoded:
+    """Decode offline: the most probable path, with the forward-backward marginals as probabilities, restarting the
+    chain at each dead end as ``Filter`` does."""
+    if len(factors.link) == 0:
+        return Decoded.empty(factors.n_classes)
+    forward = _forward(factors)
+    with np.errstate(divide="ignore"):  # exp of the log-probabilities `smoothed` gives: the same numbers
+        probabilities, path = np.exp(np.log(_smoothed(forward)[0])), viterbi(forward.factors)
+    return Decoded(probabilities, path, dead_ends(factors, forward.factors))
+
+
+def chain_starts(episode: np.ndarray, split: np.ndarray | None = None, rows: np.ndarray | None = None) -> np.ndarray:
     """bool [T]: where a chain starts in frames listed in episode order: the first frame, and wherever the
-    episode (or the split, within an episode) changes from the previous row."""
+    episode (or the split, within an episode) changes from the previous row. ``rows`` (ascending indices, or a bool
+    mask): the chains of those rows alone (bool [len(rows)]), a chain also starting where a row does not follow the
+    previous one (a gap: rows left out between them)."""
     episode = np.asarray(episode)
+    split = None if split is None else np.asarray(split)
+    if rows is not None:
+        rows = np.asarray(rows)
+        rows = np.flatnonzero(rows) if rows.dtype == bool else rows
+        episode, split = episode[rows], None if split is None else split[rows]
     starts = np.ones(len(episode), dtype=bool)
     starts[1:] = episode[1:] != episode[:-1]
     if split is not None:
-        split = np.asarray(split)
         starts[1:] |= split[1:] != split[:-1]
+    if rows is not None:
+        starts[1:] |= np.diff(rows) > 1
     return starts
 
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mlnseq.catalog.decoders import Decoder, Decoding
+from mlnseq.mln.chain import Decoded
 from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.mln.lag_steps import (MANY, decision_scores, legal_label, max_back, max_back_by_class, max_forward,
                                   probabilities_of, rows_of, scaled, sum_back, sum_back_by_class, sum_forward)
@@ -237,30 +238,21 @@ def _legal_pass(tables: Tables, scores: np.ndarray, semiring: str) -> np.ndarray
     return path
 
 
-@dataclass(frozen=True)
-class LagDecoded:
-    """Classes [T], decision scores turned into class probabilities [T, C], and the dead ends [R]."""
-
-    path: np.ndarray
-    probabilities: np.ndarray
-    restarts: np.ndarray
-
-
-def decode(factors: ChainFactors, decoding: Decoding) -> LagDecoded:
+def decode(factors: ChainFactors, decoding: Decoding) -> Decoded:
     """Decode whole recordings with a smooth, lagviterbi, posterior or filter decoder (or a legal form); frames whose
     chains end before t + lag are decided with what their chain holds (as ``lag_online.Online.finish``)."""
     return decode_all(factors, [decoding])[0]
 
 
-def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[LagDecoded]:
+def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Decoded]:
     """``decode`` with each of ``decodings``, sharing what they have in common: the forward pass of each semiring,
-    and the decision scores of each (semiring, lag), which a decoder and its legal form both read."""
+    and the decision scores of each (semiring, lag), which a decoder and its legal form both read. Each result: the
+    decision scores turned into class probabilities [T, C], the classes [T] and the dead ends [R]."""
     for decoding in decodings:
         if decoding.decoder in (Decoder.NONE, Decoder.VITERBI):
             raise ValueError(f"lag.decode runs the chain's marginal and lagged decoders, not {decoding.decoder.value}")
     if len(factors.link) == 0:
-        empty = LagDecoded(np.zeros(0, dtype=np.int64), np.zeros((0, factors.n_classes)), np.zeros(0, dtype=np.int64))
-        return [empty for _ in decodings]
+        return [Decoded.empty(factors.n_classes) for _ in decodings]
     tables = Tables.of(factors)
     first = np.flatnonzero(tables.link < 0)
     runs = _runs(first, np.diff(np.r_[first, len(tables.link)]), 1)
@@ -278,5 +270,5 @@ def decode_all(factors: ChainFactors, decodings: Sequence[Decoding]) -> list[Lag
     for decoding, key in zip(decodings, wanted):
         scores, probabilities = scored[key]
         path = _legal_pass(tables, scores, key[0]) if decoding.decoder.legal else scores.argmax(axis=1)
-        out.append(LagDecoded(path, probabilities, restarts[key[0]]))
+        out.append(Decoded(probabilities, path, restarts[key[0]]))
     return out

@@ -28,7 +28,8 @@ from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import StreamingNetwork
 from mlnseq.mln import chain
 from mlnseq.mln.lag_online import Online
-from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain, frame_factor, fuse, prior_input
+from mlnseq.fusion import decoding as decoders
+from mlnseq.fusion.fuse import EPSILON, chain_of, frame_factor, fuse, prior_input
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
@@ -297,7 +298,7 @@ class Recognizer:
             return Scores(evidence, log_p_network, log_p_mln, None, probabilities.argmax(1), probabilities, decode,
                           episodes, frame_of)
         factors = chain_of(self.method, self.mln, evidence, starts, log_p_network, self.network_weight, self.start)
-        decoded = decode_chain(decode, factors)
+        decoded = decoders.decode(factors, decode)
         self.restarts = [(episodes[t].item(), int(frame_of[t])) for t in decoded.restarts]
         return Scores(evidence, log_p_network, log_p_mln, factors, decoded.path, decoded.probabilities, decode,
                       episodes, frame_of)

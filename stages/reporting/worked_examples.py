@@ -17,12 +17,12 @@ from mlnseq.catalog.methods import Method, network_of, parse_method
 from mlnseq.mln import chain
 from mlnseq.mln.factors import MLNFactors, parse_weights
 from mlnseq.mln.formula_sources import annotated, formulas_of, read_written, written_lines
-from mlnseq.fusion.decoding import decoding_of
+from mlnseq.fusion.decoding import decode as decoded_by, decoding_of
 from mlnseq.explaining.frames import explain
 from mlnseq.explaining.explainer import Explainer, Keys, Scores, Scoring
 from mlnseq.explaining.segments import held_by
 from mlnseq.explaining.text import table, term_lines
-from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain
+from mlnseq.fusion.fuse import EPSILON, chain_of
 from mlnseq.choosing.workdir_inputs import read_workdir
 from mlnseq.timeline import sequences
 
@@ -65,7 +65,7 @@ def decided(workdir: Path) -> Decided | None:
     start = None if meta.get("start") is None else np.asarray(meta["start"], dtype=np.float64)
     factors = chain_of(method, MLNFactors.from_weights(mln.weights, mln.columns, inputs.classes), mln.evidence,
                        chain.chain_starts(inputs.data.episodes, trained.parts), trained.log_probs, float(weight), start)
-    found = decode_chain(decode, factors)
+    found = decoded_by(factors, decode)
     scoring = Scoring(Method(method), decoding_of(decode), tuple(inputs.classes), tuple(mln.columns),
                       tuple(parse_weights(mln.weights, mln.columns, inputs.classes)), written, str(network),
                       float(weight), start, epsilon=EPSILON)

@@ -77,8 +77,9 @@ def check_target(source: Path, out: Path, force: bool, others: dict[str, Any]) -
             raise BadInput(f"{what} {path} is inside {flag}, which is written whole; put it outside")
 
 
-def write(folder: Path, source: Path, predicted: Predicted, replace: bool = False) -> Written:
-    """Fill ``folder`` (an empty staging folder) with ``source`` and ``predicted`` as its subtask annotations."""
+def write(folder: Path, source: Path, predicted: Predicted, replace: bool | frozenset = False) -> Written:
+    """Fill ``folder`` (an empty staging folder) with ``source`` and ``predicted`` as its subtask annotations;
+    ``replace``: over the episodes' own annotations too (True: every episode's; a set: those episodes')."""
     source = Path(source)
     info = lerobot.info_of(source)
     if info["codebase_version"] != VERSION:
@@ -118,7 +119,8 @@ def _spans(episodes: np.ndarray) -> dict[Any, tuple[int, int]]:
     return {episode: (first, n) for episode, first, n in runs.iter_rows()}
 
 
-def _rewrite(path: Path, target: Path, predicted: Predicted, spans: dict, replace: bool, seen: set) -> int:
+def _rewrite(path: Path, target: Path, predicted: Predicted, spans: dict, replace: bool | frozenset,
+             seen: set) -> int:
     """One data file with the language columns (and probabilities) put in, row group by row group; returns how many
     of its episodes kept their own subtask annotations."""
     parquet = pq.ParquetFile(path)
@@ -145,7 +147,7 @@ def _rewrite(path: Path, target: Path, predicted: Predicted, spans: dict, replac
     return len(kept)
 
 
-def _episode_rows(keys: pl.DataFrame, predicted: Predicted, spans: dict, replace: bool,
+def _episode_rows(keys: pl.DataFrame, predicted: Predicted, spans: dict, replace: bool | frozenset,
                   path: Path) -> tuple[np.ndarray, dict, set]:
     """For a data file's rows: each row's frame in the predictions; each episode's persistent rows with the
     predicted subtasks; the episodes keeping their own."""
@@ -154,7 +156,8 @@ def _episode_rows(keys: pl.DataFrame, predicted: Predicted, spans: dict, replace
         raise BadInput(f"{path}: no column {missing[0]!r}; LeRobot places its subtask rows by episode, frame and time")
     position = keys.select((pl.col("frame_index").rank("ordinal").over("episode_index") - 1).alias("p"))["p"]
     position, stamps = position.to_numpy(), keys["timestamp"].to_numpy()
-    own = set() if replace or language.PERSISTENT not in keys.columns else language.annotated_episodes(keys)
+    own = (set() if replace is True or language.PERSISTENT not in keys.columns
+           else language.annotated_episodes(keys) - set(replace or ()))
     rows = np.zeros(keys.height, dtype=np.int64)
     lists = {}
     groups = keys.with_row_index("_row").group_by("episode_index", maintain_order=True).agg("_row")

@@ -5,7 +5,9 @@ benchmarks/bench_first_day.py's, in docs/first-day.md); the learned files read b
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -53,7 +55,12 @@ def held_out_frame_accuracy(bags, model, tmp_path) -> float:
 @pytest.fixture(scope="module")
 def fitted(bags, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("suggested")
-    return workdir, fit(bags, workdir)
+    here = os.getcwd()
+    os.chdir(workdir.parent)  # a workdir given relative, as a user types it
+    try:
+        return workdir, fit(bags, Path(workdir.name))
+    finally:
+        os.chdir(here)
 
 
 def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags, fitted, tmp_path):
@@ -217,3 +224,23 @@ def test_binarize_table_after_a_bag_fit_shows_its_predicates_and_rewrites_nothin
     result = runner.invoke(app, ["binarize", "--table", "-w", str(workdir)])
     assert result.exit_code == 0 and f"{workdir / SUGGESTED}" in " ".join(result.output.split()), result.output
     assert "marks each class" in result.output and (workdir / artifacts.PREDICATES).read_bytes() == before
+
+
+def test_an_existing_output_is_refused_naming_force_before_any_work(bags, tmp_path):
+    folder, _ = bags
+    model = tmp_path / "arm.mlnseq"
+    model.write_bytes(b"mine")
+    line = ["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase", "-w", str(tmp_path / "w"),
+            "-o", str(model), "--spec", str(tmp_path / "missing.binarize.toml")]
+    result = runner.invoke(app, line)
+    assert result.exit_code == 2 and result.stderr == (f"error: --output {model} exists: pass --force to overwrite it, "
+                                                       "or name another file\n")
+    result = runner.invoke(app, [*line, "--force"])  # past the output: the next option checked is refused
+    assert result.exit_code == 2 and "--spec" in result.stderr and "--force" not in result.stderr
+    assert model.read_bytes() == b"mine" and not (tmp_path / "w").exists()
+
+
+def test_fit_says_no_step_it_has_no_option_for_and_gives_paths_as_given(fitted):
+    workdir, said = fitted
+    assert "priorlayer" not in said  # conflate's note on the PriorLayer network fit does not train
+    assert str(workdir.parent) not in said and f"{workdir.name}/learned.formulas.mln" in said  # relative, as given

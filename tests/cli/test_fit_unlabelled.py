@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import polars as pl
 import pytest
 from typer.testing import CliRunner
 
@@ -47,6 +48,14 @@ def test_unlabelled_recordings_change_no_figure(bags, tmp_path):
     assert set(mixed["split"]) == {"train"} and mixed["episode"].unique().sort().to_list() == [1, 2, 4, 5]
     assert mixed.drop("episode").equals(alone.drop("episode"))
     assert mixed_meta["cross_validation"] == alone_meta["cross_validation"]
+    ranked = pl.read_csv(tmp_path / "mixed" / artifacts.LABEL_NEXT)
+    assert sorted(ranked["episode"]) == ["episode_1", "episode_4"] and ranked["rank"].to_list() == [1, 2]
+    first = ranked.row(0, named=True)
+    assert f"label next ({tmp_path / 'mixed' / artifacts.LABEL_NEXT}" in said and f"1. {first['episode']}: " in said
+    phases = pl.read_csv(tmp_path / "mixed" / artifacts.UNLABELLED_INTERVALS)
+    assert set(phases["episode"]) == {"episode_1", "episode_4"} and phases.columns == ["episode", "start", "end",
+                                                                                        "label"]
+    assert not (tmp_path / "labelled" / artifacts.LABEL_NEXT).exists()  # nothing unlabelled: nothing ranked
 
 
 def test_one_labelled_recording_beside_unlabelled_ones_is_cut_into_blocks(bags, tmp_path):

@@ -1,7 +1,8 @@
 """The layout's rules, read from the source: the files directly under stages/ are the stages, one per
-command, and its folders the libraries they share; no library imports a stage, the folders' imports run one
-way (no circle between folders, none between modules), no module is over 400 lines, no function over 60 and no
-line over 120 characters."""
+command, and its folders the libraries they share; no library imports a stage but pipeline/ (the one that composes
+them, which only the command line and the package's ``mlnseq.fit`` import), the folders' imports run one way (no
+circle between folders, none between modules), no module is over 400 lines, no function over 60 and no line over
+120 characters."""
 
 from __future__ import annotations
 
@@ -64,17 +65,28 @@ def test_the_files_under_stages_are_the_commands():
         assert callable(getattr(importlib.import_module(f"mlnseq.{stage}"), "run", None)) or stage == "info", stage
 
 
+COMPOSER = "pipeline"  # the one library that composes the stages (mlnseq.fit), like Kedro's runner
+
+
 def test_no_library_imports_a_stage_and_no_stage_imports_another():
     crossings = []
     for module, path in modules().items():
         own = stage_of(module)
         for name in imported_modules(ast.parse(path.read_text())):
             other = stage_of(name)
-            if other is not None and other != own:
+            if other is not None and other != own and library_of(module) != COMPOSER:
                 crossings.append(f"{path.relative_to(REPO)} imports {name}")
             if name.startswith("mlnseq_cli"):
                 crossings.append(f"{path.relative_to(REPO)} imports the command line ({name})")
     assert not crossings, "\n".join(crossings)
+
+
+def test_only_the_command_line_and_the_packages_fit_import_the_pipeline():
+    importers = {module for module, path in {**modules(), **modules(REPO / "mlnseq_cli", "mlnseq_cli")}.items()
+                 if library_of(module) != COMPOSER
+                 and any(library_of(name) == COMPOSER for name in imported_modules(ast.parse(path.read_text())))}
+    assert importers == {"mlnseq", "mlnseq_cli.fit"}
+    assert COMPOSER in LIBRARIES
 
 
 def cycle(graph: dict[str, set[str]]) -> list[str]:
@@ -275,11 +287,13 @@ def makefile_sources(makefile: str) -> dict[str, tuple[set[str], set[str]]]:
 
 
 def imported_libraries(start: list[str]) -> set[str]:
+    """The library folders ``start`` imports, directly or through other modules; the package's own __init__ (in
+    every list) is not followed: it names the Python API's entry points lazily, for Python callers."""
     graph, seen, todo = module_graph(), set(), list(start)
     while todo:
         if (module := todo.pop()) not in seen:
             seen.add(module)
-            todo += graph.get(module, ())
+            todo += graph.get(module, ()) if module != "mlnseq" else ()
     return {folder for module in seen if (folder := library_of(module))}
 
 
@@ -290,3 +304,10 @@ def test_the_makefile_stage_sources_follow_the_imports():
         if folders != (needed := imported_libraries(start)):
             wrong[name] = f"has {sorted(folders)}, its stage imports {sorted(needed)}"
     assert wrong == {}
+
+
+def test_the_wheel_packages_every_library_folder():
+    import tomllib
+
+    packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    assert {f"mlnseq.{folder}" for folder in LIBRARIES} - set(packages) == set()

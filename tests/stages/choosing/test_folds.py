@@ -36,6 +36,13 @@ def test_desk_has_one_training_recording_so_its_folds_are_blocks_cut_where_a_tri
     train = labels[splits == "train"]
     assert all(train[a] == 0 != train[a - 1] for a, _ in cut.record()["spans"][1:])
     assert folds.assign(episodes, splits, labels, 5).record() == cut.record()  # deterministic
+    # each fold: its fit rows the other folds' and its held-out rows its own, as the splits a fold's models see
+    held = np.zeros(len(labels), dtype=int)
+    for k, fold in enumerate(cut.masks()):
+        assert np.array_equal(fold.fit, cut.splits(k) == "train")
+        assert np.array_equal(fold.held, cut.splits(k) == "heldout")
+        held += fold.held
+    assert np.array_equal(held, splits == "train")  # every training frame held out once, never a test frame
 
 
 def test_blocks_never_cut_a_segment_where_the_task_restarts_too_rarely():

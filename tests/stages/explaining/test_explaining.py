@@ -20,7 +20,8 @@ from mlnseq.mln.factors import MLNFactors, parse_weights
 from mlnseq.explaining.frames import explain
 from mlnseq.explaining.explainer import Explainer, Scores, Scoring
 from mlnseq.explaining.terms import TermKind
-from mlnseq.fusion.fuse import EPSILON, chain_of, decode_chain, fuse
+from mlnseq.fusion import decoding as decoders
+from mlnseq.fusion.fuse import EPSILON, chain_of, fuse
 
 WORDS = ("w0", "w1", "w2")
 CLASSES = ("a", "b", "c")
@@ -104,7 +105,7 @@ def decoded_explanations(seed: int, frames: int, hard: int, method: Method, deco
     weights, evidence, episodes, log_p, start, weight = recording(seed, frames, hard)
     mln = MLNFactors.from_weights(weights, WORDS, CLASSES)
     factors = chain_of(method, mln, evidence, chain.chain_starts(episodes), log_p, weight, start)
-    decoded = decode_chain(decode, factors)
+    decoded = decoders.decode(factors, decode)
     scores = Scores(evidence, log_p, None, factors, decoded.path, decoded.probabilities, decode)
     explanations = explain(Explainer(scoring(method, decode, weights, start, weight)), scores, list(range(frames)))
     return explanations, scores, factors, decoded
@@ -153,7 +154,7 @@ def test_versus_names_the_class_compared_with():
     weights, evidence, episodes, log_p, start, weight = recording(3, 6, 0)
     mln = MLNFactors.from_weights(weights, WORDS, CLASSES)
     factors = chain_of(Method.COMBINED, mln, evidence, chain.chain_starts(episodes), log_p, weight, start)
-    decoded = decode_chain("smooth@2", factors)
+    decoded = decoders.decode(factors, "smooth@2")
     scores = Scores(evidence, log_p, None, factors, decoded.path, decoded.probabilities, "smooth@2")
     explainer = Explainer(scoring(Method.COMBINED, "smooth@2", weights, start, weight))
     for versus in range(len(CLASSES)):

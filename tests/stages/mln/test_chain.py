@@ -208,6 +208,11 @@ def test_chain_starts_follow_episodes_and_splits() -> None:
     split = np.array(["train", "train", "test", "test", "test", "test"])
     assert chain_starts(episode).tolist() == [True, False, False, True, False, True]
     assert chain_starts(episode, split).tolist() == [True, False, True, True, False, True]
+    # some rows alone: a chain also starts after a gap (rows 1 and 4 left out), and a mask is the same as its indices
+    rows = np.array([0, 2, 3, 5])
+    assert chain_starts(episode, rows=rows).tolist() == [True, True, True, True]
+    assert chain_starts(episode, split, rows=np.isin(np.arange(6), [0, 1, 4])).tolist() == [True, False, True]
+    assert chain_starts(episode, rows=[3, 4]).tolist() == [True, False]
 
 
 def test_hard_constraints_remove_transitions() -> None:
@@ -302,10 +307,10 @@ def test_chains_whose_block_products_underflow_decode_as_the_filter_does(own_dat
     for t, (unary, link) in enumerate(zip(factors.unary, factors.link)):
         online.append(live.step(unary, None if link < 0 else factors.pairwise[link]))
         restarted += [t] * live.restarted
-    decoded = chain.decode(factors, "filter")
+    decoded = chain.decode_filter(factors)
     assert np.abs(np.exp(online) - decoded.probabilities).max() < 1e-9 and decoded.restarts.tolist() == restarted
     assert np.array_equal(np.exp(chain.filtered(factors)), decoded.probabilities)
-    offline = chain.decode(factors, "viterbi")
+    offline = chain.decode_viterbi(factors)
     assert np.isfinite(chain.log_partition(factors))
     assert np.allclose(offline.probabilities.sum(axis=1), 1.0) and np.array_equal(offline.restarts, decoded.restarts)
     assert np.isfinite(chain.path_score(replace(factors, link=np.where(np.isin(np.arange(n), decoded.restarts), -1,

@@ -14,7 +14,7 @@ import pytest
 from mlnseq.catalog import artifacts, methods
 from mlnseq import export
 from mlnseq.model import model_file
-from mlnseq.fusion import fuse
+from mlnseq.fusion import decoding
 from mlnseq.catalog.errors import BadInput
 from mlnseq.recognition.recognizer import Recognizer
 
@@ -138,7 +138,7 @@ def test_decoding_refuses_an_unknown_kind(desk_stream_workdir):
     from mlnseq.mln import chain
 
     factors = chain.ChainFactors(np.zeros((3, 2)), np.zeros((1, 2, 2)), np.array([-1, 0, 0]))
-    assert fuse.decode_chain("viterbi", factors).path.shape == (3,)
+    assert decoding.decode(factors, "viterbi").path.shape == (3,)
     with pytest.raises(BadInput, match="unknown decoding 'blur'"):
-        fuse.decode_chain("blur", factors)
-    assert fuse.decode_chain("smooth-legal@1", factors).path.shape == (3,)
+        decoding.decode(factors, "blur")
+    assert decoding.decode(factors, "smooth-legal@1").path.shape == (3,)

@@ -1,0 +1,6 @@
+"""The one library that composes the stages, like Kedro's runner: ``fit`` (fit.py) runs collect, binarize, formulas,
+learn-weights, train, conflate and export by their own ``run`` functions and returns what it chose.
+
+It stands above the stages: no stage and no other library imports it; only the command line (``mlnseq fit``) and
+the package's lazy ``mlnseq.fit`` do.
+"""

@@ -1,0 +1,112 @@
+"""review's pure pieces: a long channel decimated keeps its spikes, ends and shape within a bound of points; runs;
+the recordings' ranks; a save's segments checked; the labels file written in the unit its source reads, read back
+by `collect --labels`' own reader, the recordings saved before kept; a save path inside the source refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+
+from mlnseq.catalog.errors import BadInput
+from mlnseq.reviewing import corrections, views
+from mlnseq.serving.guarded import own_names, split_host
+from mlnseq.sources import intervals
+
+CLASSES = ["reach", "grasp", "lift"]
+
+
+def test_a_long_channel_keeps_each_buckets_extremes_its_ends_and_at_most_two_points_a_bucket():
+    rng = np.random.default_rng(0)
+    values = np.cumsum(rng.normal(size=60_000))
+    values[12_345] = 1e6  # a spike one frame wide
+    values[40_000] = -1e6
+    values[100:130] = np.nan  # a channel not yet heard
+    rows = views.decimated(values, 1000)
+    assert len(rows) <= 2 * 1000 + 2 and rows[0] == 0 and rows[-1] == len(values) - 1
+    assert {12_345, 40_000} <= set(rows.tolist()) and np.all(np.diff(rows) > 0)
+    assert not np.isnan(values[rows]).any()
+    size = 60  # frames a bucket: every bucket's min and max are kept
+    for start in range(0, 60_000, size * 117):  # bucket starts
+        block = values[start:start + size]
+        if np.isfinite(block).all():
+            assert start + int(np.argmax(block)) in rows and start + int(np.argmin(block)) in rows
+    assert views.decimated(values[:1500], 1000).tolist() == list(range(1500))
+
+
+def test_runs_and_ranks():
+    assert views.runs(np.array([0, 0, 2, 2, 2, -1, 1])) == [[0, 1, 0], [2, 4, 2], [5, 5, -1], [6, 6, 1]]
+    assert views.runs(np.array([], dtype=int)) == []
+
+    def decided(name: str, sure: float) -> views.Decided:
+        probabilities = np.tile([sure, 1 - sure], (10, 1))
+        return views.Decided(name, np.arange(10) / 10, np.zeros((10, 1)), np.zeros(10, dtype=int), probabilities, None)
+
+    recordings = [decided("a", 0.9), decided("b", 0.6), decided("c", 0.7), decided("d", 0.8)]
+    rows = views.table(recordings, {}, set())
+    assert [(r["id"], r["rank"]) for r in rows] == [("b", 1), ("c", 2), ("d", 3), ("a", 4)]
+    rows = views.table(recordings, {"d": (1, "new"), "a": (2, "rare")}, {"a"})
+    assert [(r["id"], r["rank"], r["saved"]) for r in rows] == [("d", 1, False), ("a", 2, True), ("b", 3, False),
+                                                                 ("c", 4, False)]
+
+
+@pytest.mark.parametrize(("segments", "says"), [
+    ([], "needs segments"),
+    ([[0, 4, "reach"], [6, 9, "lift"]], "do not follow on from frame 5"),
+    ([[0, 4, "reach"], [5, 12, "lift"]], "the recording has 10 frames"),
+    ([[0, 4, "reach"], [5, 9, "dance"]], "one of reach, grasp, lift"),
+    ([[0, 4, "reach"]], "cover 5 of the recording's 10 frames"),
+    ([[0, "4", "reach"], [5, 9, "lift"]], "segment 0"),
+    ("all", "needs segments"),
+])
+def test_a_saves_segments_must_cover_the_recording_in_order_with_its_classes(segments, says):
+    with pytest.raises(BadInput, match=says):
+        corrections.labels_of(segments, 10, CLASSES)
+
+
+def test_the_labels_file_in_seconds_reads_back_and_keeps_the_recordings_saved_before(tmp_path):
+    path = tmp_path / "labels.csv"
+    path.write_text("episode,start,end,label\nold,0.0,1.0,reach\n")  # an earlier review's recording
+    labels = corrections.LabelsFile(path, "seconds")
+    time = np.round(np.arange(10) * 0.1 + 3.0, 6)
+    assert labels.saved("old", np.arange(0, 1, 0.1), CLASSES).tolist() == [0] * 10
+    assert labels.saved("mine", time, CLASSES) is None
+    names = corrections.labels_of([[0, 3, "reach"], [4, 6, "grasp"], [7, 9, "lift"]], 10, CLASSES)
+    assert labels.put("mine", time, names) == 3
+    labels.write()
+    read = intervals.read(path)
+    assert list(read) == ["old", "mine"]
+    assert [(i.start, i.end, i.label) for i in read["mine"]] == [(3.0, 3.4, "reach"), (3.4, 3.7, "grasp"),
+                                                                 (3.7, 4.0, "lift")]
+    again = corrections.LabelsFile(path, "seconds")  # the next review starts from what was saved
+    assert again.saved("mine", time, CLASSES).tolist() == [0, 0, 0, 0, 1, 1, 1, 2, 2, 2]
+
+
+def test_the_labels_file_in_frames_and_a_label_the_model_lacks(tmp_path):
+    path = tmp_path / "labels.csv"
+    labels = corrections.LabelsFile(path, "frames")
+    labels.put("7", np.arange(6) * 0.5, ["reach", "reach", "lift", "lift", "lift", "grasp"])
+    labels.write()
+    assert pl.read_csv(path).rows() == [(7, 0, 1, "reach"), (7, 2, 4, "lift"), (7, 5, 5, "grasp")]
+    path.write_text("episode,start,end,label\n7,0,5,dance\n")
+    with pytest.raises(BadInput, match="labels.csv:2: label 'dance' is not a class of the model"):
+        corrections.LabelsFile(path, "frames").saved("7", np.arange(6), CLASSES)
+
+
+def test_a_save_path_inside_the_source_or_an_input_is_refused(tmp_path):
+    source = tmp_path / "bags"
+    source.mkdir()
+    for save, says in ((source / "labels.csv", "inside the source"), (source / "a" / "b.csv", "inside the source"),
+                       (source, "inside the source"), (tmp_path / "model.mlnseq", "an input of this review")):
+        with pytest.raises(BadInput, match=says):
+            corrections.check_path(save, source, [tmp_path / "model.mlnseq"])
+    corrections.check_path(tmp_path / "bags.labels.csv", source, [tmp_path / "model.mlnseq"])
+
+
+def test_the_hosts_a_server_answers_to():
+    assert own_names("127.0.0.1") == {"127.0.0.1", "localhost", "::1"}
+    assert own_names("10.1.2.3") == {"10.1.2.3"}
+    assert split_host("localhost:8750") == ("localhost", 8750)
+    assert split_host("[::1]:80") == ("::1", 80)
+    assert split_host("evil.example") == ("evil.example", None)
+    assert split_host("a:b") == ("a", -1)
