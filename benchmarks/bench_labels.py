@@ -117,19 +117,19 @@ def self_trained(work: Path, folder: Path, epochs: str) -> tuple[Path | None, st
 
 
 def label_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[float, float, str]:
-    """(accuracy labelling label_next's first, mean accuracy labelling each other, the first's reason)."""
-    from mlnseq.catalog import artifacts
-    from mlnseq.labelling import label_next
-    from mlnseq.recognition.recognizer import Recognizer
+    """(accuracy labelling the recording fit's label_next.csv ranks first, mean accuracy labelling each of them, the
+    first's reason)."""
+    import polars as pl
 
-    frames, meta = artifacts.read_table(work / artifacts.FRAMES, "frames")
-    proposal = label_next.propose(Recognizer.load(conflation(work)), frames, meta["episode_names"])
-    candidates = proposal.ranked["episode"].to_list()[:2 if quick else None]
+    from mlnseq.catalog import artifacts
+
+    ranked = pl.read_csv(work / artifacts.LABEL_NEXT)
+    candidates = ranked["episode"].to_list()[:2 if quick else None]
     accuracy = {}
     for candidate in candidates:
         folder = source(data, [data["names"][0], candidate], False, f"next-{candidate}")
         accuracy[candidate] = held_out(fit(folder, data["root"] / f"w-next-{candidate}", epochs), data)
-    return accuracy[candidates[0]], float(np.mean(list(accuracy.values()))), proposal.ranked["reason"][0]
+    return accuracy[candidates[0]], float(np.mean(list(accuracy.values()))), ranked["reason"][0]
 
 
 def measure(robot: str, seed: int, config: dict, root: Path) -> dict:

@@ -107,14 +107,18 @@ def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
     return max(len(np.unique(np.asarray(episodes)[train])), int(train.sum()) // MIN_BLOCK_FRAMES)
 
 
-def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5) -> int:
+def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5, labels: np.ndarray | None = None) -> int:
     """A K for a user's recogniser: whole episodes when the training split has at least 2 (up to ``most`` folds),
-    else blocks (up to ``most``), else 0 (too small for folds)."""
+    else blocks (up to ``most``), else 0 (too small for folds). Given the ``labels``, blocks only where they can be
+    cut where the task restarts: a single recording of one run of the task cut into blocks holds whole phases out of
+    each fold's training, and cross-validation on it chooses worse than none."""
     train = np.asarray(splits) == "train"
     n_episodes = len(np.unique(np.asarray(episodes)[train]))
     if n_episodes >= 2:
         return min(most, n_episodes)
     k = min(most, largest(episodes, splits))
+    if k >= 2 and labels is not None and assign(episodes, splits, labels, k).cut != "restarts":
+        return 0
     return k if k >= 2 else 0
 
 

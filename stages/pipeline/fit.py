@@ -191,7 +191,7 @@ def _folds(collected: Collected, asked: int | None) -> Folding:
 
     frames = artifacts.labelled(collected.frames)  # recordings without labels are in no fold
     episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
-    k = asked if asked is not None else folding.suggested(episodes, splits, MOST_FOLDS)
+    k = asked if asked is not None else folding.suggested(episodes, splits, MOST_FOLDS, labels)
     cut = folding.assign(episodes, splits, labels, k) if k else None
     return Folding(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
 

@@ -81,7 +81,8 @@ class Folding:
 
     @property
     def why_none(self) -> str:
-        return "--folds 0" if self.asked == 0 else "a training split too small for 2 folds"
+        return ("--folds 0" if self.asked == 0 else "a training split too small for 2 folds" if self.training_episodes
+                != 1 else "one training recording whose task never restarts: blocks of it would hold whole phases out")
 
     @property
     def said(self) -> str:

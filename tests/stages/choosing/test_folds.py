@@ -168,3 +168,14 @@ def test_train_refuses_a_bad_k_before_training(desk_frames_workdir, tmp_path):
         with pytest.raises(BadInput, match=f"--folds {k}: .* at most 70; use --folds 5"):
             train.run(tmp_path, train.TrainOptions(mode="stream", epochs=1, folds=k))
     assert not (tmp_path / artifacts.MODELS_DIR).exists()
+
+
+
+def test_a_single_recording_is_cut_into_blocks_only_where_its_task_restarts(desk_frames_workdir):
+    frames, _ = artifacts.read_table(desk_frames_workdir / artifacts.FRAMES, "frames")
+    episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
+    assert folds.suggested(episodes, splits, labels=labels) == 5  # DESK: one recording, the task restarting in it
+    first = np.flatnonzero(labels != labels[0])[0]
+    once = np.arange(len(labels)) < np.flatnonzero((labels == labels[0]) & (np.arange(len(labels)) > first))[0]
+    assert folds.suggested(episodes[once], splits[once]) == 5  # blocks of one run of the task, without the labels
+    assert folds.suggested(episodes[once], splits[once], labels=labels[once]) == 0  # not with them

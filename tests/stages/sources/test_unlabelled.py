@@ -124,6 +124,9 @@ def test_with_few_labelled_recordings_every_one_trains_and_folds_are_recordings(
     episodes, splits, labels = (labelled[c].to_numpy() for c in ("episode", "split", "label"))
     k = folding.suggested(episodes, splits)
     assert k == 4 and folding.assign(episodes, splits, labels, k).kind == "episodes"
+    one = artifacts.labelled(few).filter(pl.col("episode") == 1)  # one recording of one run of the task:
+    episodes, splits, labels = (one[c].to_numpy() for c in ("episode", "split", "label"))
+    assert folding.suggested(episodes, splits) == 5 and folding.suggested(episodes, splits, labels=labels) == 0
     shared = bag_frames(bags["mixed"], Holdout.SHARE).frames  # collect's own default keeps 70 % of them
     assert set(artifacts.labelled(shared)["split"]) == {"train", "test"}
 
