@@ -94,7 +94,7 @@ def self_trained(work: Path, folder: Path, epochs: str) -> tuple[Path | None, st
     from mlnseq.recognition.recognizer import Recognizer
     from mlnseq.sources import intervals
 
-    chosen = self_training.choose_threshold(*self_training.out_of_fold(work))
+    chosen = self_training.chosen(work)
     if chosen.threshold is None:
         return None, chosen.said()
     model = Recognizer.load(conflation(work))

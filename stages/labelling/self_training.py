@@ -30,8 +30,11 @@ class Agreement:
     threshold: float | None
     precision: float
     coverage: float
+    folds: bool = True  # False: the workdir has no folds to choose on
 
     def said(self) -> str:
+        if not self.folds:
+            return "no folds to choose a threshold on: unlabelled recordings not learned from"
         if self.threshold is None:
             return (f"no threshold makes the network and the MLN agree {PRECISION:.0%} right out of fold: "
                     "unlabelled recordings not learned from")
@@ -58,6 +61,13 @@ def choose_threshold(network_log_probs: np.ndarray, mln_log_probs: np.ndarray, l
             if right >= precision:
                 return Agreement(threshold, right, float(confident.mean()))
     return Agreement(None, 0.0, 0.0)
+
+
+def chosen(workdir: Path) -> Agreement:
+    """The threshold of a fitted workdir, chosen on its out-of-fold probabilities; none without folds."""
+    if not (Path(workdir) / artifacts.FOLD_WEIGHTS).exists():
+        return Agreement(None, 0.0, 0.0, folds=False)
+    return choose_threshold(*out_of_fold(workdir))
 
 
 def out_of_fold(workdir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -52,3 +52,14 @@ def test_agreed_runs_become_intervals_that_label_only_those_frames(fitted, tmp_p
     back = collect.collect(collect.CollectOptions(env="rosbag", source=fitted["bags"], recordings=SourceOptions(
         labels=labels, labels_unit="frames")))
     assert artifacts.labelled(back.frames).height == sum(last - first + 1 for _, first, last, _ in rows)
+
+
+def test_a_workdir_without_folds_chooses_no_threshold(fitted, tmp_path):
+    import shutil
+
+    bare = tmp_path / "work"
+    shutil.copytree(fitted["workdir"], bare)
+    assert self_training.chosen(bare).folds
+    (bare / artifacts.FOLD_WEIGHTS).unlink()
+    none = self_training.chosen(bare)
+    assert none.threshold is None and not none.folds and none.said().startswith("no folds")
