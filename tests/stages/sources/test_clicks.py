@@ -126,3 +126,16 @@ def test_a_click_in_an_episode_with_intervals_is_refused(arm, tmp_path):
                                        "episode_1,,,40,grasp\n")
     with pytest.raises(BadInput, match=r"both.csv:3: a click in an episode that has intervals too"):
         read(arm["bags"], labels=tmp_path / "both.csv", labels_unit="frames")
+
+
+def test_collect_refuses_a_bad_click_in_one_line_and_writes_nothing(arm, tmp_path):
+    from typer.testing import CliRunner
+
+    from mlnseq_cli.main import app
+
+    lines = (arm["root"] / "middle.csv").read_text().splitlines() + ["episode_2,99999,grasp"]
+    (tmp_path / "clicks.csv").write_text("\n".join(lines) + "\n")
+    done = CliRunner().invoke(app, ["collect", "--env", "rosbag", "--source", str(arm["bags"]), "--labels",
+                                    str(tmp_path / "clicks.csv"), "-w", str(tmp_path / "work")])
+    assert done.exit_code != 0 and "click at 99999 falls outside" in done.stderr
+    assert done.stderr.strip().count("\n") == 0 and not (tmp_path / "work" / "frames.parquet").exists()
