@@ -23,8 +23,7 @@ from pathlib import Path
 
 from mlnseq.dds import domain, require
 from mlnseq.dds.types import STRING, MessageTypes
-from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed
-from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields, prepared
 
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's (as the ROS 1 node)
 WAIT_S = 0.1  # the longest the node waits for a sample before looking at discovery and the stop flag again
@@ -42,6 +41,8 @@ class NodeOptions:
     qos: domain.QosChoice
     max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
     queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
+    decode: str | None = None  # default: the model's
+    explain: int = 0  # N > 0: each frame's JSON carries "why", its N largest terms
 
     @property
     def frame_topic(self) -> str:
@@ -52,14 +53,15 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
     """Run the node until ``stop`` is set; the frames it answered, the bad messages it said and the messages it
     dropped."""
     require()
-    model = Recognizer.load(options.model)
+    model = prepared(options.model, warn, options.decode, options.explain)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size)
     types = MessageTypes(options.distro)
     String = types.get(STRING)
     participant = domain.Participant(options.distro, options.node_name)
     activity = participant.writer(options.activity_topic, String)
     framed = participant.writer(options.frame_topic, String)
-    subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error)
+    subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error,
+                                         needed_fields(model), warn)
 
     def publish(frames: list[LiveFrame]) -> None:
         for frame in frames:
