@@ -106,9 +106,9 @@ def _row(options: ExplainOptions, frames: np.ndarray, times: np.ndarray, stamps:
     rows = {clock: row for clock, row in found if row is not None}
     if len(set(rows.values())) == 1:
         return next(iter(rows.values()))
-    spans = f"{_span(times)} s from its start" + (f", stamps {_span(stamps)} s" if stamps is not None else "")
+    spans = f"its times run {_span(times)}" + (f", its stamps {_span(stamps)}" if stamps is not None else "")
     if not rows:
-        raise BadInput(f"--time {_seconds(options.time)}: outside the episode, whose frames are at {spans}")
+        raise BadInput(f"--time {_seconds(options.time)}: outside the episode ({spans}); give a time within it")
     raise BadInput(f"--time {_seconds(options.time)} is frame {frames[rows['time']]} from the episode's start and "
                    f"frame {frames[rows['stamp']]} on its messages' clock ({spans}): give --frame")
 

@@ -177,6 +177,8 @@ def test_a_lagged_stream_explains_each_frame_when_it_decides_it_as_a_whole_recor
     (["--frame", "1", "--time", "2"], "give one of --frame T, --time S or --segment K, not --frame and --time"),
     ([], "give one of --frame T, --time S or --segment K"),
     (["--frame", "99999999"], "--frame 99999999: the episode's frames are 0-20923"),
+    (["--time", "20924"], "--time 20924: outside the episode (its times run 0-20923); give a time within it"),
+    (["--time", "-1"], "--time -1: outside the episode (its times run 0-20923)"),
     (["--segment", "99999"], "--segment 99999: episode desk-test has"),
     (["--frame", "3", "--versus", "S9"], "--versus 'S9' is not a class of the model"),
     (["--frame", "3", "--what-if", "left_gripper=shut"], "left_gripper is one of open, closed"),
