@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import ros_episode
-from mlnseq import predict
+from mlnseq import explain, predict
 from mlnseq.catalog import artifacts
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
@@ -96,10 +96,10 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "bad.log").read_text()
         node_lines = lambda: (tmp_path / "node.jsonl").read_text().splitlines()  # noqa: E731
         wait_for(lambda: len(node_lines()) >= len(rows) - 1, "the node's frames", 10)
-        # then a message of another type on the model's topic: one error line, the node goes on
+        # then a publisher of another type on the model's topic: one note naming it, the node goes on
         start(["rostopic", "pub", "-1", "/joint_states", "std_msgs/String", "data: hello"], stdout=logs["bad"],
               stderr=subprocess.STDOUT)
-        wait_for(lambda: "error:" in (tmp_path / "node.log").read_text(), "the node's error line")
+        wait_for(lambda: "note: a publisher" in (tmp_path / "node.log").read_text(), "the node's note")
         os.killpg(echo.pid, signal.SIGINT)  # the pipe ends: stream answers its last ticks and exits
         assert stream.wait(WAIT_S) == 0, (tmp_path / "stream.log").read_text()
         node.send_signal(signal.SIGTERM)
@@ -122,14 +122,19 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
         n = len(answers)
         assert n >= len(rows) - 1 if name == "node" else n == len(rows), (name, n)
         assert [a["class"] for a in answers] == expected["class"].to_list()[:n], name
-        assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(n)]
+        assert [a["time"] for a in answers] == expected["time"].to_list()[:n]
+        assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(n)]
         got = np.array([[a["probabilities"][c] for c in answers[0]["probabilities"]] for a in answers])
         np.testing.assert_allclose(got, want[:n], atol=1e-5, err_msg=name)
     assert classes == [artifacts.class_probability_column(c) for c in answers[0]["probabilities"]]
     assert expected["class"].n_unique() > 1
-    errors = [line for line in node_log.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "lacks the model's feature '/joint_states/position/panda_joint1'" in errors[0], node_log
-    assert node_log.splitlines()[-1] == f"ros: stopped after {len(rows)} frames (1 bad message)"
+    notes = [line for line in node_log.splitlines() if line.startswith("note: a publisher")]
+    assert len(notes) == 1 and notes[0].startswith(
+        "note: a publisher on /joint_states sends std_msgs/String, which holds no position for the model's features: "
+        "/rostopic_") and notes[0].endswith(
+        " is not read; /joint_states is read from the publishers of the type that holds them"), node_log
+    assert "error:" not in node_log
+    assert node_log.splitlines()[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
 
 
 def test_start_up_errors_are_one_line_and_exit_2(joint_state_model, tmp_path):
@@ -170,7 +175,8 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     try:
         master = start(["rosmaster", "--core", "-p", str(port)], stdout=logs["master"], stderr=subprocess.STDOUT)
         wait_for(lambda: master_up(uri), "the master")
-        node = start([MLNSEQ, "ros", str(lagged_joint_state_model)], stdout=logs["node"], stderr=subprocess.STDOUT)
+        node = start([MLNSEQ, "ros", str(lagged_joint_state_model), "--explain", "2"], stdout=logs["node"],
+                     stderr=subprocess.STDOUT)
         wait_for(lambda: "listening to /joint_states" in node_log(), "the node")
         os.kill(master.pid, signal.SIGKILL)
         master.wait()
@@ -209,4 +215,12 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
         output=tmp_path / "p.parquet")).table
     answers = [json.loads(line) for line in frames()]
     assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {5}
-    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert [a["time"] for a in answers] == expected["time"].to_list()
+    assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert all(len(a["why"]) == 2 for a in answers)  # --explain 2: as explain gives them, by the frame's own time
+    for answer in (answers[0], answers[-1]):
+        found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=tmp_path / "live.bag",
+                                                   time=answer["stamp"])).explanation
+        assert (found.frame, [t.text for t in found.largest(2)]) == (answer["frame"], [t["text"] for t in answer["why"]])
+        np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                   [t.contribution for t in found.largest(2)], atol=2e-6)
