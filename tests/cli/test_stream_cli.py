@@ -186,3 +186,15 @@ def test_decode_streams_as_predict_decodes(model, recording, tmp_path):
     assert [a["class"] for a in answers] == expected["class"].to_list() != plain["class"].to_list()
     bad = stream(model, "", "--decode", "smooth")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--decode 'smooth'" in bad.stderr
+
+
+def test_decode_is_one_option_on_predict_stream_and_ros(model, recording):
+    """The same --decode on the three commands: the same names, the same refusal of a bad one, before any work."""
+    said = set()
+    for command in (["predict", str(model), "--source", str(recording)], ["stream", str(model)],
+                    ["ros", str(model), "--ros", "1"]):
+        done = subprocess.run([MLNSEQ, *command, "--decode", "smooth-legal"], capture_output=True, text=True,
+                              timeout=TIMEOUT_S, input="")
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        said.add(done.stderr)
+    assert said == {"error: --decode 'smooth-legal': smooth-legal needs a lag in frames, e.g. smooth-legal@5\n"}
