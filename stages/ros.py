@@ -4,9 +4,11 @@
 It subscribes to the topics the model was trained on (its manifest's ``reading``), puts their messages on the
 model's clock as collect put the bags on it, runs the same `Recognizer` as predict and stream on every tick
 (stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the class name
-(std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every class's
-probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is one line on
-stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).
+(std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time, stamp and every class's
+probability, and with ``explain`` its why (a JSON std_msgs/String on ``activity_topic``/frame); ``decode`` decodes
+with another decoder than the model's. A message the model cannot use is one line on stderr and the node goes on;
+a publisher of a type without the model's fields on its topic is one note naming it, and is not read; only
+start-up errors stop it (BadInput, exit 2).
 
 The callbacks only queue the messages (`MessageFeed.offer`: bounded, the oldest dropped first and counted); the
 main thread recognises and publishes them. SIGINT or SIGTERM drains the queue and decides every frame held before

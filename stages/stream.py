@@ -2,10 +2,12 @@
 
 Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
 frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
-no CSV header). An ``episode`` key or column starts a new
-episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
-stream waits for more input: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and
-``"time"``, the input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames
+no CSV header, and is said as a line that is not JSON); a CSV header naming none of the model's features (a CSV
+without one) is said in a note. An ``episode`` key or column starts a new episode whenever its value changes.
+Output: one JSON object per frame, written and flushed before the stream waits for more input: ``{"episode",
+"frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the input's ``time`` or ``timestamp`` of
+that frame, and ``"stamp"``, when it has them; ``"why"`` with ``explain``). ``decode`` decodes with another decoder
+than the model's, as predict's --decode. A model with a lag of L frames
 answers frame t once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the
 end of the input); the frames that arrived together (a backlog, a file) are decided together, the same classes
 faster. Everything is causal and stateful (the previous frame for the change predicates, the network's state,
@@ -18,7 +20,8 @@ timestamp, say) are ignored, and said once. Input is read in chunks, and a line 
 ``strict``, the stream stops as soon as the line passes the limit).
 
 `rostopic echo -p TOPIC` (a CSV whose header starts with ``%time``) is read as the model's topic and put on its
-clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``.
+clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``
+(seconds from the first message) and ``stamp`` (the messages' clock), and ``why`` with ``explain``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """A DDS participant as a ROS 2 node's rmw_cyclonedds makes it: the domain ``ROS_DOMAIN_ID``, the discovery its
 distro's environment asks for, ROS topic names as DDS topics (``/joint_states`` is ``rt/joint_states``), ROS's QoS
 profiles, and subscriptions made as publishers are discovered, each of the type and reliability its first
-publisher offers (as `ros2 topic echo` adapts to the publishers it finds).
+publisher offers (as `ros2 topic echo` adapts to the publishers it finds), or for a model's topics the first type
+holding the model's fields (a stray publisher of another type is said, and never subscribed).
 
 Discovery, as rmw_cyclonedds configures Cyclone: up to Humble, ``ROS_LOCALHOST_ONLY=1`` binds the loopback
 interface; from Iron on, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (SUBNET, LOCALHOST, OFF, SYSTEM_DEFAULT; LOCALHOST where

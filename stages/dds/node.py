@@ -1,10 +1,12 @@
 """`mlnseq ros --ros 2`: the recogniser as a ROS 2 node, a DDS participant with no ROS install.
 
 It subscribes to the model's topics as their publishers are discovered (their ROS 2 types from rosbags' typestore
-for ``--distro``, the QoS they offer or ``--qos``), runs every message through the live core that the ROS 1 node
+for ``--distro``, only a type holding the fields the model's features come from, a stray publisher of another type
+said once; the QoS they offer or ``--qos``), runs every message through the live core that the ROS 1 node
 runs (recognition/live.py's `MessageFeed`: the header stamps' clock, the model's rate, several topics merged by the
 model's rule, a lagged decoder's wait), and publishes per decided frame the class name (std_msgs/String on the
-activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame). When ``stop`` is set
+activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame; with ``explain``, its
+why). When ``stop`` is set
 (SIGINT, SIGTERM), the samples already arrived are read, the frames the feed holds are decided and published
 (`MessageFeed.drain`), and the writers wait for their readers' acknowledgements before the node leaves.
 
