@@ -128,6 +128,41 @@ def numeric_slots(kind: Any, message_class: Callable[[str], Any]) -> set[str]:
     return {name for name, slot_type in slots if name != "header" and numeric(slot_type)}
 
 
+class RawMessages:
+    """rospy.AnyMsg's messages read as their publishers' types (a subscription hears every publisher of its topic):
+    a type this node cannot import is an error line; a type holding none of the fields the model's features come from
+    (a std_msgs/String on /joint_states) is one note naming its publisher, whose messages are then not read."""
+
+    def __init__(self, model: Any, message_class: Callable[[str], Any], warn: Callable[[str], None]):
+        self.message_class, self.warn = message_class, warn
+        self.needs = needed_fields(model)
+        self.error: Callable[[str, str], None] = lambda topic, text: warn(f"error: {text}")  # the feed's, once made
+        self.classes: dict[str, Any] = {}
+        self.missing: dict[tuple[str, str], set[str]] = {}  # (topic, type) -> the model's fields the type lacks
+        self.strays: set[tuple[str, str, str]] = set()  # (topic, publisher, type) said
+
+    def __call__(self, topic: str, raw: Any) -> Any:
+        kind = raw._connection_header.get("type", "?")
+        if kind not in self.classes:
+            self.classes[kind] = self.message_class(kind)
+            if self.classes[kind] is None:
+                self.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
+        if self.classes[kind] is None:
+            return None
+        if (topic, kind) not in self.missing:
+            self.missing[topic, kind] = self.needs[topic] - numeric_slots(self.classes[kind], self.message_class)
+        missing = self.missing[topic, kind]
+        if missing:
+            caller = raw._connection_header.get("callerid", "?")
+            if (topic, caller, kind) not in self.strays:
+                self.strays.add((topic, caller, kind))
+                self.warn(f"note: a publisher on {topic} sends {kind}, which holds no {', '.join(sorted(missing))} "
+                          f"for the model's features: {caller} is not read; {topic} is read from the publishers of "
+                          "the type that holds them")
+            return None
+        return self.classes[kind]().deserialize(raw._buff)
+
+
 def check_master() -> str:
     """The master's URI; refuses when none answers there."""
     import rosgraph
@@ -194,29 +229,9 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
         return run_dds(options, warn, stop)
     rospy, roslib_message, String = rospy_modules()
     model = prepared(options.model, warn, options.decode, options.explain)
-    classes: dict[str, Any] = {}
-    needs, strays = needed_fields(model), set()
-
-    def decode(topic: str, raw: Any) -> Any:
-        kind = raw._connection_header.get("type", "?")
-        if kind not in classes:
-            classes[kind] = roslib_message.get_message_class(kind)
-            if classes[kind] is None:
-                feed.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
-        if classes[kind] is None:
-            return None
-        missing = needs[topic] - numeric_slots(classes[kind], roslib_message.get_message_class)
-        if missing:  # a publisher of another type on the topic (rospy's AnyMsg hears every one): said once, not read
-            caller = raw._connection_header.get("callerid", "?")
-            if (topic, caller, kind) not in strays:
-                strays.add((topic, caller, kind))
-                warn(f"note: a publisher on {topic} sends {kind}, which holds no {', '.join(sorted(missing))} for "
-                     f"the model's features: {caller} is not read; {topic} is read from the publishers of the type "
-                     "that holds them")
-            return None
-        return classes[kind]().deserialize(raw._buff)
-
+    decode = RawMessages(model, roslib_message.get_message_class, warn)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size, decode)
+    decode.error = feed.error
     uri = check_master()
     stop = stop or threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
