@@ -123,6 +123,9 @@ def test_predict_and_stream_give_the_same_explanations(model, desk_test_recordin
         assert [t["text"] for t in line["why"]] == [t["text"] for t in terms]
         assert np.allclose([t["contribution"] for t in line["why"]], [t["contribution"] for t in terms], atol=2e-6)
     assert "why" not in json.loads(runner.invoke(app, ["stream", str(model)], input=features).stdout.splitlines()[0])
+    as_json = "\n".join(json.dumps(row) for row in pl.read_csv(head).drop("frame", "label").to_dicts()) + "\n"
+    streamed = runner.invoke(app, ["stream", str(model), "--explain", "3"], input=as_json)  # JSON lines: the same
+    assert [json.loads(line)["why"] for line in streamed.stdout.splitlines()] == [line["why"] for line in lines]
 
 
 def test_the_python_api_explains_a_row_a_recording_or_a_frame(model, desk_test_recording):

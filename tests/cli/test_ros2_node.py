@@ -132,7 +132,8 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
                                    stdout=subprocess.PIPE, text=True)
         echo = processes.start([MLNSEQ, "echo", "/joint_states"], stdout=subprocess.PIPE, stderr=logs["echo"])
         with open(streamed, "w") as out:
-            stream = processes.start([MLNSEQ, "stream", model], stdin=echo.stdout, stdout=out, stderr=logs["stream"])
+            stream = processes.start([MLNSEQ, "stream", model, "--explain", "2"], stdin=echo.stdout, stdout=out,
+                                     stderr=logs["stream"])
         echo.stdout.close()
         assert recorder.stdout.readline().strip() == "ready"
         publisher = processes.start([sys.executable, str(DRIVER), "publish", str(bag), "2"], stdout=logs["peers"],
@@ -155,7 +156,18 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
     expected = predicted(joint_state_model["model"], bag, tmp_path)
     assert expected.height == len(rows)
     check_answers([json.loads(line) for line in lines(node_out)], expected, len(rows))
-    check_answers([json.loads(line) for line in lines(streamed)], expected, len(rows))
+    piped = [json.loads(line) for line in lines(streamed)]
+    check_answers(piped, expected, len(rows))
+    from mlnseq import explain  # `mlnseq echo | mlnseq stream --explain 2`: each line's why is explain's on the bag
+
+    for answer in (piped[1], piped[-1]):
+        found = explain.run(explain.ExplainOptions(model=joint_state_model["model"], source=bag,
+                                                   time=answer["stamp"])).explanation
+        assert found.frame == answer["frame"] and [t["text"] for t in answer["why"]] == [
+            t.text for t in found.largest(2)]
+        np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                   [t.contribution for t in found.largest(2)], atol=2e-6)
+    assert all(a["why"] for a in piped) and not any("why" in json.loads(line) for line in lines(node_out))
     node_log = (tmp_path / "node.log").read_text().splitlines()
     notes = [line for line in node_log if line.startswith("note: a publisher")]
     assert len(notes) == 1 and notes[0].startswith(
