@@ -14,7 +14,7 @@ from mlnseq import ros as stage
 
 def ros(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`, trained on ROS bags.", dir_okay=False)],
-    topic: Annotated[str, typer.Option(help="Where the activity goes (std_msgs/String, the class name); TOPIC/frame gets the frame as JSON (time, class, probabilities).")] = stage.ACTIVITY_TOPIC,
+    topic: Annotated[str, typer.Option(help="Where the activity goes (std_msgs/String, the class name); TOPIC/frame gets the frame as JSON (time, stamp, class, probabilities).")] = stage.ACTIVITY_TOPIC,
     name: Annotated[str, typer.Option(help="The node's name.")] = "mlnseq",
     ros: Annotated[str, typer.Option("--ros", help="1 or 2; auto: ROS_VERSION where a ROS set-up was sourced, else 1 where ROS_MASTER_URI is set, else 2.")] = "auto",
     distro: Annotated[Optional[str], typer.Option(help="ROS 2: the distro whose message definitions the topics' types are read with \\[default: ROS_DISTRO, else humble].", show_default=False)] = None,

@@ -288,3 +288,18 @@ def test_an_echo_feed_explains_every_frame_as_explain_does_and_explain_finds_it_
     with pytest.raises(BadInput, match=r"--time 1700000001\.2: outside the episode \(its times run 0-1\.19, its stamps "
                                        r"1700000000-1700000001\.19\); give a time within it"):
         explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag, time=past))
+
+
+def test_predict_on_a_bag_writes_the_stamp_beside_the_time_and_rerun_gets_both_timelines(joint_state_model, tmp_path):
+    rr = pytest.importorskip("rerun", reason="the [recordings] extra is not installed")
+    rows = joint_state_model["live"][:50]
+    bag = ros_episode.write_bag(tmp_path / "live.bag", rows)
+    table = predict.run(predict.PredictOptions(model=joint_state_model["model"], source=bag, rerun=tmp_path / "v.rrd",
+                                               intervals=tmp_path / "i.csv", output=tmp_path / "p.parquet")).table
+    assert table.columns[:4] == ["episode", "frame", "time", "stamp"]
+    assert table["stamp"].to_list() == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert table["time"].to_list() == [k * ros_episode.STEP / 1e9 for k in range(len(rows))]
+    timelines = {name for chunk in rr.chunk.RrdReader(tmp_path / "v.rrd").stream()
+                 if chunk.entity_path.endswith("/class/predicted") for name in chunk.timeline_names}
+    assert timelines == {"time", "frame", "stamp"}
+    assert pl.read_csv(tmp_path / "i.csv")["start"][0] == 0.0  # intervals: the recording's time, as --labels reads
