@@ -183,8 +183,7 @@ def test_a_stray_string_publisher_up_first_and_the_node_reads_the_robot_explaini
     """A std_msgs/String publisher on /joint_states (its participant named stray_talker) is up before the node: the
     node names it in one note and reads /joint_states as the JointState its model needs when that publisher comes.
     With --explain 2, every frame on TOPIC/frame carries why, and `explain --time` with the frame's own time (or its
-    stamp) explains that frame of the bag with the same terms. The model (lstm+smooth@5) decodes with --decode
-    smooth@3, as predict and explain do with it."""
+    stamp) explains that frame of the bag with the same terms."""
     dds_or_skip()
     from mlnseq import explain
 
@@ -198,8 +197,8 @@ def test_a_stray_string_publisher_up_first_and_the_node_reads_the_robot_explaini
         processes.start([sys.executable, str(DRIVER), "wrong", "/joint_states", "600", "stray_talker"],
                         stdout=logs["stray"], stderr=subprocess.STDOUT)
         time.sleep(1.0)  # the stray publisher is discovered before the node's first look
-        node = processes.start([MLNSEQ, "ros", str(lagged_joint_state_model), "--ros", "2", "--explain", "2",
-                                "--decode", "smooth@3"], env=node_env, stdout=logs["node"], stderr=subprocess.STDOUT)
+        node = processes.start([MLNSEQ, "ros", str(lagged_joint_state_model), "--ros", "2", "--explain", "2"],
+                               env=node_env, stdout=logs["node"], stderr=subprocess.STDOUT)
         wait_for(lambda: "note: a publisher on /joint_states" in node_log(), "the node's note on the stray publisher")
         recorder = processes.start([sys.executable, str(DRIVER), "record", "/mlnseq/activity/frame", str(node_out)],
                                    stdout=subprocess.PIPE, text=True)
@@ -207,7 +206,7 @@ def test_a_stray_string_publisher_up_first_and_the_node_reads_the_robot_explaini
         publisher = processes.start([sys.executable, str(DRIVER), "publish", str(bag), "1"], stdout=logs["peers"],
                                     stderr=subprocess.STDOUT)
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "peers.log").read_text()
-        wait_for(lambda: len(lines(node_out)) >= len(rows) - 4, "the node's frames", 10)  # a lag of 3, the last tick
+        wait_for(lambda: len(lines(node_out)) >= len(rows) - 6, "the node's frames", 10)  # a lag of 5, the last tick
         node.send_signal(signal.SIGINT)
         assert node.wait(WAIT_S) == 0, node_log()
         wait_for(lambda: len(lines(node_out)) >= len(rows), "the frames the node held", 5)
@@ -216,13 +215,11 @@ def test_a_stray_string_publisher_up_first_and_the_node_reads_the_robot_explaini
         for handle in logs.values():
             handle.close()
     answers = [json.loads(line) for line in lines(node_out)]
-    expected = predict.run(predict.PredictOptions(model=lagged_joint_state_model, source=bag, decode="smooth@3",
-                                                  output=tmp_path / "p.parquet")).table
-    check_answers(answers, expected, len(rows))
-    assert len(answers) == len(rows) and all(len(a["why"]) == 2 for a in answers) and {a["lag"] for a in answers} == {3}
+    check_answers(answers, predicted(lagged_joint_state_model, bag, tmp_path), len(rows))
+    assert len(answers) == len(rows) and all(len(a["why"]) == 2 for a in answers) and {a["lag"] for a in answers} == {5}
     for answer in (answers[3], answers[len(rows) // 2], answers[-1]):
         for clock in ("time", "stamp"):
-            found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag, decode="smooth@3",
+            found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag,
                                                        time=answer[clock])).explanation
             assert (found.frame, found.chosen) == (answer["frame"], answer["class"]), clock
             assert [t["text"] for t in answer["why"]] == [t.text for t in found.largest(2)]

@@ -153,8 +153,9 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
         joint_state_model, lagged_joint_state_model, tmp_path):
     """A real rosmaster killed (SIGKILL) and started again on its port: the node says so, registers again, and a
     recorder and a publisher that come after the restart find it (its publications and its subscription restored).
-    Its model decodes with a lag of 5: on SIGTERM the 5 frames it holds, and the last tick, are decided and
-    published before it exits 0: every message's frame, equal to predict on a bag of the same messages."""
+    Its model (lstm+smooth@5) decodes with --decode smooth@3, a lag of 3: on SIGTERM the 3 frames it holds, and the
+    last tick, are decided and published before it exits 0: every message's frame, equal to predict --decode
+    smooth@3 on a bag of the same messages; with --explain 2, each frame's why is explain's for it."""
     ros_or_skip()
     port = free_port()
     uri = f"http://127.0.0.1:{port}"
@@ -175,8 +176,8 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     try:
         master = start(["rosmaster", "--core", "-p", str(port)], stdout=logs["master"], stderr=subprocess.STDOUT)
         wait_for(lambda: master_up(uri), "the master")
-        node = start([MLNSEQ, "ros", str(lagged_joint_state_model), "--explain", "2"], stdout=logs["node"],
-                     stderr=subprocess.STDOUT)
+        node = start([MLNSEQ, "ros", str(lagged_joint_state_model), "--explain", "2", "--decode", "smooth@3"],
+                     stdout=logs["node"], stderr=subprocess.STDOUT)
         wait_for(lambda: "listening to /joint_states" in node_log(), "the node")
         os.kill(master.pid, signal.SIGKILL)
         master.wait()
@@ -189,9 +190,9 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
         publisher = start([sys.executable, str(DRIVER), "publish", str(tmp_path / "rows.npy"), "1"],
                           stdout=logs["driver"], stderr=subprocess.STDOUT)
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "driver.log").read_text()  # ... and its subscription
-        wait_for(lambda: len(frames()) >= len(rows) - 6, "the frames decided while the feed runs", 10)
+        wait_for(lambda: len(frames()) >= len(rows) - 4, "the frames decided while the feed runs", 10)
         time.sleep(0.5)
-        assert len(frames()) == len(rows) - 6  # the last tick waits for a later message, 5 more for the lag
+        assert len(frames()) == len(rows) - 4  # the last tick waits for a later message, 3 more for the lag
         node.send_signal(signal.SIGTERM)
         assert node.wait(WAIT_S) == 0, node_log()
         wait_for(lambda: len(frames()) == len(rows), "the drained frames", 10)
@@ -211,16 +212,16 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     assert back[0].endswith("registered again 3 publications and 1 subscriptions")  # /rosout beside the node's two
     assert lines[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
     expected = predict.run(predict.PredictOptions(
-        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows),
+        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows), decode="smooth@3",
         output=tmp_path / "p.parquet")).table
     answers = [json.loads(line) for line in frames()]
-    assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {5}
+    assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {3}
     assert [a["time"] for a in answers] == expected["time"].to_list()
     assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
     assert all(len(a["why"]) == 2 for a in answers)  # --explain 2: as explain gives them, by the frame's own time
     for answer in (answers[0], answers[-1]):
         found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=tmp_path / "live.bag",
-                                                   time=answer["stamp"])).explanation
+                                                   decode="smooth@3", time=answer["stamp"])).explanation
         assert (found.frame, [t.text for t in found.largest(2)]) == (answer["frame"], [t["text"] for t in answer["why"]])
         np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
                                    [t.contribution for t in found.largest(2)], atol=2e-6)
