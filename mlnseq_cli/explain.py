@@ -16,7 +16,7 @@ def explain(
     source: Annotated[Path, typer.Option(help="The recording, read as `predict` reads it (as the model's recordings were read).")],
     episode: Annotated[Optional[str], typer.Option(help="The episode, by the recording's own id \\[default: its first].")] = None,
     frame: Annotated[Optional[int], typer.Option(help="Explain this frame of the episode (numbered from 0, as predict numbers it).")] = None,
-    time: Annotated[Optional[float], typer.Option(help="Explain the frame at this time (the last at or before it), in the recording's clock.")] = None,
+    time: Annotated[Optional[float], typer.Option(help="Explain the frame at this time (the last at or before it): seconds from the recording's start, or for messages their clock (a live line's stamp); a time outside the recording is refused.")] = None,
     segment: Annotated[Optional[int], typer.Option(help="Explain the episode's K-th decided segment (from 0): what held it and what ended it.")] = None,
     versus: Annotated[Optional[str], typer.Option(help="The class to compare with \\[default: the runner-up].")] = None,
     what_if: Annotated[Optional[str], typer.Option("--what-if", help="PREDICATE=VALUE (e.g. left_gripper=closed, or a column =true/false): score the frame again with it and say whether the decision flips.")] = None,

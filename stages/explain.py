@@ -27,6 +27,7 @@ from mlnseq.fusion.fuse import EPSILON
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.explaining.what_if import WhatIf, parse_what_if
 from mlnseq.sources import RECORDING_ENVS
+from mlnseq.sources.recording import stamps as recording_stamps
 from mlnseq.sources.table import prediction_frames
 
 
@@ -38,7 +39,7 @@ class ExplainOptions:
     source: Path
     episode: str | None = None  # the recording's own id; default: its first episode
     frame: int | None = None  # the frame within the episode, as `predict` numbers it
-    time: float | None = None  # the frame at this time (the last at or before it), in the recording's clock
+    time: float | None = None  # the frame at this time (the last at or before it): from the start, or a stamp
     segment: int | None = None  # the episode's K-th decided segment, from 0
     versus: str | None = None  # the class to compare with (default: the runner-up)
     what_if: str | None = None  # PREDICATE=VALUE
@@ -93,17 +94,43 @@ def _episode(names: list, wanted: str | None) -> int:
     return found[0]
 
 
-def _row(options: ExplainOptions, frames: np.ndarray, times: np.ndarray) -> int:
-    """The row of the episode's frame asked for by --frame or --time."""
+def _row(options: ExplainOptions, frames: np.ndarray, times: np.ndarray, stamps: np.ndarray | None) -> int:
+    """The row of the episode's frame asked for by --frame or --time: the last frame at or before the time, on the
+    recording's clock (seconds from its start) or, for messages, theirs (a live line's ``stamp``)."""
     if options.frame is not None:
         found = np.flatnonzero(frames == options.frame)
         if not len(found):
             raise BadInput(f"--frame {options.frame}: the episode's frames are {frames[0]}-{frames[-1]}")
         return int(found[0])
-    before = np.flatnonzero(times <= options.time)
-    if not len(before):
-        raise BadInput(f"--time {options.time:g}: the episode starts at {times[0]:g} s")
+    found = (("time", _at(times, options.time)), ("stamp", _at(stamps, options.time)))
+    rows = {clock: row for clock, row in found if row is not None}
+    if len(set(rows.values())) == 1:
+        return next(iter(rows.values()))
+    spans = f"its times run {_span(times)}" + (f", its stamps {_span(stamps)}" if stamps is not None else "")
+    if not rows:
+        raise BadInput(f"--time {_seconds(options.time)}: outside the episode ({spans}); give a time within it")
+    raise BadInput(f"--time {_seconds(options.time)} is frame {frames[rows['time']]} from the episode's start and "
+                   f"frame {frames[rows['stamp']]} on its messages' clock ({spans}): give --frame")
+
+
+def _at(times: np.ndarray | None, time: float) -> int | None:
+    """The row of the last frame at or before ``time``; None before the first or a frame's period past the last."""
+    if times is None or not len(times):
+        return None
+    period = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    before = np.flatnonzero(times <= time)
+    if not len(before) or (time >= times[-1] + period if period > 0 else time > times[-1]):
+        return None
     return int(before[-1])
+
+
+def _span(times: np.ndarray) -> str:
+    return f"{_seconds(times[0])}-{_seconds(times[-1])}"
+
+
+def _seconds(value: float) -> str:
+    """Seconds to the microsecond, without trailing zeros or an exponent (a stamp is 1700000002.73)."""
+    return f"{float(value):.6f}".rstrip("0").rstrip(".")
 
 
 def run(options: ExplainOptions) -> Explained:
@@ -127,7 +154,8 @@ def run(options: ExplainOptions) -> Explained:
             raise BadInput(f"--segment {options.segment}: episode {names[index]} has {len(found)} decided segments "
                            f"(0-{len(found) - 1})")
         return Explained(names[index], segment=found[options.segment], episodes=len(names))
-    row = _row(options, keys.frame, keys.time)
+    stamps = recording_stamps(recordings, names, frames["episode"].to_numpy(), times)
+    row = _row(options, keys.frame, keys.time, None if stamps is None else stamps[rows])
     explanation = explain(explainer, scores, [row], versus, keys)[0]
     if options.what_if is None:
         return Explained(names[index], explanation, episodes=len(names))

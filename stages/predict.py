@@ -25,6 +25,7 @@ from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.recognition.reading import reading_of
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import RECORDING_ENVS, intervals
+from mlnseq.sources.recording import stamps as recording_stamps
 from mlnseq.sources.table import prediction_frames
 
 
@@ -139,6 +140,9 @@ def _run(options: PredictOptions, stage) -> Predicted:
     if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
         table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
     table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
+    stamp = recording_stamps(recordings, names, frames["episode"].to_numpy(), times)
+    if stamp is not None:  # messages (a bag): their clock too, as live lines carry it
+        table = table.insert_column(3, pl.Series("stamp", stamp))
     found = None
     if options.explain:  # each frame's largest terms and each segment's why (stages/recognition/reasons.py)
         from mlnseq.explaining.explainer import Keys

@@ -4,9 +4,11 @@
 It subscribes to the topics the model was trained on (its manifest's ``reading``), puts their messages on the
 model's clock as collect put the bags on it, runs the same `Recognizer` as predict and stream on every tick
 (stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the class name
-(std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time and every class's
-probability (a JSON std_msgs/String on ``activity_topic``/frame). A message the model cannot use is one line on
-stderr and the node goes on; only start-up errors stop it (BadInput, exit 2).
+(std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time, stamp and every class's
+probability, and with ``explain`` its why (a JSON std_msgs/String on ``activity_topic``/frame); ``decode`` decodes
+with another decoder than the model's. A message the model cannot use is one line on stderr and the node goes on;
+a publisher of a type without the model's fields on its topic is one note naming it, and is not read; only
+start-up errors stop it (BadInput, exit 2).
 
 The callbacks only queue the messages (`MessageFeed.offer`: bounded, the oldest dropped first and counted); the
 main thread recognises and publishes them. SIGINT or SIGTERM drains the queue and decides every frame held before
@@ -26,11 +28,11 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import member
 from mlnseq.dds.domain import QosChoice
-from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed
-from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields, prepared
 
 ACTIVITY_TOPIC = "/mlnseq/activity"
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's
@@ -59,17 +61,28 @@ class RosOptions:
     distro: str | None = None  # ROS 2's message definitions: default ROS_DISTRO where it is a ROS 2 one, else humble
     qos: QosChoice | str = QosChoice.AUTO  # ROS 2: the subscriptions' reliability
 
+    max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
+    queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
+    decode: str | None = None  # a decoder, as predict's --decode; default: the model's
+    explain: int = 0  # N > 0: each frame's JSON carries "why", its N largest terms (docs/explain.md)
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "ros", member(RosVersion, self.ros))
         object.__setattr__(self, "qos", member(QosChoice, self.qos))
-    max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
-    queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
 
     def validate(self) -> None:
         if not self.activity_topic.strip() or " " in self.activity_topic:
             raise BadInput(f"--topic {self.activity_topic!r}: not a ROS topic name")
         check_choice("ros", self.ros, tuple(RosVersion))
         check_choice("qos", self.qos, tuple(QosChoice))
+        if self.max_hold is not None and not self.max_hold > 0:
+            raise BadInput(f"--max-hold must be above 0 seconds (inf: no bound), got {self.max_hold:g}")
+        if self.queue_size < 1:
+            raise BadInput(f"--queue-size must be at least 1 message, got {self.queue_size}")
+        if self.explain < 0:
+            raise BadInput(f"--explain {self.explain}: give how many terms each frame shows (0: none)")
+        if self.decode is not None:
+            parse_decoding(self.decode)
 
     def version(self) -> RosVersion:
         """The ROS spoken: --ros, else the environment's."""
@@ -79,10 +92,6 @@ class RosOptions:
         if sourced in ("1", "2"):
             return RosVersion(sourced)
         return RosVersion.ONE if os.environ.get("ROS_MASTER_URI", "").strip() else RosVersion.TWO
-        if self.max_hold is not None and not self.max_hold > 0:
-            raise BadInput(f"--max-hold must be above 0 seconds (inf: no bound), got {self.max_hold:g}")
-        if self.queue_size < 1:
-            raise BadInput(f"--queue-size must be at least 1 message, got {self.queue_size}")
 
 
 @dataclass
@@ -103,6 +112,55 @@ def rospy_modules() -> tuple[Any, Any, Any]:
                        "setup.bash, "
                        f"or on Debian `apt-get install {ROS_PACKAGES}` (scripts/setup.sh does it)") from None
     return rospy, roslib_message, String
+
+
+def numeric_slots(kind: Any, message_class: Callable[[str], Any]) -> set[str]:
+    """A rospy message class's top-level fields that hold numbers (a number, an array of numbers, or a message
+    holding some; the header aside), as the DDS node reads its types (stages/dds/types.py)."""
+    def numeric(slot_type: str) -> bool:
+        base = slot_type.split("[", 1)[0]
+        if "/" not in base:  # a number, bool, time or duration; or text
+            return base != "string"
+        inner = message_class(base)
+        return inner is not None and any(numeric(t) for t in inner._slot_types)
+
+    slots = zip(kind.__slots__, kind._slot_types)
+    return {name for name, slot_type in slots if name != "header" and numeric(slot_type)}
+
+
+class RawMessages:
+    """rospy.AnyMsg's messages read as their publishers' types (a subscription hears every publisher of its topic):
+    a type this node cannot import is an error line; a type holding none of the fields the model's features come from
+    (a std_msgs/String on /joint_states) is one note naming its publisher, whose messages are then not read."""
+
+    def __init__(self, model: Any, message_class: Callable[[str], Any], warn: Callable[[str], None]):
+        self.message_class, self.warn = message_class, warn
+        self.needs = needed_fields(model)
+        self.error: Callable[[str, str], None] = lambda topic, text: warn(f"error: {text}")  # the feed's, once made
+        self.classes: dict[str, Any] = {}
+        self.missing: dict[tuple[str, str], set[str]] = {}  # (topic, type) -> the model's fields the type lacks
+        self.strays: set[tuple[str, str, str]] = set()  # (topic, publisher, type) said
+
+    def __call__(self, topic: str, raw: Any) -> Any:
+        kind = raw._connection_header.get("type", "?")
+        if kind not in self.classes:
+            self.classes[kind] = self.message_class(kind)
+            if self.classes[kind] is None:
+                self.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
+        if self.classes[kind] is None:
+            return None
+        if (topic, kind) not in self.missing:
+            self.missing[topic, kind] = self.needs[topic] - numeric_slots(self.classes[kind], self.message_class)
+        missing = self.missing[topic, kind]
+        if missing:
+            caller = raw._connection_header.get("callerid", "?")
+            if (topic, caller, kind) not in self.strays:
+                self.strays.add((topic, caller, kind))
+                self.warn(f"note: a publisher on {topic} sends {kind}, which holds no {', '.join(sorted(missing))} "
+                          f"for the model's features: {caller} is not read; {topic} is read from the publishers of "
+                          "the type that holds them")
+            return None
+        return self.classes[kind]().deserialize(raw._buff)
 
 
 def check_master() -> str:
@@ -170,18 +228,10 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
     if options.version() is RosVersion.TWO:
         return run_dds(options, warn, stop)
     rospy, roslib_message, String = rospy_modules()
-    model = Recognizer.load(options.model)
-    classes: dict[str, Any] = {}
-
-    def decode(topic: str, raw: Any) -> Any:
-        kind = raw._connection_header.get("type", "?")
-        if kind not in classes:
-            classes[kind] = roslib_message.get_message_class(kind)
-            if classes[kind] is None:
-                feed.error(topic, f"{topic} sends {kind}, a message type this node cannot import: install its package")
-        return None if classes[kind] is None else classes[kind]().deserialize(raw._buff)
-
+    model = prepared(options.model, warn, options.decode, options.explain)
+    decode = RawMessages(model, roslib_message.get_message_class, warn)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size, decode)
+    decode.error = feed.error
     uri = check_master()
     stop = stop or threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -219,6 +269,6 @@ def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Ev
     require()
     node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
                                     options.distro or types.default_distro(), options.qos, options.max_hold,
-                                    options.queue_size)
+                                    options.queue_size, options.decode, options.explain)
     with stopped_by_signals(stop) as stop:
         return RosSummary(*node.run(node_options, warn, stop))

@@ -2,10 +2,12 @@
 
 Input: JSON lines (an object of feature name -> value per frame) or CSV (a header line, then one row per
 frame); a line that starts with ``{`` before any CSV row makes the stream JSON (a log banner before it is
-no CSV header). An ``episode`` key or column starts a new
-episode whenever its value changes. Output: one JSON object per frame, written and flushed before the
-stream waits for more input: ``{"episode", "frame", "class", "probabilities": {class: p}, "lag"}`` (and
-``"time"``, the input's ``time`` or ``timestamp`` of that frame, when it has one). A model with a lag of L frames
+no CSV header, and is said as a line that is not JSON); a CSV header naming none of the model's features (a CSV
+without one) is said in a note. An ``episode`` key or column starts a new episode whenever its value changes.
+Output: one JSON object per frame, written and flushed before the stream waits for more input: ``{"episode",
+"frame", "class", "probabilities": {class: p}, "lag"}`` (and ``"time"``, the input's ``time`` or ``timestamp`` of
+that frame, and ``"stamp"``, when it has them; ``"why"`` with ``explain``). ``decode`` decodes with another decoder
+than the model's, as predict's --decode. A model with a lag of L frames
 answers frame t once frame t + L has arrived, and the episode's last L frames at its end (the next episode, or the
 end of the input); the frames that arrived together (a backlog, a file) are decided together, the same classes
 faster. Everything is causal and stateful (the previous frame for the change predicates, the network's state,
@@ -18,7 +20,8 @@ timestamp, say) are ignored, and said once. Input is read in chunks, and a line 
 ``strict``, the stream stops as soon as the line passes the limit).
 
 `rostopic echo -p TOPIC` (a CSV whose header starts with ``%time``) is read as the model's topic and put on its
-clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``.
+clock as collect put the bags on it (stages/recognition/live.py); each answer then carries the frame's ``time``
+(seconds from the first message) and ``stamp`` (the messages' clock), and ``why`` with ``explain``.
 """
 
 from __future__ import annotations
@@ -28,19 +31,22 @@ import csv
 import itertools
 import json
 import math
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO, ContextManager
 
+from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.stopping import Stopped, StopSignals
 from mlnseq.recognition import live as ros_live
+from mlnseq.recognition.live import encoded
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import rostopic
 
 EPISODE = "episode"
-TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line
+TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line as "time"
+STAMP = "stamp"  # an input key naming a frame's time on the messages' clock (predict's column), echoed as it came
 MAX_LINE_BYTES = 1024 * 1024  # a JSON frame of ~20,000 features; DESK's is 80 bytes
 CHUNK_BYTES = 64 * 1024  # read at most this much at once; a chunk holds many frames, or part of one
 
@@ -54,10 +60,13 @@ class StreamOptions:
     max_line_bytes: int = MAX_LINE_BYTES
     max_hold: float | None = None  # `rostopic echo -p`: seconds a tick holds the feed's last row; default: the model's
     explain: int = 0  # N > 0: each line carries "why", its frame's N largest terms (docs/explain.md)
+    decode: str | None = None  # a decoder, as predict's --decode; default: the model's
 
     def validate(self) -> None:
         if self.explain < 0:
             raise BadInput(f"--explain {self.explain}: give how many terms each line shows (0: none)")
+        if self.decode is not None:
+            parse_decoding(self.decode)
         if self.max_line_bytes < 1:
             raise BadInput(f"--max-line-bytes {self.max_line_bytes}: a line limit is at least 1 byte")
         if self.max_hold is not None and not self.max_hold > 0:
@@ -91,12 +100,13 @@ def lines_of(source: BinaryIO, limit: int, stop_early: bool = False,
         *ends, rest = chunk.split(b"\n")
         for piece in ends:
             if stop_early and size + len(piece) > limit >= size:
-                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes (raise it to read such lines)")
             yield _line(number, b"".join([*held, piece]) if held else piece, size + len(piece), limit)
             number, held, size = number + 1, [], 0
         if size + len(rest) > limit:
             if stop_early and size <= limit:
-                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes")
+                yield InputLine(f"line {number}: over --max-line-bytes {limit:,} bytes (raise it to read such "
+                                "lines)")
             held = []
         elif rest:
             held.append(rest)
@@ -120,17 +130,22 @@ def _chunks(read: Callable[[int], bytes], before_wait: Sequence[Callable[[], Non
 
 def _line(number: int, data: bytes, size: int, limit: int) -> str | InputLine:
     if size > limit:
-        return InputLine(f"line {number}: {size:,} bytes, over --max-line-bytes {limit:,}; skipped")
+        return InputLine(f"line {number}: {size:,} bytes, over --max-line-bytes {limit:,} (raise it to read such "
+                         "lines); skipped")
     try:
         return data.decode().removesuffix("\r")
     except UnicodeDecodeError as error:
         return InputLine(f"line {number}: not UTF-8 text ({error})")
 
 
-def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str, Any] | InputLine]]:
-    """(line number, the frame as a mapping, or the error that line makes) for every non-blank line."""
+def frames_of(lines: Iterable[str | InputLine], features: Collection[str] = (),
+              note: Callable[[str], None] | None = None) -> Iterator[tuple[int, dict[str, Any] | InputLine]]:
+    """(line number, the frame as a mapping, or the error that line makes) for every non-blank line. A line of text
+    before the first JSON frame (a log banner) is not JSON: an error, skipped. A CSV header naming none of
+    ``features`` (a headerless CSV's first row) is said through ``note`` at the first row."""
     header: list[str] | None = None
     json_lines: bool | None = None
+    header_at = 0  # the header's line number
     for number, line in enumerate(lines, start=1):
         if isinstance(line, InputLine):
             yield number, line
@@ -138,9 +153,11 @@ def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str,
         if not line.strip():
             continue
         if json_lines is None and line.lstrip().startswith("{"):
-            json_lines = True  # the first JSON frame decides, even after a line of text (a log banner)
+            json_lines = True  # the first JSON frame decides: the text before it was no CSV header
+            if header is not None:
+                yield header_at, InputLine(f"line {header_at}: not JSON (text before the first JSON frame); skipped")
         if json_lines is None and header is None:
-            header = _csv_row(line, number)
+            header, header_at = _csv_row(line, number), number
             if isinstance(header, InputLine):
                 yield number, header
                 header = None
@@ -161,11 +178,18 @@ def frames_of(lines: Iterable[str | InputLine]) -> Iterator[tuple[int, dict[str,
         if isinstance(row, InputLine):
             yield number, row
             continue
+        if json_lines is None and features and note is not None and not set(header) & set(features):
+            note(f"note: line {header_at} was read as the CSV header ({_some(header)}) and names none of the model's "
+                 f"features: a CSV stream starts with a header line of feature names ({_some(list(features))})")
         json_lines = False  # a CSV row: the stream is CSV
         if len(row) != len(header):
             yield number, InputLine(f"line {number}: {len(row)} fields, the header has {len(header)}")
             continue
         yield number, {name: _number(value) if name != EPISODE else value for name, value in zip(header, row)}
+
+
+def _some(names: list[str]) -> str:
+    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
 
 
 def _json(line: str) -> Any:
@@ -194,33 +218,26 @@ def _number(text: str) -> float | str:
         return text  # the recogniser names the feature that is not a number
 
 
-def answer_line(model: Recognizer, prediction: Any, episode: Any, time: Any) -> dict[str, Any]:
-    """A decided frame's output: its episode, frame (and input time), class, probabilities and the model's lag."""
-    line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, "class": prediction.name,
-            "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
+def answer_line(model: Recognizer, prediction: Any, episode: Any, when: dict[str, Any] | None) -> dict[str, Any]:
+    """A decided frame's output: its episode, frame (and input time and stamp), class, probabilities and the model's
+    lag."""
+    line = {EPISODE: 0 if episode is None else episode, "frame": prediction.frame, **(when or {}),
+            "class": prediction.name, "probabilities": dict(zip(model.classes, prediction.probabilities.tolist())),
             "lag": model.lag if model.decoding.decoder.lagged else 0}
-    if time is not None:
-        line["time"] = time
     if prediction.why is not None:
         line["why"] = prediction.why
     return line
-
-
-def encoded(line: dict[str, Any]) -> str:
-    """A line as JSON; its ``why``, last, as the explainer encoded it (the same text as json.dumps, made once per
-    formula term)."""
-    why = line.get("why")
-    if why is None or not hasattr(why, "json"):
-        return json.dumps(line)
-    return f'{json.dumps({k: v for k, v in line.items() if k != "why"})[:-1]}, "why": {why.json}}}'
 
 
 def _step(model: Recognizer, frame: dict[str, Any], number: int, times: dict[int, Any]) -> Any:
     """One frame through the model, its input time kept until its frame is answered; a bad frame names its line.
     A lagged decoder's decisions wait for ``model.decide()``."""
     time = next((frame[key] for key in TIMES if key in frame), None)
-    if time is not None:
-        times[model.next_frame] = time
+    when = {"time": time} if time is not None else {}
+    if STAMP in frame:
+        when[STAMP] = frame[STAMP]
+    if when:
+        times[model.next_frame] = when
     try:
         return model.step(frame, decide=False)
     except BadInput as error:
@@ -232,16 +249,12 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     """Answer every frame of ``source`` (bytes, one frame a line) with one JSON line through ``emit``; report
     bad lines through ``warn``. SIGINT or SIGTERM: the frames read are answered, then `Stopped` is raised."""
     options.validate()
-    model = Recognizer.load(options.model)
-    if options.explain:
-        model.explain_steps(options.explain)
+    model = ros_live.prepared(options.model, warn, options.decode, options.explain)
     notes = model.manifest.notes  # said in full by export, which made them, and shown by info; here one line
     if len(notes) == 1:
         warn(f"note: {notes[0]}")
     elif notes:
         warn(f"note: the model holds {len(notes)} notes from its export (`mlnseq info {options.model}` shows them)")
-    if model.decoding.decoder.offline:
-        warn(f"note: {model.decode} needs a whole recording; a stream filters online with the same factors")
     with StopSignals().installed() as stop:
         before_wait: list[Callable[[], None]] = []  # _serve adds its answer to the frames it held back
         lines = lines_of(source, options.max_line_bytes, options.strict, before_wait, stop.reading)
@@ -259,7 +272,7 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
            warn: Callable[[str], None], before_wait: list[Callable[[], None]]) -> StreamSummary:
     """JSON or CSV frames: frame t answered once frame t + lag has arrived, the pending ones at an episode's end.
     The frames read together are stepped first and decided together, before the next read (``before_wait``)."""
-    used = set(model.features) | {EPISODE, *TIMES}
+    used = set(model.features) | {EPISODE, *TIMES, STAMP}
     ignored: set[str] = set()
     summary = StreamSummary()
     episode: Any = None
@@ -272,7 +285,7 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
 
     with answering_held(before_wait, lambda: answer(model.decide(), episode)):
         try:
-            for number, frame in frames_of(lines):
+            for number, frame in frames_of(lines, model.features, warn):
                 try:
                     if isinstance(frame, InputLine):
                         raise frame

@@ -8,7 +8,8 @@ ROS's sensor-data QoS (best effort, keep last 5).
                                   # at their recorded times and pace (SPEED times faster), once each topic has
                                   # SUBSCRIBERS readers
     python tests/dds_driver.py record TOPIC FILE        # each std_msgs/String's data a line; "ready" on stdout
-    python tests/dds_driver.py wrong TOPIC              # a std_msgs/String publisher on TOPIC for a second
+    python tests/dds_driver.py wrong TOPIC [SECONDS [NAME]]  # a std_msgs/String publisher on TOPIC for a second (or
+                                  # SECONDS), its participant named NAME
 
 The domain and discovery come from the environment (ROS_DOMAIN_ID, CYCLONEDDS_URI), as the tests set them.
 """
@@ -69,8 +70,8 @@ SENSOR = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.H
 QOS = {"std_msgs/msg/Float64": SENSOR}  # the gripper's state, published as sensor data; the rest ROS's default
 
 
-def participant() -> DomainParticipant:
-    return DomainParticipant(int(os.environ["ROS_DOMAIN_ID"]))
+def participant(name: str = "") -> DomainParticipant:
+    return DomainParticipant(int(os.environ["ROS_DOMAIN_ID"]), qos=Qos(Policy.EntityName(name)) if name else None)
 
 
 def wait_until(check, what: str) -> None:
@@ -124,11 +125,11 @@ def record(topic: str, path: str) -> None:
                 out.flush()
 
 
-def wrong(topic: str) -> None:
-    """Another type on ``topic``: a std_msgs/String publisher, for a second."""
-    dp = participant()
+def wrong(topic: str, seconds: str = "1", name: str = "") -> None:
+    """Another type on ``topic``: a std_msgs/String publisher, for a second (or ``seconds``)."""
+    dp = participant(name)
     writer = DataWriter(dp, Topic(dp, "rt" + topic, String), qos=DEFAULT)
-    for _ in range(10):
+    for _ in range(round(float(seconds) * 10)):
         writer.write(String(data="hello"))
         time.sleep(0.1)
 

@@ -57,9 +57,10 @@ def test_a_csv_field_over_128_kib_is_named_and_skipped(model, frames):
     assert len(answers) == 2 and len(errors) == 1 and errors[0].startswith("error: line 3: not a CSV row"), errors
 
 
-def test_a_log_banner_before_json_lines_does_not_make_them_csv(model, frames):
+def test_a_log_banner_before_json_lines_does_not_make_them_csv_and_is_one_error_line(model, frames):
     answers, errors = run(model, ["robot feed v2.1 starting (2026-12-01 20:00:00)", *(as_json(f) for f in frames)])
-    assert len(answers) == len(frames) and not errors
+    assert len(answers) == len(frames)
+    assert errors == ["error: line 1: not JSON (text before the first JSON frame); skipped"]
 
 
 def test_an_episode_of_nan_is_a_bad_line_not_an_answer_that_is_not_json(model, frames):

@@ -1,7 +1,8 @@
 """A DDS participant as a ROS 2 node's rmw_cyclonedds makes it: the domain ``ROS_DOMAIN_ID``, the discovery its
 distro's environment asks for, ROS topic names as DDS topics (``/joint_states`` is ``rt/joint_states``), ROS's QoS
 profiles, and subscriptions made as publishers are discovered, each of the type and reliability its first
-publisher offers (as `ros2 topic echo` adapts to the publishers it finds).
+publisher offers (as `ros2 topic echo` adapts to the publishers it finds), or for a model's topics the first type
+holding the model's fields (a stray publisher of another type is said, and never subscribed).
 
 Discovery, as rmw_cyclonedds configures Cyclone: up to Humble, ``ROS_LOCALHOST_ONLY=1`` binds the loopback
 interface; from Iron on, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (SUBNET, LOCALHOST, OFF, SYSTEM_DEFAULT; LOCALHOST where
@@ -131,6 +132,7 @@ class Participant:
         self.waitset = WaitSet(self.participant)
         self.waitset.attach(self._arrived(self.publications))  # a new publisher wakes the wait as a sample does
         self.topics: dict[str, Any] = {}
+        self.participants: Any = None  # the participants discovered, read when a publisher is named
 
     def topic(self, topic: str, kind: type) -> Any:
         from cyclonedds.topic import Topic
@@ -157,6 +159,18 @@ class Participant:
         from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
 
         return ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any)
+
+    def describe(self, publication: Any) -> str:
+        """A discovered publisher in words: its participant's name where it gives one, and its writer's GUID."""
+        from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsParticipant
+        from cyclonedds.core import Policy
+
+        if self.participants is None:
+            self.participants = BuiltinDataReader(self.participant, BuiltinTopicDcpsParticipant)
+        for known in self.participants.read(N=256):
+            if known.key == publication.participant_key and Policy.EntityName in known.qos:
+                return f"its writer {publication.key} (participant {known.qos[Policy.EntityName].name!r})"
+        return f"its writer {publication.key} (participant {publication.participant_key})"
 
     def new_publications(self) -> list[Any]:
         """The publications discovered since the last call (their topic, type and QoS)."""
@@ -203,11 +217,16 @@ class Subscription:
 
 class Subscriptions:
     """The wanted ROS topics, each subscribed once its first publisher is discovered, as its type and with the QoS
-    chosen (``--qos``); a publisher that cannot be read is one line through ``say(topic, text)``."""
+    chosen (``--qos``); a publisher that cannot be read is one line through ``say(topic, text)``. With ``needs``
+    (topic -> the top-level fields its features are read from), a topic is read only as a type holding numbers in
+    those fields: a publisher of another type (a stray std_msgs/String on /joint_states) is one line through
+    ``note``, naming it, and the topic is subscribed as the type that holds them when its publisher appears."""
 
     def __init__(self, participant: Participant, types: MessageTypes, topics: list[str], qos: QosChoice,
-                 say: Callable[[str, str], None]):
+                 say: Callable[[str, str], None], needs: Mapping[str, set[str]] | None = None,
+                 note: Callable[[str], None] | None = None):
         self.participant, self.types, self.qos, self.say = participant, types, qos, say
+        self.needs, self.note = needs, note or (lambda text: say("", text))
         self.wanted = {topic_name(t): t for t in topics}
         self.subscribed: dict[str, Subscription] = {}
         self.refused: set[tuple[str, str]] = set()  # (topic, what was said): said once
@@ -224,6 +243,16 @@ class Subscriptions:
     def _publication(self, topic: str, publication: Any) -> list[Subscription]:
         type_name = ros_type_name(publication.type_name) or publication.type_name
         reliable = offers_reliable(publication)
+        if type_name in self.types and self.needs is not None:
+            missing = self.needs.get(topic, set()) - self.types.numeric_fields(type_name)
+            if missing:
+                if (topic, str(publication.key)) not in self.refused:
+                    self.refused.add((topic, str(publication.key)))
+                    self.note(f"note: a publisher on {topic} sends {type_name}, which holds no "
+                              f"{', '.join(sorted(missing))} for the model's features: "
+                              f"{self.participant.describe(publication)} is not read; {topic} is read as the type "
+                              "that holds them")
+                return []
         known = self.subscribed.get(topic)
         if known is not None:
             if known.type_name != type_name:

@@ -1,10 +1,12 @@
 """`mlnseq ros --ros 2`: the recogniser as a ROS 2 node, a DDS participant with no ROS install.
 
 It subscribes to the model's topics as their publishers are discovered (their ROS 2 types from rosbags' typestore
-for ``--distro``, the QoS they offer or ``--qos``), runs every message through the live core that the ROS 1 node
+for ``--distro``, only a type holding the fields the model's features come from, a stray publisher of another type
+said once; the QoS they offer or ``--qos``), runs every message through the live core that the ROS 1 node
 runs (recognition/live.py's `MessageFeed`: the header stamps' clock, the model's rate, several topics merged by the
 model's rule, a lagged decoder's wait), and publishes per decided frame the class name (std_msgs/String on the
-activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame). When ``stop`` is set
+activity topic) and the frame as stream writes it (a JSON std_msgs/String on TOPIC/frame; with ``explain``, its
+why). When ``stop`` is set
 (SIGINT, SIGTERM), the samples already arrived are read, the frames the feed holds are decided and published
 (`MessageFeed.drain`), and the writers wait for their readers' acknowledgements before the node leaves.
 
@@ -23,8 +25,7 @@ from pathlib import Path
 
 from mlnseq.dds import domain, require
 from mlnseq.dds.types import STRING, MessageTypes
-from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed
-from mlnseq.recognition.recognizer import Recognizer
+from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields, prepared
 
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's (as the ROS 1 node)
 WAIT_S = 0.1  # the longest the node waits for a sample before looking at discovery and the stop flag again
@@ -42,6 +43,8 @@ class NodeOptions:
     qos: domain.QosChoice
     max_hold: float | None = None  # seconds a tick holds a silent topic's values; default: the model's
     queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
+    decode: str | None = None  # default: the model's
+    explain: int = 0  # N > 0: each frame's JSON carries "why", its N largest terms
 
     @property
     def frame_topic(self) -> str:
@@ -52,14 +55,15 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
     """Run the node until ``stop`` is set; the frames it answered, the bad messages it said and the messages it
     dropped."""
     require()
-    model = Recognizer.load(options.model)
+    model = prepared(options.model, warn, options.decode, options.explain)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size)
     types = MessageTypes(options.distro)
     String = types.get(STRING)
     participant = domain.Participant(options.distro, options.node_name)
     activity = participant.writer(options.activity_topic, String)
     framed = participant.writer(options.frame_topic, String)
-    subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error)
+    subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error,
+                                         needed_fields(model), warn)
 
     def publish(frames: list[LiveFrame]) -> None:
         for frame in frames:

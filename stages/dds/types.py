@@ -78,6 +78,22 @@ class MessageTypes:
             self.built[name] = self._build(name)
         return self.built[name]
 
+    def numeric_fields(self, name: str) -> set[str]:
+        """The top-level fields of ``name`` that hold numbers (a number, an array of numbers, or a message holding
+        some), the header aside: the fields a model's features on a topic of this type are read from."""
+        _, fields = self.store.fielddefs[name]
+        return {field for field, node in fields if field != "header" and self._numeric(node)}
+
+    def _numeric(self, node: tuple[Any, Any]) -> bool:
+        from rosbags.typesys.store import Nodetype
+
+        kind, detail = node
+        if kind == Nodetype.NAME:
+            return any(self._numeric(inner) for _, inner in self.store.fielddefs[detail][1])
+        if kind == Nodetype.BASE:
+            return detail[0] not in ("string", "wstring")
+        return self._numeric(detail[0])
+
     def _build(self, name: str) -> type:
         from cyclonedds.idl import make_idl_struct
 

@@ -44,15 +44,54 @@ class LiveFrame:
 
     lag: int = 0  # frames the model waited before deciding this one
     episode: int = 0  # a new one each time the feed's time jumps back
+    start: int = 0  # the episode's first message (ns, the messages' clock): where its recording starts
 
     def record(self, classes: list[str]) -> dict[str, Any]:
-        """The frame as stream writes it: episode, frame, time (s), class, probabilities, lag."""
+        """The frame as stream writes it: episode, frame, time (s from the episode's first message, as predict counts
+        from a bag's start), stamp (s, the messages' clock), class, probabilities, lag (and why, explained)."""
         p = self.prediction
-        return {"episode": self.episode, "frame": p.frame, "time": self.time / 1e9, "class": p.name,
+        line = {"episode": self.episode, "frame": p.frame, "time": (self.time - self.start) / 1e9,
+                "stamp": self.time / 1e9, "class": p.name,
                 "probabilities": dict(zip(classes, p.probabilities.tolist())), "lag": self.lag}
+        if p.why is not None:
+            line["why"] = p.why
+        return line
 
     def json(self, classes: list[str]) -> str:
-        return json.dumps(self.record(classes))
+        return encoded(self.record(classes))
+
+
+def encoded(line: dict[str, Any]) -> str:
+    """A line as JSON; its ``why``, last, as the explainer encoded it (the same text as json.dumps, made once per
+    formula term)."""
+    why = line.get("why")
+    if why is None or not hasattr(why, "json"):
+        return json.dumps(line)
+    return f'{json.dumps({k: v for k, v in line.items() if k != "why"})[:-1]}, "why": {why.json}}}'
+
+
+def needed_fields(model: Recognizer) -> dict[str, set[str]]:
+    """Each of the model's topics: the top-level message fields its features are read from (``position`` for
+    ``/joint_states/position/panda_joint1``), which a message type must hold for the topic to be read as it."""
+    topics, _ = model_topics(model)
+    needs: dict[str, set[str]] = {topic: set() for topic in topics}
+    for topic, slots in rostopic.features_by_topic(model.features, topics).items():
+        prefix = len(topic.rstrip("/")) + 1
+        needs[topic] |= {model.features[i][prefix:].split("/", 1)[0] for i in slots}
+    return needs
+
+
+def prepared(path: Any, warn: Callable[[str], None], decode: str | None = None, explain: int = 0) -> Recognizer:
+    """A model file loaded for a live feed: decoded with ``decode`` (default: the model's; an offline decoder is said
+    to filter), each decided frame carrying ``why``, its ``explain`` largest terms (0: none)."""
+    model = Recognizer.load(path)
+    if decode is not None:
+        model.decoded_with(decode)
+    if model.decoding.decoder.offline:
+        warn(f"note: {model.decode} needs a whole recording; live, the filter decodes with the same factors")
+    if explain:
+        model.explain_steps(explain)
+    return model
 
 
 def model_topics(model: Recognizer) -> tuple[list[str], float]:
@@ -169,7 +208,7 @@ class LiveRecognizer:
         self.skipped += 1
 
     def _decided(self, predictions: Iterable[Prediction]) -> list[LiveFrame]:
-        return [LiveFrame(self.times.pop(p.frame), p, self.lag, self.episode) for p in predictions]
+        return [LiveFrame(self.times.pop(p.frame), p, self.lag, self.episode, self.first or 0) for p in predictions]
 
     def _probe(self, time: int) -> None:
         if self.probe is None:

@@ -21,7 +21,7 @@ import polars as pl
 from mlnseq.model import model_file
 from mlnseq.timeline import sequences
 from mlnseq.catalog.errors import BadInput
-from mlnseq.catalog.decoders import Decoder
+from mlnseq.catalog.decoders import Decoder, parse_decoding
 from mlnseq.catalog.methods import (FUSED, NETWORKS, Method, MLNMode, PaperFloor, Prior, decoded_name, needs_mln,
                                     network_of)
 from mlnseq.model.manifest import NETWORK, SPEC, WEIGHTS, Manifest
@@ -122,6 +122,16 @@ class Recognizer:
             self.binarizer.reset()
         if self._explaining is not None:
             self._explaining.reset()
+
+    def decoded_with(self, decode: str) -> None:
+        """From now on ``step`` decodes with ``decode`` (``smooth-legal@5``, as predict's --decode), the model's factors
+        kept; an offline decoder steps as the filter. A new episode starts."""
+        decoding = parse_decoding(decode)
+        if decoding.name != self.decoding.name and decoding.decoder is not Decoder.NONE and self.mln is None:
+            raise BadInput(f"--decode {decode}: this model was exported without decoding, so it holds no "
+                           "transition factors; export it again with --decode filter or viterbi")
+        self.decoding, self.decode, self.lag = decoding, decoding.decoder.value, decoding.lag
+        self.reset()
 
     def explain_steps(self, count: int) -> None:
         """From now on each frame a step decides (a Prediction, or one of its ``final``) carries ``why``: the

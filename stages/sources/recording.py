@@ -47,6 +47,16 @@ class Recording:
     resolved: dict[str, Any] = field(default_factory=dict)  # options the source chose (a bag's rate, topics)
 
 
+def stamps(recordings: list[Recording], names: list[Any], episodes: np.ndarray, times: np.ndarray) -> np.ndarray | None:
+    """Each frame's time on the messages' clock (s, as live lines' ``stamp``): its recording's start (a bag's first
+    message, ns) plus its ``time``; None where the recordings are not messages. ``episodes`` index ``names``."""
+    starts = {str(r.episode[0]): r.resolved.get("clock_start") for r in recordings if r.episode.len()}
+    if not starts or None in starts.values():
+        return None
+    start = np.array([starts[str(name)] for name in names], dtype=np.int64)[episodes]
+    return (start + np.round(np.asarray(times, dtype=np.float64) * 1e9).astype(np.int64)) / 1e9
+
+
 def row_where(recording: Recording, index: int) -> str:
     row = int(recording.row[index]) if recording.row is not None else index
     return recording.where.format(file=recording.path, row=row)

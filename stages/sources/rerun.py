@@ -1,6 +1,7 @@
 """A Rerun recording (``.rrd``) of predictions beside their signals: per episode the features as scalar
 series, the true (when known) and predicted class index, and every class's probability, on the recording's
-own timeline (``time``, seconds) and by frame (``frame``); and the predicted (and true) segments as time ranges,
+own timeline (``time``, seconds), by frame (``frame``) and, for messages (a bag: predict's ``stamp``), on their
+clock (``stamp``, a wall-clock timeline); and the predicted (and true) segments as time ranges,
 Rerun's state lanes (the segments ``--write-lerobot`` writes back). Needs rerun-sdk."""
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ def write(path: Path, episodes: list, frames: pl.DataFrame, times: np.ndarray, p
             rows = np.flatnonzero(ids == episode)
             index = [rr.TimeColumn("time", duration=times[rows]),
                      rr.TimeColumn("frame", sequence=frames["frame"].to_numpy()[rows])]
+            if "stamp" in predictions.columns:  # the messages' clock: seconds since the epoch
+                index.append(rr.TimeColumn("stamp", timestamp=predictions["stamp"].to_numpy()[rows]))
             part = rr.escape_entity_path_part
             base = f"episode/{part(episode)}"
             series = {f"features/{part(name)}": frames[name].to_numpy()[rows] for name in features}

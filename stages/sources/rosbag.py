@@ -288,7 +288,7 @@ def _recording(clock: _Clock, path: Path, reading: Reading) -> Recording:
         row=pl.Series(rows), where="{file} frame {row}",
         resolved={"topics": list(clock.candidates), "rate": reading.rate, "skipped_topics": clock.skipped,
                   "joints": {topic: state.columns for topic, state in clock.joint_states.items()},
-                  "notes": held.notes(path.name)},
+                  "notes": held.notes(path.name), "clock_start": clock.start},
     )
 
 

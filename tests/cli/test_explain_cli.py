@@ -123,6 +123,9 @@ def test_predict_and_stream_give_the_same_explanations(model, desk_test_recordin
         assert [t["text"] for t in line["why"]] == [t["text"] for t in terms]
         assert np.allclose([t["contribution"] for t in line["why"]], [t["contribution"] for t in terms], atol=2e-6)
     assert "why" not in json.loads(runner.invoke(app, ["stream", str(model)], input=features).stdout.splitlines()[0])
+    as_json = "\n".join(json.dumps(row) for row in pl.read_csv(head).drop("frame", "label").to_dicts()) + "\n"
+    streamed = runner.invoke(app, ["stream", str(model), "--explain", "3"], input=as_json)  # JSON lines: the same
+    assert [json.loads(line)["why"] for line in streamed.stdout.splitlines()] == [line["why"] for line in lines]
 
 
 def test_the_python_api_explains_a_row_a_recording_or_a_frame(model, desk_test_recording):
@@ -177,6 +180,8 @@ def test_a_lagged_stream_explains_each_frame_when_it_decides_it_as_a_whole_recor
     (["--frame", "1", "--time", "2"], "give one of --frame T, --time S or --segment K, not --frame and --time"),
     ([], "give one of --frame T, --time S or --segment K"),
     (["--frame", "99999999"], "--frame 99999999: the episode's frames are 0-20923"),
+    (["--time", "20924"], "--time 20924: outside the episode (its times run 0-20923); give a time within it"),
+    (["--time", "-1"], "--time -1: outside the episode (its times run 0-20923)"),
     (["--segment", "99999"], "--segment 99999: episode desk-test has"),
     (["--frame", "3", "--versus", "S9"], "--versus 'S9' is not a class of the model"),
     (["--frame", "3", "--what-if", "left_gripper=shut"], "left_gripper is one of open, closed"),

@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import polars as pl
 import pytest
 
 import ros2_episode
@@ -105,16 +104,17 @@ def check_answers(answers: list[dict], expected, n: int) -> None:
     frames = [a["frame"] for a in answers]
     assert frames == sorted(set(frames))
     assert [a["class"] for a in answers] == [expected["class"][k] for k in frames]
-    assert [a["time"] for a in answers] == [expected["time"][k] for k in frames]
+    assert [a["time"] for a in answers] == [expected["time"][k] for k in frames]  # from the recording's start
+    assert [a["stamp"] for a in answers] == [expected["stamp"][k] for k in frames]  # the messages' clock
+    assert expected["stamp"].to_list() == [(ros_episode.START + round(t * 1e9)) / 1e9 for t in expected["time"]]
     got = np.array([[a["probabilities"][c] for c in answers[0]["probabilities"]] for a in answers])
     np.testing.assert_allclose(got, want[frames], atol=1e-5)
     assert expected["class"].n_unique() > 1
 
 
 def predicted(model: Path, bag: Path, folder: Path):
-    """predict on the bag, with each frame's time on the messages' clock (s: its ns / 1e9), as the node answers it."""
-    table = predict.run(predict.PredictOptions(model=model, source=bag, output=folder / "p.parquet")).table
-    return table.with_columns(time=pl.Series([(ros_episode.START + round(t * 1e9)) / 1e9 for t in table["time"]]))
+    """predict on the bag: each frame's time from the bag's start and its stamp on the messages' clock (s)."""
+    return predict.run(predict.PredictOptions(model=model, source=bag, output=folder / "p.parquet")).table
 
 
 def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp_path):
@@ -132,17 +132,18 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
                                    stdout=subprocess.PIPE, text=True)
         echo = processes.start([MLNSEQ, "echo", "/joint_states"], stdout=subprocess.PIPE, stderr=logs["echo"])
         with open(streamed, "w") as out:
-            stream = processes.start([MLNSEQ, "stream", model], stdin=echo.stdout, stdout=out, stderr=logs["stream"])
+            stream = processes.start([MLNSEQ, "stream", model, "--explain", "2"], stdin=echo.stdout, stdout=out,
+                                     stderr=logs["stream"])
         echo.stdout.close()
         assert recorder.stdout.readline().strip() == "ready"
         publisher = processes.start([sys.executable, str(DRIVER), "publish", str(bag), "2"], stdout=logs["peers"],
                                     stderr=subprocess.STDOUT)
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "peers.log").read_text()
         wait_for(lambda: len(lines(node_out)) >= len(rows) - 1, "the node's frames", 10)
-        # then a publisher of another type on the model's topic: one error line, the node goes on
+        # then a publisher of another type on the model's topic: one note, the node goes on
         processes.start([sys.executable, str(DRIVER), "wrong", "/joint_states"], stdout=logs["peers"],
                         stderr=subprocess.STDOUT)
-        wait_for(lambda: "error:" in (tmp_path / "node.log").read_text(), "the node's error line")
+        wait_for(lambda: "note: a publisher" in (tmp_path / "node.log").read_text(), "the node's note")
         os.killpg(echo.pid, signal.SIGINT)  # the pipe ends: stream answers its last tick and exits
         assert echo.wait(WAIT_S) == 0 and stream.wait(WAIT_S) == 0, (tmp_path / "stream.log").read_text()
         node.send_signal(signal.SIGINT)
@@ -155,13 +156,84 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
     expected = predicted(joint_state_model["model"], bag, tmp_path)
     assert expected.height == len(rows)
     check_answers([json.loads(line) for line in lines(node_out)], expected, len(rows))
-    check_answers([json.loads(line) for line in lines(streamed)], expected, len(rows))
+    piped = [json.loads(line) for line in lines(streamed)]
+    check_answers(piped, expected, len(rows))
+    from mlnseq import explain  # `mlnseq echo | mlnseq stream --explain 2`: each line's why is explain's on the bag
+
+    for answer in (piped[1], piped[-1]):
+        found = explain.run(explain.ExplainOptions(model=joint_state_model["model"], source=bag,
+                                                   time=answer["stamp"])).explanation
+        assert found.frame == answer["frame"] and [t["text"] for t in answer["why"]] == [
+            t.text for t in found.largest(2)]
+        np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                   [t.contribution for t in found.largest(2)], atol=2e-6)
+    assert all(a["why"] for a in piped) and not any("why" in json.loads(line) for line in lines(node_out))
     node_log = (tmp_path / "node.log").read_text().splitlines()
-    errors = [line for line in node_log if line.startswith("error:")]
-    assert errors == ["error: a publisher on /joint_states sends std_msgs/msg/String, not sensor_msgs/msg/JointState "
-                      "(the type of its first publisher, subscribed to): its messages are not read"], node_log
-    assert node_log[-1] == f"ros: stopped after {len(rows)} frames (1 bad message)"
+    notes = [line for line in node_log if line.startswith("note: a publisher")]
+    assert len(notes) == 1 and notes[0].startswith(
+        "note: a publisher on /joint_states sends std_msgs/msg/String, which holds no position for the model's "
+        "features: its writer "), node_log
+    assert not [line for line in node_log if line.startswith("error:")], node_log
+    assert node_log[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
     assert (tmp_path / "echo.log").read_text().splitlines()[-1] == f"echo: {len(rows)} messages of /joint_states"
+
+
+def test_a_stray_string_publisher_up_first_and_the_node_reads_the_robot_explaining_every_frame(
+        lagged_joint_state_model, joint_state_model, tmp_path):
+    """A std_msgs/String publisher on /joint_states (its participant named stray_talker) is up before the node: the
+    node names it in one note and reads /joint_states as the JointState its model needs when that publisher comes.
+    With --explain 2, every frame on TOPIC/frame carries why, and `explain --time` with the frame's own time (or its
+    stamp) explains that frame of the bag with the same terms."""
+    dds_or_skip()
+    from mlnseq import explain
+
+    rows = joint_state_model["live"][:150]
+    bag = ros2_episode.write_bag(tmp_path / "live", rows)
+    peers, node_env = dds_env(tmp_path)
+    processes = Processes(peers)
+    logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("node", "peers", "stray")}
+    node_out, node_log = tmp_path / "node.jsonl", lambda: (tmp_path / "node.log").read_text()  # noqa: E731
+    try:
+        processes.start([sys.executable, str(DRIVER), "wrong", "/joint_states", "600", "stray_talker"],
+                        stdout=logs["stray"], stderr=subprocess.STDOUT)
+        time.sleep(1.0)  # the stray publisher is discovered before the node's first look
+        node = processes.start([MLNSEQ, "ros", str(lagged_joint_state_model), "--ros", "2", "--explain", "2"],
+                               env=node_env, stdout=logs["node"], stderr=subprocess.STDOUT)
+        wait_for(lambda: "note: a publisher on /joint_states" in node_log(), "the node's note on the stray publisher")
+        recorder = processes.start([sys.executable, str(DRIVER), "record", "/mlnseq/activity/frame", str(node_out)],
+                                   stdout=subprocess.PIPE, text=True)
+        assert recorder.stdout.readline().strip() == "ready", node_log()
+        publisher = processes.start([sys.executable, str(DRIVER), "publish", str(bag), "1"], stdout=logs["peers"],
+                                    stderr=subprocess.STDOUT)
+        assert publisher.wait(WAIT_S) == 0, (tmp_path / "peers.log").read_text()
+        wait_for(lambda: len(lines(node_out)) >= len(rows) - 6, "the node's frames", 10)  # a lag of 5, the last tick
+        node.send_signal(signal.SIGINT)
+        assert node.wait(WAIT_S) == 0, node_log()
+        wait_for(lambda: len(lines(node_out)) >= len(rows), "the frames the node held", 5)
+    finally:
+        processes.stop()
+        for handle in logs.values():
+            handle.close()
+    answers = [json.loads(line) for line in lines(node_out)]
+    check_answers(answers, predicted(lagged_joint_state_model, bag, tmp_path), len(rows))
+    assert len(answers) == len(rows) and all(len(a["why"]) == 2 for a in answers) and {a["lag"] for a in answers} == {5}
+    for answer in (answers[3], answers[len(rows) // 2], answers[-1]):
+        for clock in ("time", "stamp"):
+            found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag,
+                                                       time=answer[clock])).explanation
+            assert (found.frame, found.chosen) == (answer["frame"], answer["class"]), clock
+            assert [t["text"] for t in answer["why"]] == [t.text for t in found.largest(2)]
+            np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                       [t.contribution for t in found.largest(2)], atol=2e-6)
+    said = node_log().splitlines()
+    notes = [line for line in said if line.startswith("note: a publisher")]
+    assert len(notes) == 1 and notes[0].startswith(
+        "note: a publisher on /joint_states sends std_msgs/msg/String, which holds no position for the model's "
+        "features: its writer ") and notes[0].endswith(
+        "(participant 'stray_talker') is not read; /joint_states is read as the type that holds them"), said
+    assert "ros: subscribed to /joint_states (sensor_msgs/msg/JointState, reliable)" in said
+    assert not [line for line in said if line.startswith("error:")] and said[-1] == (
+        f"ros: stopped after {len(rows)} frames (0 bad messages)")
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import ros_episode
-from mlnseq import predict
+from mlnseq import explain, predict
 from mlnseq.catalog import artifacts
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
@@ -96,10 +96,10 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "bad.log").read_text()
         node_lines = lambda: (tmp_path / "node.jsonl").read_text().splitlines()  # noqa: E731
         wait_for(lambda: len(node_lines()) >= len(rows) - 1, "the node's frames", 10)
-        # then a message of another type on the model's topic: one error line, the node goes on
+        # then a publisher of another type on the model's topic: one note naming it, the node goes on
         start(["rostopic", "pub", "-1", "/joint_states", "std_msgs/String", "data: hello"], stdout=logs["bad"],
               stderr=subprocess.STDOUT)
-        wait_for(lambda: "error:" in (tmp_path / "node.log").read_text(), "the node's error line")
+        wait_for(lambda: "note: a publisher" in (tmp_path / "node.log").read_text(), "the node's note")
         os.killpg(echo.pid, signal.SIGINT)  # the pipe ends: stream answers its last ticks and exits
         assert stream.wait(WAIT_S) == 0, (tmp_path / "stream.log").read_text()
         node.send_signal(signal.SIGTERM)
@@ -122,14 +122,19 @@ def test_the_node_and_the_echo_pipe_give_predicts_classes(joint_state_model, tmp
         n = len(answers)
         assert n >= len(rows) - 1 if name == "node" else n == len(rows), (name, n)
         assert [a["class"] for a in answers] == expected["class"].to_list()[:n], name
-        assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(n)]
+        assert [a["time"] for a in answers] == expected["time"].to_list()[:n]
+        assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(n)]
         got = np.array([[a["probabilities"][c] for c in answers[0]["probabilities"]] for a in answers])
         np.testing.assert_allclose(got, want[:n], atol=1e-5, err_msg=name)
     assert classes == [artifacts.class_probability_column(c) for c in answers[0]["probabilities"]]
     assert expected["class"].n_unique() > 1
-    errors = [line for line in node_log.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "lacks the model's feature '/joint_states/position/panda_joint1'" in errors[0], node_log
-    assert node_log.splitlines()[-1] == f"ros: stopped after {len(rows)} frames (1 bad message)"
+    notes = [line for line in node_log.splitlines() if line.startswith("note: a publisher")]
+    assert len(notes) == 1 and notes[0].startswith(
+        "note: a publisher on /joint_states sends std_msgs/String, which holds no position for the model's features: "
+        "/rostopic_") and notes[0].endswith(
+        " is not read; /joint_states is read from the publishers of the type that holds them"), node_log
+    assert "error:" not in node_log
+    assert node_log.splitlines()[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
 
 
 def test_start_up_errors_are_one_line_and_exit_2(joint_state_model, tmp_path):
@@ -148,8 +153,9 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
         joint_state_model, lagged_joint_state_model, tmp_path):
     """A real rosmaster killed (SIGKILL) and started again on its port: the node says so, registers again, and a
     recorder and a publisher that come after the restart find it (its publications and its subscription restored).
-    Its model decodes with a lag of 5: on SIGTERM the 5 frames it holds, and the last tick, are decided and
-    published before it exits 0: every message's frame, equal to predict on a bag of the same messages."""
+    Its model (lstm+smooth@5) decodes with --decode smooth@3, a lag of 3: on SIGTERM the 3 frames it holds, and the
+    last tick, are decided and published before it exits 0: every message's frame, equal to predict --decode
+    smooth@3 on a bag of the same messages; with --explain 2, each frame's why is explain's for it."""
     ros_or_skip()
     port = free_port()
     uri = f"http://127.0.0.1:{port}"
@@ -170,7 +176,8 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     try:
         master = start(["rosmaster", "--core", "-p", str(port)], stdout=logs["master"], stderr=subprocess.STDOUT)
         wait_for(lambda: master_up(uri), "the master")
-        node = start([MLNSEQ, "ros", str(lagged_joint_state_model)], stdout=logs["node"], stderr=subprocess.STDOUT)
+        node = start([MLNSEQ, "ros", str(lagged_joint_state_model), "--explain", "2", "--decode", "smooth@3"],
+                     stdout=logs["node"], stderr=subprocess.STDOUT)
         wait_for(lambda: "listening to /joint_states" in node_log(), "the node")
         os.kill(master.pid, signal.SIGKILL)
         master.wait()
@@ -183,9 +190,9 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
         publisher = start([sys.executable, str(DRIVER), "publish", str(tmp_path / "rows.npy"), "1"],
                           stdout=logs["driver"], stderr=subprocess.STDOUT)
         assert publisher.wait(WAIT_S) == 0, (tmp_path / "driver.log").read_text()  # ... and its subscription
-        wait_for(lambda: len(frames()) >= len(rows) - 6, "the frames decided while the feed runs", 10)
+        wait_for(lambda: len(frames()) >= len(rows) - 4, "the frames decided while the feed runs", 10)
         time.sleep(0.5)
-        assert len(frames()) == len(rows) - 6  # the last tick waits for a later message, 5 more for the lag
+        assert len(frames()) == len(rows) - 4  # the last tick waits for a later message, 3 more for the lag
         node.send_signal(signal.SIGTERM)
         assert node.wait(WAIT_S) == 0, node_log()
         wait_for(lambda: len(frames()) == len(rows), "the drained frames", 10)
@@ -205,8 +212,16 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     assert back[0].endswith("registered again 3 publications and 1 subscriptions")  # /rosout beside the node's two
     assert lines[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
     expected = predict.run(predict.PredictOptions(
-        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows),
+        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows), decode="smooth@3",
         output=tmp_path / "p.parquet")).table
     answers = [json.loads(line) for line in frames()]
-    assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {5}
-    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {3}
+    assert [a["time"] for a in answers] == expected["time"].to_list()
+    assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert all(len(a["why"]) == 2 for a in answers)  # --explain 2: as explain gives them, by the frame's own time
+    for answer in (answers[0], answers[-1]):
+        found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=tmp_path / "live.bag",
+                                                   decode="smooth@3", time=answer["stamp"])).explanation
+        assert (found.frame, [t.text for t in found.largest(2)]) == (answer["frame"], [t["text"] for t in answer["why"]])
+        np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                   [t.contribution for t in found.largest(2)], atol=2e-6)

@@ -130,7 +130,7 @@ def test_lines_are_cut_the_same_whatever_the_chunks(size):
     got = [str(line) if isinstance(line, stage.InputLine) else line for line in stage.lines_of(Trickle(text, size), 40)]
     assert got == ["a,b", "", "1,2", "x" * 40, "é,ü",
                    "line 6: not UTF-8 text ('utf-8' codec can't decode byte 0xff in position 0: invalid start byte)",
-                   "line 7: 41 bytes, over --max-line-bytes 40; skipped", "last"]
+                   "line 7: 41 bytes, over --max-line-bytes 40 (raise it to read such lines); skipped", "last"]
 
 
 def test_a_line_over_the_limit_is_named_and_skipped_and_the_stream_goes_on(model, recording):
@@ -140,17 +140,61 @@ def test_a_line_over_the_limit_is_named_and_skipped_and_the_stream_goes_on(model
     assert done.returncode == 0, done.stderr
     assert [json.loads(line)["frame"] for line in done.stdout.splitlines()] == [0, 1]
     errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
-    assert errors == [f"error: line 2: {len(long) + 1:,} bytes, over --max-line-bytes 1,048,576; skipped"]
+    assert errors == [f"error: line 2: {len(long) + 1:,} bytes, over --max-line-bytes 1,048,576 (raise it to read such "
+                      "lines); skipped"]
     small = stream(model, "\n".join(json.dumps(r) for r in rows) + "\n", "--max-line-bytes", "60")
-    assert small.stdout == "" and small.stderr.count("over --max-line-bytes 60; skipped") == 3
+    assert small.stdout == "" and small.stderr.count("over --max-line-bytes 60 (raise it to read such lines)") == 3
 
 
 def test_a_feed_without_newlines_is_one_skipped_line_and_strict_stops_at_the_limit(model, recording):
     done = stream(model, " " * 3_000_000)
     assert done.returncode == 0 and done.stdout == ""
-    assert "error: line 1: 3,000,000 bytes, over --max-line-bytes 1,048,576; skipped" in done.stderr
+    assert ("error: line 1: 3,000,000 bytes, over --max-line-bytes 1,048,576 (raise it to read such lines); skipped"
+            in done.stderr)
     rows = pl.read_csv(recording).head(2).to_dicts()
     strict = stream(model, json.dumps(rows[0]) + "\n" + " " * 2**21 + "\n" + json.dumps(rows[1]) + "\n", "--strict")
     assert strict.returncode == 2 and len(strict.stdout.splitlines()) == 1
-    assert strict.stderr.strip().splitlines()[-1] == "error: line 2: over --max-line-bytes 1,048,576 bytes"
+    assert strict.stderr.strip().splitlines()[-1] == ("error: line 2: over --max-line-bytes 1,048,576 bytes (raise it "
+                                                      "to read such lines)")
     assert stream(model, "", "--max-line-bytes", "0").returncode == 2
+
+
+def test_text_before_json_is_an_error_line_and_a_headerless_csv_says_its_first_row_became_the_header(model, recording):
+    rows = pl.read_csv(recording).head(2).to_dicts()
+    done = stream(model, "\n".join(["not json at all", *map(json.dumps, rows)]) + "\n")
+    assert done.returncode == 0 and len(done.stdout.splitlines()) == 2, done.stderr
+    assert done.stderr.splitlines() == ["error: line 1: not JSON (text before the first JSON frame); skipped",
+                                        "note: line 2: keys the model does not use are ignored: frame, label"]
+    strict = stream(model, "\n".join(["not json at all", *map(json.dumps, rows)]) + "\n", "--strict")
+    assert strict.returncode == 2 and strict.stdout == ""
+    headerless = stream(model, "\n".join(recording.read_text().splitlines()[1:4]) + "\n")
+    first = recording.read_text().splitlines()[1].split(",")
+    notes = [line for line in headerless.stderr.splitlines() if line.startswith("note: line 1 was read")]
+    assert notes == [f"note: line 1 was read as the CSV header ({', '.join(first[:3])}, ...) "
+                     "and names none of the model's features: a CSV stream starts with a header line of feature names "
+                     "(arm_distance, left_gripper, right_gripper)"], headerless.stderr
+
+
+def test_decode_streams_as_predict_decodes(model, recording, tmp_path):
+    done = stream(model, recording.read_text(), "--decode", "smooth@3")
+    assert done.returncode == 0, done.stderr
+    answers = [json.loads(line) for line in done.stdout.splitlines()]
+    expected = predict.run(predict.PredictOptions(model=model, source=recording, output=tmp_path / "p.parquet",
+                                                  decode="smooth@3")).table
+    plain = predict.run(predict.PredictOptions(model=model, source=recording, output=tmp_path / "q.parquet")).table
+    assert {a["lag"] for a in answers} == {3} and len(answers) == FRAMES
+    assert [a["class"] for a in answers] == expected["class"].to_list() != plain["class"].to_list()
+    bad = stream(model, "", "--decode", "smooth")
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--decode 'smooth'" in bad.stderr
+
+
+def test_decode_is_one_option_on_predict_stream_and_ros(model, recording):
+    """The same --decode on the three commands: the same names, the same refusal of a bad one, before any work."""
+    said = set()
+    for command in (["predict", str(model), "--source", str(recording)], ["stream", str(model)],
+                    ["ros", str(model), "--ros", "1"]):
+        done = subprocess.run([MLNSEQ, *command, "--decode", "smooth-legal"], capture_output=True, text=True,
+                              timeout=TIMEOUT_S, input="")
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        said.add(done.stderr)
+    assert said == {"error: --decode 'smooth-legal': smooth-legal needs a lag in frames, e.g. smooth-legal@5\n"}

@@ -48,7 +48,9 @@ def test_a_100_hz_and_a_1_khz_feed_give_predicts_frames_on_the_bag(joint_state_m
     got = np.array([[a["probabilities"][c] for c in classes] for a in answers])
     want = expected.select(artifacts.class_probability_column(c) for c in classes).to_numpy()
     np.testing.assert_allclose(got, want, atol=1e-5)
-    assert [a["time"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert [a["time"] for a in answers] == expected["time"].to_list()  # from the recording's start, as predict's
+    assert [a["stamp"] for a in answers] == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert expected["stamp"].to_list() == [a["stamp"] for a in answers]  # and predict's stamp: the messages' clock
     warned = [n for n in notes if n.startswith("warning:")]
     assert warned == ([] if repeat == 1 else
                       ["warning: /joint_states arrives at 1000 Hz, the model's clock is 100 Hz (more than 2x apart): "
@@ -182,6 +184,7 @@ def test_a_feed_replayed_in_a_loop_is_a_new_episode_each_time_it_jumps_back(join
         n = 30 if episode == 2 else 60
         assert [a["class"] for a in answers[first:first + n]] == expected["class"].to_list()[:n]
         assert [a["time"] for a in answers[first:first + n]] == [a["time"] for a in answers[:n]]
+        assert [a["stamp"] for a in answers[first:first + n]] == [a["stamp"] for a in answers[:n]]
     jumps = [n for n in notes if "goes back" in n]
     assert jumps == [f"note: /joint_states goes back 0.590 s in time (to {ros_episode.START / 1e9:.3f} s, a bag "
                      f"replayed in a loop?): episode {e} starts, the frames before it decided" for e in (1, 2)]
@@ -259,3 +262,44 @@ def test_the_node_core_queue_drops_the_oldest_counts_them_and_drains_what_it_hol
         "warning: the recogniser falls behind the feed: 70 messages dropped so far, the oldest first (the queue holds "
         "50)"]  # said once, then at most every 10 s
     assert feed.frames == len(one_by_one) and feed.drain() == []
+
+
+def test_an_echo_feed_explains_every_frame_as_explain_does_and_explain_finds_it_by_either_clock(
+        lagged_joint_state_model, joint_state_model, tmp_path):
+    """stream --explain 2 on `rostopic echo -p` rows (the lagged model: formulas, a lag of 5): every line carries why,
+    the two largest terms `explain` gives for that frame of a bag of the same messages, found by the line's time
+    (seconds from the start) and by its stamp (the messages' clock); a time a frame past the end is refused."""
+    from mlnseq import explain
+
+    rows = joint_state_model["live"][:120]
+    bag = ros_episode.write_bag(tmp_path / "live.bag", rows)
+    answers, _ = run_stream(lagged_joint_state_model, ros_episode.echo_csv(rows), explain=2)
+    assert len(answers) == len(rows) and all(len(a["why"]) == 2 for a in answers)
+    assert {"network", "past"} <= {t["kind"] for a in answers for t in a["why"]}
+    for answer in (answers[0], answers[37], answers[-1]):
+        for clock in ("time", "stamp"):
+            found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag,
+                                                       time=answer[clock])).explanation
+            assert found.frame == answer["frame"] and found.chosen == answer["class"], clock
+            assert [t["text"] for t in answer["why"]] == [t.text for t in found.largest(2)]
+            np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
+                                       [t.contribution for t in found.largest(2)], atol=2e-6)
+    past = answers[-1]["stamp"] + ros_episode.STEP / 1e9
+    with pytest.raises(BadInput, match=r"--time 1700000001\.2: outside the episode \(its times run 0-1\.19, its stamps "
+                                       r"1700000000-1700000001\.19\); give a time within it"):
+        explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=bag, time=past))
+
+
+def test_predict_on_a_bag_writes_the_stamp_beside_the_time_and_rerun_gets_both_timelines(joint_state_model, tmp_path):
+    rr = pytest.importorskip("rerun", reason="the [recordings] extra is not installed")
+    rows = joint_state_model["live"][:50]
+    bag = ros_episode.write_bag(tmp_path / "live.bag", rows)
+    table = predict.run(predict.PredictOptions(model=joint_state_model["model"], source=bag, rerun=tmp_path / "v.rrd",
+                                               intervals=tmp_path / "i.csv", output=tmp_path / "p.parquet")).table
+    assert table.columns[:4] == ["episode", "frame", "time", "stamp"]
+    assert table["stamp"].to_list() == [(ros_episode.START + k * ros_episode.STEP) / 1e9 for k in range(len(rows))]
+    assert table["time"].to_list() == [k * ros_episode.STEP / 1e9 for k in range(len(rows))]
+    timelines = {name for chunk in rr.chunk.RrdReader(tmp_path / "v.rrd").stream()
+                 if chunk.entity_path.endswith("/class/predicted") for name in chunk.timeline_names}
+    assert timelines == {"time", "frame", "stamp"}
+    assert pl.read_csv(tmp_path / "i.csv")["start"][0] == 0.0  # intervals: the recording's time, as --labels reads
