@@ -49,7 +49,9 @@ def evaluate(predictions: pl.DataFrame, meta: dict[str, Any], options: EvalOptio
                            f"{_remedy(method)}")
     test = predictions.filter(pl.col("split") == "test")
     if test.height == 0:
-        raise BadInput("predictions.parquet has no test frames: rerun `mlnseq collect` with a test split")
+        raise BadInput("predictions.parquet has no test frames: rerun `mlnseq collect` with a test split (fit keeps "
+                       "none below 5 labelled recordings: their cross-validated figures are the estimate; "
+                       "--holdout share keeps one)")
     labels = test["label"].to_numpy().astype(np.int64)
     episodes = test["episode"].to_numpy()
     n_classes = len(meta["classes"])

@@ -56,6 +56,8 @@ def test_unlabelled_recordings_change_no_figure(bags, tmp_path):
     assert set(phases["episode"]) == {"episode_1", "episode_4"} and phases.columns == ["episode", "start", "end",
                                                                                         "label"]
     assert not (tmp_path / "labelled" / artifacts.LABEL_NEXT).exists()  # nothing unlabelled: nothing ranked
+    scored = CliRunner().invoke(app, ["eval", "-w", str(tmp_path / "mixed")])  # no test split to score
+    assert scored.exit_code != 0 and "--holdout share keeps one" in scored.stderr
 
 
 def test_one_labelled_recording_beside_unlabelled_ones_is_not_cut_into_blocks(bags, tmp_path):
