@@ -123,14 +123,18 @@ def module_graph() -> dict[str, set[str]]:
     return graph
 
 
-def test_the_library_folders_import_one_way():
+def folder_imports() -> dict[str, set[str]]:
     folders = defaultdict(set)
     for module, targets in module_graph().items():
         for target in targets:
             source, dest = library_of(module), library_of(target)
             if source and dest and source != dest:
                 folders[source].add(dest)
-    assert cycle(folders) == []
+    return folders
+
+
+def test_the_library_folders_import_one_way():
+    assert cycle(folder_imports()) == []
 
 
 def test_no_import_circle_between_modules():
@@ -207,15 +211,6 @@ def documented_floors(page: str) -> dict[str, int]:
             floors |= {word.rstrip("/"): int(words[1]) for word in words[2:] if word.endswith("/")}
     return floors
 
-
-def folder_imports() -> dict[str, set[str]]:
-    folders = defaultdict(set)
-    for module, targets in module_graph().items():
-        for target in targets:
-            source, dest = library_of(module), library_of(target)
-            if source and dest and source != dest:
-                folders[source].add(dest)
-    return folders
 
 
 def imports_up(floors: dict[str, int], imports: dict[str, set[str]]) -> list[str]:
