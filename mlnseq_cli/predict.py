@@ -17,7 +17,7 @@ def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
-    force: Annotated[bool, typer.Option(help="Overwrite the output files if they exist.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite the output files if they exist.")] = False,
     decode: Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), \\[default: the model's]; viterbi or posterior decodes a filter model offline.")] = None,
     env: read_as.Env = None,
     label_column: read_as.LabelColumn = None,
@@ -29,11 +29,11 @@ def predict(
     rate: read_as.Rate = None,
     label_topic: read_as.LabelTopic = None,
     max_hold: read_as.MaxHold = None,
-    intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
+    intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode, start, end, label rows (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
-    write_lerobot_probabilities: Annotated[bool, typer.Option(help="With --write-lerobot: the class probabilities as a per-frame feature too (mlnseq.subtask_probabilities).")] = False,
-    replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
+    write_lerobot_probabilities: Annotated[bool, typer.Option("--write-lerobot-probabilities", help="With --write-lerobot: the class probabilities as a per-frame feature too (docs/lerobot.md names it).")] = False,
+    replace_subtasks: Annotated[bool, typer.Option("--replace-subtasks", help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
     explain: Annotated[int, typer.Option(help="Explain every frame: a why column of its N largest terms (JSON: kind, text, line, contribution; docs/explain.md), and each segment's why (what held it, what ended it) in --intervals and --rerun.")] = 0,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
