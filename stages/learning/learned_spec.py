@@ -76,7 +76,7 @@ def predicate_block(candidate: Candidate, labels: np.ndarray | None, train: np.n
     p = candidate.predicate
     said = f"{candidate.channel}: {how(candidate)}; out-of-fold gain {candidate.oof:.3f} nats per frame" + (
         NEGATIVE_GAIN if candidate.oof < 0 else "")
-    lines = ["", *(f"# {line}" for line in textwrap.wrap(said, 114))]
+    lines = ["", *(f"# {line}" for line in textwrap.wrap(said, 114, break_on_hyphens=False))]
     if labels is not None:
         lines += [f"#   {value}: {said}" for value, said in zip(p.values, separates(
             candidate.codes[train], labels[train], classes, len(p.values)))]
