@@ -1,5 +1,5 @@
-"""Issue 55's smaller output items, on the real DESK data: binarize --table never offers a value true in none of a
-class's frames as its marker."""
+"""Issue 55's smaller output items: binarize --table never offers a value true in none of a class's frames as its
+marker (the real DESK predicates); collect names the joints that stop and start where their absence refuses it."""
 
 from __future__ import annotations
 
@@ -25,3 +25,44 @@ def test_a_class_no_value_marks_is_said_so_not_offered_a_zero_share(desk_mln_wor
         binarize_command.print_class_table(predicates, meta["predicates"], classes)
     marks = captured.get().split("marks each class")[1].splitlines()[1:]
     assert all("none" not in line and "(0%" not in line for line in marks), marks
+
+
+def joint_switch_bag(path):
+    """A ROS 2 bag whose /joint_states joints change from a, b, c to x, y, z at 3 s (50 Hz, 6 s), with /phase reach
+    from 0 s and lift from 2.8 s: no frame has all six joints but the two held seconds after the switch, all lift."""
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    JointState, Header, Time, String = (store.types[n] for n in (
+        "sensor_msgs/msg/JointState", "std_msgs/msg/Header", "builtin_interfaces/msg/Time", "std_msgs/msg/String"))
+    start, step = 1_700_000_000 * 10**9, 20_000_000
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        joints = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=store)
+        phase = writer.add_connection("/phase", String.__msgtype__, typestore=store)
+        for k in range(300):
+            t = start + k * step
+            if k in (0, 140):
+                writer.write(phase, t, store.serialize_cdr(String(data="reach" if k == 0 else "lift"),
+                                                           String.__msgtype__))
+            message = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="base"),
+                                 name=["a", "b", "c"] if k < 150 else ["x", "y", "z"],
+                                 position=np.sin(np.arange(3) + k / 20.0), velocity=np.zeros(0), effort=np.zeros(0))
+            writer.write(joints, t, store.serialize_cdr(message, JointState.__msgtype__))
+
+
+def test_joints_that_stop_and_start_are_named_where_their_absence_refuses_collect(tmp_path):
+    from typer.testing import CliRunner
+
+    from mlnseq_cli.main import app
+
+    (tmp_path / "bags").mkdir()
+    joint_switch_bag(tmp_path / "bags" / "trial_1")
+    done = CliRunner().invoke(app, ["collect", "--env", "rosbag", "--source", str(tmp_path / "bags"),
+                                    "--label-topic", "/phase", "-w", str(tmp_path / "work")])
+    assert done.exit_code == 2 and len(done.stderr.splitlines()) == 1
+    assert "the labels hold a single class ('lift')" in done.stderr
+    assert "position/a, position/b, position/c stop at 2.98 s" in done.stderr
+    assert "position/x, position/y, position/z start at 3.00 s" in done.stderr
+    assert not (tmp_path / "work" / artifacts.FRAMES).exists()
