@@ -5,6 +5,7 @@ print none; `mlnseq --help` names every network type train fits. On the real DES
 from __future__ import annotations
 
 import re
+import shutil
 
 from typer.testing import CliRunner
 
@@ -49,3 +50,18 @@ def test_the_commands_help_names_every_network_type_train_fits():
     listing = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
     train = next(line for line in listing.splitlines() if " train " in line)
     assert all(cell in train for cell in networks.CELLS), train
+
+
+def test_eval_stores_the_confusion_matrix_it_does_not_print_as_stages_md_says(desk_full_workdir, repo_root, tmp_path):
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+
+    page = " ".join((repo_root / "docs" / "stages.md").read_text().split())
+    assert "the confusion matrix, which it stores only: `metrics.parquet`'s rows of metric `confusion`" in page
+    work = tmp_path / "work"
+    shutil.copytree(desk_full_workdir, work)
+    printed = runner.invoke(app, ["eval", "-w", str(work)]).stdout
+    assert not any("confusion" in line for line in printed.splitlines() if ": wrote " not in line)  # tmp path
+    metrics = pl.read_parquet(work / artifacts.METRICS).filter(pl.col("metric") == "confusion")
+    assert metrics.height and all(" -> " in item for item in metrics["item"])
