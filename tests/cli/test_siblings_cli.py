@@ -109,3 +109,12 @@ def test_a_predict_line_pasted_into_explain_reads_the_same(desk_stream_workdir, 
     assert explained.exit_code == 0, explained.output
     predicted = pl.read_parquet(tmp_path / "p.parquet").filter(pl.col("frame") == 40)["class"][0]
     assert f'"class": "{predicted}"' in explained.output
+
+
+def test_auto_with_an_offline_decoder_conflate_did_not_score_points_to_fit_offline(desk_folds_workdir, tmp_path):
+    for path in desk_folds_workdir.iterdir():
+        (shutil.copytree if path.is_dir() else shutil.copy)(path, tmp_path / path.name)
+    assert invoke("conflate", "--decode", "filter", "-w", tmp_path).exit_code == 0  # online only, as fit --lag does
+    done = invoke("export", "--method", "auto", "--decode", "viterbi", "-o", tmp_path / "m.mlnseq", "-w", tmp_path)
+    assert done.exit_code == 2 and "no cross-validated viterbi candidate" in done.stderr
+    assert "`mlnseq fit --offline` conflates offline decoders too" in done.stderr and "--lags" not in done.stderr
