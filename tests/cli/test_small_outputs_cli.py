@@ -66,3 +66,18 @@ def test_joints_that_stop_and_start_are_named_where_their_absence_refuses_collec
     assert "position/a, position/b, position/c stop at 2.98 s" in done.stderr
     assert "position/x, position/y, position/z start at 3.00 s" in done.stderr
     assert not (tmp_path / "work" / artifacts.FRAMES).exists()
+
+
+def test_collect_on_a_lerobot_dataset_with_subtasks_and_no_labels_suggests_labels_subtask(shared_data, tmp_path):
+    from typer.testing import CliRunner
+
+    from mlnseq_cli.main import app
+
+    def collected(name):
+        return CliRunner().invoke(app, ["collect", "--env", "lerobot", "--source",
+                                        str(shared_data / "lerobot-0.6.1" / name), "-w", str(tmp_path / name)])
+
+    annotated = collected("pick-place-annotated")
+    assert annotated.exit_code == 2 and "subtask annotations label its frames with --labels subtask" in annotated.stderr
+    plain = collected("pick-place")  # no annotations: nothing to suggest but a column or intervals
+    assert plain.exit_code == 2 and "subtask" not in plain.stderr and "label intervals with --labels" in plain.stderr
