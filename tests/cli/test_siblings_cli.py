@@ -101,7 +101,8 @@ def test_explain_takes_every_source_option_predict_takes():
 
 def test_a_predict_line_pasted_into_explain_reads_the_same(desk_stream_workdir, desk_test_recording, tmp_path):
     model = tmp_path / "m.mlnseq"
-    assert invoke("export", "--method", "mln", "--decode", "filter", "-o", model, "-w", desk_stream_workdir).exit_code == 0
+    exported = invoke("export", "--method", "mln", "--decode", "filter", "-o", model, "-w", desk_stream_workdir)
+    assert exported.exit_code == 0, exported.output
     reading = ("--source", desk_test_recording, "--label-column", "label", "--time-column", "frame", "--max-hold", 1)
     done = invoke("predict", model, *reading, "-o", tmp_path / "p.parquet")
     assert done.exit_code == 0, done.output

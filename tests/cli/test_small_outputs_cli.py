@@ -81,3 +81,21 @@ def test_collect_on_a_lerobot_dataset_with_subtasks_and_no_labels_suggests_label
     assert annotated.exit_code == 2 and "subtask annotations label its frames with --labels subtask" in annotated.stderr
     plain = collected("pick-place")  # no annotations: nothing to suggest but a column or intervals
     assert plain.exit_code == 2 and "subtask" not in plain.stderr and "label intervals with --labels" in plain.stderr
+
+
+def test_one_recording_is_split_by_its_frames_as_the_pages_say(repo_root, desk_test_recording, tmp_path):
+    from typer.testing import CliRunner
+
+    from mlnseq_cli.main import app
+
+    stages_md = " ".join((repo_root / "docs" / "stages.md").read_text().split())
+    assert "a single recording (one episode) is split by its frames: its first 70 % train" in stages_md
+    assert "one recording alone: the first 70 % of its frames" in (repo_root / "docs" / "first-day.md").read_text()
+    done = CliRunner().invoke(app, ["collect", "--env", "table", "--source", str(desk_test_recording),
+                                    "--time-column", "frame", "-w", str(tmp_path)])
+    assert done.exit_code == 0, done.output
+    frames = pl.read_parquet(tmp_path / artifacts.FRAMES)
+    assert frames["episode"].n_unique() == 1
+    assert (frames["split"] == "train").sum() == round(0.7 * frames.height)
+    train, test = (frames.filter(pl.col("split") == part)["frame"] for part in ("train", "test"))
+    assert train.max() < test.min()  # by position: the first frames train
