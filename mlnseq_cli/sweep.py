@@ -84,15 +84,17 @@ def say_progress(progress: stage.Progress) -> None:
 
 
 def summary_lines(swept: stage.Swept) -> list[str]:
-    """The configs as aligned plain lines, best cross-validated score first; test figures are shown, never ranked on."""
-    header = ("config", "method", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %", "test edit")
+    """The configs as aligned plain lines, best cross-validated score first (the score shown: the mean of the three
+    cross-validated figures); test figures are shown, never ranked on."""
+    header = ("config", "method", "cv score", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %",
+              "test edit")
     rows = [header]
     for row in swept.table.sort("cv_score", descending=True, nulls_last=True, maintain_order=True).iter_rows(
             named=True):
         if row["status"] != stage.results.DONE:
-            rows.append((row["config"], "failed", *("–" for _ in range(6))))
+            rows.append((row["config"], "failed", *("–" for _ in range(7))))
             continue
-        rows.append((row["config"], row["method"],
+        rows.append((row["config"], row["method"], f"{row['cv_score']:.2f}",
                      *(f"{row[f'cv_{f}']:.1f} ± {row[f'cv_{f}_std']:.1f}" for f in stage.results.FIGURES),
                      *(f"{row[f'test_{f}']:.1f}" for f in stage.results.FIGURES)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]

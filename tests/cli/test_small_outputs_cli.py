@@ -99,3 +99,15 @@ def test_one_recording_is_split_by_its_frames_as_the_pages_say(repo_root, desk_t
     assert (frames["split"] == "train").sum() == round(0.7 * frames.height)
     train, test = (frames.filter(pl.col("split") == part)["frame"] for part in ("train", "test"))
     assert train.max() < test.min()  # by position: the first frames train
+
+
+def test_sweeps_md_offers_as_grid_choices_only_options_a_stage_takes(repo_root):
+    from mlnseq_cli.sweep import STAGES
+
+    intro = " ".join((repo_root / "docs" / "sweeps.md").read_text().split("\n\n")[1].split())
+    named = {"network type": "cell", "training window": "window", "epochs": "epochs", "MLN mode": "mln_mode",
+             "deployed method": "method", "decoding": "decode"}
+    assert "its size" not in intro and "not the network's size, which train does not take" in intro
+    for words, key in named.items():
+        assert words in intro and any(key in flags for flags in STAGES.flags.values()), key
+    assert not any("hidden_size" in flags for flags in STAGES.flags.values())
