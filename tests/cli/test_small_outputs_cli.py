@@ -111,3 +111,29 @@ def test_sweeps_md_offers_as_grid_choices_only_options_a_stage_takes(repo_root):
     for words, key in named.items():
         assert words in intro and any(key in flags for flags in STAGES.flags.values()), key
     assert not any("hidden_size" in flags for flags in STAGES.flags.values())
+
+
+def test_deploy_md_says_what_its_commands_need_first(repo_root):
+    page = (repo_root / "docs" / "deploy.md").read_text()
+    text = " ".join(page.split())
+    assert "run that page's commands first, in the same folder" in text and "<!-- continues: sequential-logic.md -->" \
+        in page
+    assert "on a fresh clone it first runs the set-up of `make setup`" in text
+    makefile = (repo_root / "Makefile").read_text()
+    assert "dist: | $(SETUP_DONE)" in makefile  # what the page says: dist needs the set-up done
+
+
+def test_the_rich_fetch_spec_on_other_frames_names_the_fix_its_page_gives(desk_mln_workdir, repo_root, tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from mlnseq_cli.main import app
+
+    shutil.copy(desk_mln_workdir / artifacts.FRAMES, tmp_path / artifacts.FRAMES)
+    done = CliRunner().invoke(app, ["binarize", "--spec", str(repo_root / "examples" / "fetch-rich.binarize.toml"),
+                                    "-w", str(tmp_path)])
+    assert done.exit_code == 2 and done.stderr.count("\n") == 1
+    assert "channel 'grip_pos_x' is not in frames.parquet" in done.stderr
+    assert "collect them with `mlnseq collect --env fetch --goals`" in done.stderr
+    assert "with `--goals`" in (repo_root / "docs" / "predicates.md").read_text()  # the page's fix
