@@ -131,7 +131,10 @@ def split_name(method: str, decode: str, lag: int | None, option: str = "--metho
 
     name, plus, named_decode = str(method).partition("+")
     if plus:
-        if name not in (*(m.value for m in METHODS), *ALIASES):
+        from mlnseq.catalog.decoders import Decoder
+
+        if name not in (*(m.value for m in METHODS), *ALIASES) or named_decode.partition("@")[0] not in {
+                d.value for d in Decoder}:
             parse_method(str(method), option)  # refused with the names it takes
         if decode not in ("none", named_decode.partition("@")[0], named_decode):
             raise BadInput(f"{option} {method} names its decoder; --decode {decode} names another: give one")

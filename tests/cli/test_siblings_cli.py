@@ -132,3 +132,10 @@ def test_every_command_writing_a_file_you_name_takes_force_as_cli_md_says(repo_r
     assert named >= {"export", "predict", "binarize"}
     assert [name for name in named if "--force" not in {o for p in _load(name).params for o in p.opts}] == []
     assert "keeps it unless `--force`" in " ".join((repo_root / "docs" / "cli.md").read_text().split())
+
+
+def test_a_name_with_an_unknown_decoder_is_refused_naming_the_option_given(tmp_path, lagged_workdir):
+    done = invoke("export", "--method", "conflation+blur", "-o", tmp_path / "m.mlnseq", "-w", lagged_workdir)
+    assert done.exit_code == 2 and "unknown --method 'conflation+blur'" in done.stderr
+    done = invoke("conflate", "--decode", "smooth-legal@x", "-w", tmp_path)
+    assert done.exit_code == 2 and "--decode 'smooth-legal@x': the lag after @ must be a whole number" in done.stderr
