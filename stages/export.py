@@ -56,14 +56,15 @@ class ExportOptions:
         return replace(self, method=member(Method, method, ALIASES), decode=decode, lag=lag)
 
     def validate(self) -> None:
-        check_choice("method", self.method, ("network", *METHODS, AUTO))
-        check_choice("decode", self.decode, [d.value for d in Decoder])
+        named = self.named()  # a name as commands print it (a sweep's grid too) checked as its parts
+        check_choice("method", named.method, ("network", *METHODS, AUTO))
+        check_choice("decode", named.decode, [d.value for d in Decoder])
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
-        if self.lag is not None and self.lag < 0:
-            raise BadInput(f"--lag {self.lag}: a lag is at least 0 frames")
+        if named.lag is not None and named.lag < 0:
+            raise BadInput(f"--lag {named.lag}: a lag is at least 0 frames")
         if self.latency is not None and not self.latency >= 0:
             raise BadInput(f"--latency {self.latency:g}: a latency is at least 0 seconds")
-        if self.lag is not None and self.latency is not None:
+        if named.lag is not None and self.latency is not None:
             raise BadInput("give --lag FRAMES or --latency SECONDS, not both")
 
     def output_path(self, workdir: Path, decode: str | None = None) -> Path:
