@@ -70,7 +70,8 @@ def print_tables(result: stage.EvalResult, fraction: float) -> None:
         modes = sorted(set(result.modes.values()))
         console.print(f"(mode, {' or '.join(modes)}, left out at {console.width} columns; --json shows it)",
                       highlight=False)
-    headings = short_names(list(result.classes), room=56)
+    widest = max(map(len, result.results), default=0)  # the method column, then a column per class
+    headings = short_names(list(result.classes), room=max(console.width - widest - 1, 20))
     per_class = table("segment accuracy per class (%)", *headings)
     for method_name, r in result.results.items():
         per_class.add_row(method_name, *(f"{100 * r['per_class'][k]:.0f}" for k in range(len(result.classes))))

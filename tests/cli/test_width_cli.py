@@ -66,3 +66,14 @@ def test_eval_at_its_widest_figures_drops_the_mode_column_with_a_note(decoded_ev
     rows = [line.split() for line in text.splitlines() if line.startswith("conflation+lagviterbi-legal@25 ")]
     assert rows[0][1:] == ["100.0%", "100.0%", "1.000", "100.0", "100.0", "100.0", "100.0"]
     assert "(mode, " in text and "left out at 80 columns; --json shows it)" in text
+
+
+def test_eval_s_per_class_table_fits_with_long_class_names(decoded_everywhere, monkeypatch):
+    """Seven classes whose first words take 7 letters (`lifting the part`, ...): beside the longest method names
+    they do not fit, so the headings are c0, c1 ... with a legend."""
+    long = [f"{word} the part" for word in ("lifting", "placing", "holding", "turning", "pushing", "pouring",
+                                            "waiting")]
+    assert len(long) == len(decoded_everywhere.classes)
+    text = drawn(dataclasses.replace(decoded_everywhere, classes=long), monkeypatch)
+    assert "…" not in text and max(map(len, text.splitlines())) <= NARROW
+    assert "c0 = lifting the part" in text
