@@ -13,7 +13,7 @@ from mlnseq.catalog.decoders import parse_lags
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import decoders_named
 
-DEFAULT_LAGS = ",".join(map(str, stage.DEFAULT_LAGS))
+LAGS_TEXT = ",".join(map(str, stage.DEFAULT_LAGS))  # --lags as written by default
 
 
 def conflate(
@@ -27,7 +27,7 @@ def conflate(
                                              "(smooth-legal@5) brings its lag.")] = "none",
     lags: Annotated[str, typer.Option(help="Lags in frames at which smooth and lagviterbi decode (frame t decided "
                                            "once t + LAG has arrived), comma-separated.")]
-    = DEFAULT_LAGS,
+    = LAGS_TEXT,
     network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, "
                                                      "auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
@@ -42,7 +42,7 @@ def conflate(
     decoded method emits)."""
     with reported_errors():
         decoders, named_lags = decoders_named(stage.parse_decode(decode))  # smooth-legal@5: the lag with its decoder
-        if named_lags and lags != DEFAULT_LAGS:
+        if named_lags and lags != LAGS_TEXT:
             raise BadInput(f"--decode {decode} names its lags; --lags {lags} names others: give the lags once")
         options = stage.ConflateOptions(mln_mode=mln_mode, decode=decoders,
                                         network_weight=stage.parse_network_weight(network_weight),
