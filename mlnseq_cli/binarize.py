@@ -95,5 +95,6 @@ def print_class_table(predicates, columns: dict[str, list[str]], classes: list[s
     console.print("marks each class (% of its frames true; for Has(...) => Topic(...)):")
     for k, heading in enumerate(headings):
         column, inside, elsewhere = shares.marker(k)
-        console.print(f"  {heading}: {column} ({inside:.0%}; other classes at most {elsewhere:.0%})",
-                      highlight=False)
+        said = f"{column} ({inside:.0%}; other classes at most {elsewhere:.0%})" if inside > elsewhere else \
+            "none: no value is true in more of its frames than in another class's (a formula cannot single it out)"
+        console.print(f"  {heading}: {said}", highlight=False)

@@ -63,11 +63,15 @@ def unread(path: Path | None, origin: str, workdir: Path | None) -> Path | None:
 def find(config: Path | None, workdir: Path | None) -> Path | None:
     """The project file in force (see :func:`locate`), noting on stderr a workdir file it leaves unread."""
     path, origin = locate(config, workdir)
-    other = unread(path, origin, workdir)
+    note_unread(path, unread(path, origin, workdir))
+    return path
+
+
+def note_unread(path: Path | None, other: Path | None) -> None:
+    """The note, on stderr, that the workdir's project file ``other`` is left unread for ``path``."""
     if other is not None:
         print(f"note: {other} is not read: {path} in the current folder wins (pass --config to choose)",
               file=sys.stderr)
-    return path
 
 
 def _line_of(text: str, section: str, key: str | None = None) -> int:
@@ -163,9 +167,7 @@ def show(
         default_map = load(path, commands) if path else {}
     console.print(escape(f"project file: {path} (from {origin})" if path else f"project file: none ({origin})"),
                   highlight=False)
-    other = unread(path, origin, workdir)
-    if other is not None:
-        console.print(f"[yellow]note[/]: {escape(str(other))} is not read: the current folder's wins", highlight=False)
+    note_unread(path, unread(path, origin, workdir))  # on stderr, as every command says it
     table = Table("command", "option", "value", "from", title="options in force")
     for row in options_in_force(commands, default_map, str(path)):
         table.add_row(*row)

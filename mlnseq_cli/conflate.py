@@ -10,6 +10,10 @@ from rich.markup import escape
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from mlnseq import conflate as stage
 from mlnseq.catalog.decoders import parse_lags
+from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.methods import decoders_named
+
+LAGS_TEXT = ",".join(map(str, stage.DEFAULT_LAGS))  # --lags as written by default
 
 
 def conflate(
@@ -19,10 +23,11 @@ def conflate(
     decode: Annotated[str, typer.Option(help="none (per frame, the paper), filter (online), filter-legal, smooth and "
                                              "lagviterbi (fixed lag, each at every --lags), their -legal forms (never "
                                              "a transition the chain forbids), posterior, posterior-legal and viterbi "
-                                             "(offline), all, or a comma list.")] = "none",
+                                             "(offline), all, or a comma list; a decoder as names print it "
+                                             "(smooth-legal@5) brings its lag.")] = "none",
     lags: Annotated[str, typer.Option(help="Lags in frames at which smooth and lagviterbi decode (frame t decided "
                                            "once t + LAG has arrived), comma-separated.")]
-    = ",".join(map(str, stage.DEFAULT_LAGS)),
+    = LAGS_TEXT,
     network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, "
                                                      "auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
@@ -36,9 +41,12 @@ def conflate(
     training split, in the metadata, with the log-likelihood of the true labels and the forbidden transitions each
     decoded method emits)."""
     with reported_errors():
-        options = stage.ConflateOptions(mln_mode=mln_mode, decode=stage.parse_decode(decode),
+        decoders, named_lags = decoders_named(stage.parse_decode(decode))  # smooth-legal@5: the lag with its decoder
+        if named_lags and lags != LAGS_TEXT:
+            raise BadInput(f"--decode {decode} names its lags; --lags {lags} names others: give the lags once")
+        options = stage.ConflateOptions(mln_mode=mln_mode, decode=decoders,
                                         network_weight=stage.parse_network_weight(network_weight),
-                                        lags=parse_lags(lags))
+                                        lags=named_lags or parse_lags(lags))
     with reported_errors():
         result = stage.run(workdir, options)
     summary(result, workdir)

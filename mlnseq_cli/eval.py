@@ -6,6 +6,7 @@ import json
 from typing import Annotated
 
 import typer
+from rich.measure import Measurement
 from rich.table import Table
 
 from mlnseq_cli.headings import legend, short_names
@@ -53,15 +54,24 @@ def print_tables(result: stage.EvalResult, fraction: float) -> None:
             shown.add_column(column, justify="right", no_wrap=True)
         return shown
 
-    summary = table(f"test split: segment recognised at {fraction:g} of its frames; mF1: macro F1 over segments",
-                    "mode", "segment", "frame", "mF1", "edit", "F1@10", "F1@25", "F1@50")
-    summary.columns[1].justify = "left"
-    for method_name, r in result.results.items():
-        extra = [f"{r[k]:.1f}" if k in r else "-" for k in ("edit", "f1@10", "f1@25", "f1@50")]
-        summary.add_row(method_name, result.modes[method_name], f"{r['segment_accuracy']:.1%}",
-                        f"{r['frame_accuracy']:.1%}", f"{r['macro_f1']:.3f}", *extra)
+    for with_mode in (True, False):  # too wide for the terminal with the mode column: without it, and a note
+        summary = table(f"test split: segment recognised at {fraction:g} of its frames; mF1: macro F1 over segments",
+                        *(["mode"] if with_mode else []), "segment", "frame", "mF1", "edit", "F1@10", "F1@25", "F1@50")
+        summary.columns[1].justify = "left" if with_mode else "right"
+        for method_name, r in result.results.items():
+            extra = [f"{r[k]:.1f}" if k in r else "-" for k in ("edit", "f1@10", "f1@25", "f1@50")]
+            summary.add_row(method_name, *([result.modes[method_name]] if with_mode else []),
+                            f"{r['segment_accuracy']:.1%}", f"{r['frame_accuracy']:.1%}", f"{r['macro_f1']:.3f}",
+                            *extra)
+        if Measurement.get(console, console.options.update_width(10_000), summary).maximum <= console.width:
+            break
     console.print(summary)
-    headings = short_names(list(result.classes), room=56)
+    if not with_mode:
+        modes = sorted(set(result.modes.values()))
+        console.print(f"(mode, {' or '.join(modes)}, left out at {console.width} columns; --json shows it)",
+                      highlight=False)
+    widest = max(map(len, result.results), default=0)  # the method column, then a column per class
+    headings = short_names(list(result.classes), room=max(console.width - widest - 1, 20))
     per_class = table("segment accuracy per class (%)", *headings)
     for method_name, r in result.results.items():
         per_class.add_row(method_name, *(f"{100 * r['per_class'][k]:.0f}" for k in range(len(result.classes))))

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from mlnseq_cli import source_options as read_as
 from mlnseq_cli.console import reported_errors
 
 
@@ -20,22 +21,28 @@ def explain(
     segment: Annotated[Optional[int], typer.Option(help="Explain the episode's K-th decided segment (from 0): what held it and what ended it.")] = None,
     versus: Annotated[Optional[str], typer.Option(help="The class to compare with \\[default: the runner-up].")] = None,
     what_if: Annotated[Optional[str], typer.Option("--what-if", help="PREDICATE=VALUE (e.g. left_gripper=closed, or a column =true/false): score the frame again with it and say whether the decision flips.")] = None,
-    decode: Annotated[Optional[str], typer.Option(help="A decoder (e.g. smooth-legal@5) \\[default: the model's].")] = None,
+    decode: Annotated[Optional[str], typer.Option(help="A decoder (e.g. smooth-legal@5), or the model's method with it as names are printed (conflation+viterbi) \\[default: the model's].")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines: frame, time, class, versus, margin and terms (kind, text, line, contribution).")] = False,
-    env: Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")] = None,
-    episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's].")] = None,
-    time_column: Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's].")] = None,
-    topics: Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")] = None,
-    rate: Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")] = None,
+    env: read_as.Env = None,
+    episode_column: read_as.EpisodeColumn = None,
+    time_column: read_as.TimeColumn = None,
+    topics: read_as.Topics = None,
+    rate: read_as.Rate = None,
+    label_column: read_as.LabelColumn = None,
+    labels: read_as.LabelsFile = None,
+    labels_unit: read_as.LabelsUnit = None,
+    label_topic: read_as.LabelTopic = None,
+    max_hold: read_as.MaxHold = None,
 ) -> None:
     """Read MODEL and the recording at SOURCE, decide it as predict does, and print why the frame (--frame T or --time S) got its class: its margin over the runner-up (or --versus CLASS), the log-ratio of their scores, as terms that add up to it exactly: each formula (its text, line, weight and truth for both classes), the network (its weight x its log-probability difference), the start distribution, the frames before and, for lagged and offline decoders, after (the chain's messages), and the hard rules that removed classes. --segment K: the terms that held the K-th segment and the transition that ended it. Sorted by size, the small ones summed in one line; --json writes JSON lines instead."""
     from mlnseq import explain as stage
     from mlnseq.explaining import text as explanation_text
 
-    overrides = {k: v for k, v in dict(topics=_names(topics), rate=rate).items() if v not in (None, ())}
+    overrides = read_as.overrides(labels, labels_unit, topics, rate, label_topic, max_hold)
     options = stage.ExplainOptions(model=model, source=source, episode=episode, frame=frame, time=time,
                                    segment=segment, versus=versus, what_if=what_if, decode=decode, env=env,
-                                   episode_column=episode_column, time_column=time_column, overrides=overrides)
+                                   label_column=label_column, episode_column=episode_column, time_column=time_column,
+                                   overrides=overrides)
     with reported_errors():
         found = stage.run(options)
     if as_json:
@@ -58,6 +65,3 @@ def explain(
         print(f"\nwhat if {found.change.text}? {verdict}")
         print("\n".join(explanation_text.table(now)))
 
-
-def _names(text: Optional[str]) -> tuple[str, ...]:
-    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else ()

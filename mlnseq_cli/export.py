@@ -19,10 +19,11 @@ def export(
                                              "conflation, combined, or auto: the method, decoder and lag with the "
                                              "best cross-validated figures conflate recorded (needs networks trained "
                                              "with --folds), within --latency or --lag if given, with --decode's "
-                                             "decoder if given.")] = Defaults.method.value,
+                                             "decoder if given; or a name as conflate and eval print it "
+                                             "(conflation+smooth-legal@25).")] = Defaults.method.value,
     decode: Annotated[str, typer.Option(help="none (per frame), filter (online), smooth or lagviterbi (with --lag), "
                                              "their -legal forms (never a forbidden transition), posterior or viterbi "
-                                             "(offline; stream filters).")] = Defaults.decode,
+                                             "(offline; stream filters); smooth-legal@5 names the lag too.")] = Defaults.decode,
     lag: Annotated[Optional[int], typer.Option(help="Frames a lagged decoder waits (frame t decided once t + LAG has "
                                                     "arrived); with --method auto, the budget.")] = None,
     latency: Annotated[Optional[float], typer.Option(help="The same budget in seconds, where the recordings' frame "

@@ -7,12 +7,14 @@ below and imports none of them.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import functools
 import importlib
 import os
 import sys
 import traceback
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any, NamedTuple, Optional
 
@@ -34,7 +36,8 @@ COMMANDS = {
     "formulas": Command("formulas", "formulas", "Write the domain knowledge as WORKDIR/formulas.mln."),
     "learn-weights": Command("learn_weights", "learn_weights",
                              "Learn the formulas' weights on the training split: WORKDIR/weights.parquet."),
-    "train": Command("train", "train", "Fit the LSTM (or GRU), alone or with the MLN PriorLayer: WORKDIR/models/."),
+    "train": Command("train", "train", "Fit a network (--cell lstm, gru or tcn), alone or with the MLN PriorLayer: "
+                     "WORKDIR/models/."),
     "conflate": Command("conflate", "conflate",
                         "Run every trained model and the MLN on all frames and combine them: "
                         "WORKDIR/predictions.parquet."),
@@ -137,8 +140,34 @@ class MlnseqGroup(FlagGroup):
                 traceback.print_exc(file=sys.stderr)
             raise fail(str(missing), missing.exit_code) from None
 
+    def main(self, *args: Any, **kwargs: Any) -> Any:
+        with one_line_usage_errors():
+            return super().main(*args, **kwargs)
+
     def stage_commands(self, ctx: Any) -> dict[str, Any]:
         return {name: self.get_command(ctx, name) for name in self.list_commands(ctx) if name != "config"}
+
+
+@contextlib.contextmanager
+def one_line_usage_errors() -> Iterator[None]:
+    """A usage error (an unknown command or option, a value of the wrong type) as one line on stderr, as every
+    other error: `error: No such option: --bogus (mlnseq train --help lists the options)`, exit 2."""
+    from typer import rich_utils
+
+    def one_line(error: Any) -> None:
+        if type(error).__name__ == "NoArgsIsHelpError":  # `mlnseq` alone: its help, as typer prints it
+            return
+        context = getattr(error, "ctx", None)
+        listed = "commands" if hasattr(getattr(context, "command", None), "list_commands") else "options"
+        where = f" ({context.command_path} --help lists the {listed})" if context is not None else ""
+        message = " ".join(error.format_message().split())
+        print(f"error: {message}{where}", file=sys.stderr)
+
+    drawn, rich_utils.rich_format_error = rich_utils.rich_format_error, one_line
+    try:
+        yield
+    finally:
+        rich_utils.rich_format_error = drawn
 
 
 @functools.cache

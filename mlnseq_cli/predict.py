@@ -8,43 +8,41 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
+from mlnseq_cli import source_options as read_as
 from mlnseq_cli.console import console, counted, reported_errors
 from mlnseq import predict as stage
-from mlnseq.sources import labels_option
 
 
 def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
-    force: Annotated[bool, typer.Option(help="Overwrite the output files if they exist.")] = False,
-    decode: Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), \\[default: the model's]; viterbi or posterior decodes a filter model offline.")] = None,
-    env: Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")] = None,
-    label_column: Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; with labels the metrics are printed and stored too.")] = None,
-    episode_column: Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")] = None,
-    time_column: Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's; else 'frame' if present, else file order]; \"\" reads a recording without the model's time column.")] = None,
-    labels: Annotated[Optional[Path], typer.Option(help="True labels as intervals (episode,start,end,label), to score the predictions; lerobot: subtask reads the dataset's own subtask annotations.", dir_okay=False)] = None,
-    labels_unit: Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: the model's].")] = None,
-    topics: Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")] = None,
-    rate: Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")] = None,
-    label_topic: Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")] = None,
-    max_hold: Annotated[Optional[float], typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the frame is dropped \\[default: the model's].")] = None,
-    intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode,start,end,label (the form --labels reads).", dir_okay=False)] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite the output files if they exist.")] = False,
+    decode: Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), or the model's method with it as names are printed (conflation+viterbi) \\[default: the model's]; viterbi or posterior decodes a filter model offline.")] = None,
+    env: read_as.Env = None,
+    label_column: read_as.LabelColumn = None,
+    episode_column: read_as.EpisodeColumn = None,
+    time_column: read_as.TimeColumn = None,
+    labels: read_as.LabelsFile = None,
+    labels_unit: read_as.LabelsUnit = None,
+    topics: read_as.Topics = None,
+    rate: read_as.Rate = None,
+    label_topic: read_as.LabelTopic = None,
+    max_hold: read_as.MaxHold = None,
+    intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode, start, end, label rows (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
-    write_lerobot_probabilities: Annotated[bool, typer.Option(help="With --write-lerobot: the class probabilities as a per-frame feature too (mlnseq.subtask_probabilities).")] = False,
-    replace_subtasks: Annotated[bool, typer.Option(help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
+    write_lerobot_probabilities: Annotated[bool, typer.Option("--write-lerobot-probabilities", help="With --write-lerobot: the class probabilities as a per-frame feature too (docs/lerobot.md names it).")] = False,
+    replace_subtasks: Annotated[bool, typer.Option("--replace-subtasks", help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
     explain: Annotated[int, typer.Option(help="Explain every frame: a why column of its N largest terms (JSON: kind, text, line, contribution; docs/explain.md), and each segment's why (what held it, what ended it) in --intervals and --rerun.")] = 0,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
-    given = dict(**labels_option(labels), labels_unit=labels_unit, topics=_names(topics), rate=rate,
-                 label_topic=label_topic, max_hold=max_hold)
     options = stage.PredictOptions(
         model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
         episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
         write_lerobot=write_lerobot, lerobot_probabilities=write_lerobot_probabilities,
         replace_subtasks=replace_subtasks, explain=explain,
-        overrides={k: v for k, v in given.items() if v not in (None, ())},
+        overrides=read_as.overrides(labels, labels_unit, topics, rate, label_topic, max_hold),
     )
     with reported_errors():
         result = stage.run(options)
@@ -72,6 +70,3 @@ def predict(
                       *(f"{m[k]:.1f}" for k in ("edit", "f1@10", "f1@25", "f1@50")))
         console.print(table)
 
-
-def _names(text: Optional[str]) -> tuple[str, ...]:
-    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else ()

@@ -84,16 +84,27 @@ def say_progress(progress: stage.Progress) -> None:
 
 
 def summary_lines(swept: stage.Swept) -> list[str]:
-    """The configs as aligned plain lines, best cross-validated score first; test figures are shown, never ranked on."""
-    header = ("config", "method", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %", "test edit")
+    """The configs as aligned plain lines, best cross-validated score first (the score shown: the mean of the three
+    cross-validated figures, with the decimals that tell them apart); test figures are shown, never ranked on."""
+    header = ("config", "method", "cv score", "cv seg. %", "cv frame %", "cv edit", "test seg. %", "test frame %",
+              "test edit")
     rows = [header]
+    places = _places([v for v in swept.table["cv_score"].to_list() if v is not None])
     for row in swept.table.sort("cv_score", descending=True, nulls_last=True, maintain_order=True).iter_rows(
             named=True):
         if row["status"] != stage.results.DONE:
-            rows.append((row["config"], "failed", *("–" for _ in range(6))))
+            rows.append((row["config"], "failed", *("–" for _ in range(7))))
             continue
-        rows.append((row["config"], row["method"],
+        rows.append((row["config"], row["method"], f"{row['cv_score']:.{places}f}",
                      *(f"{row[f'cv_{f}']:.1f} ± {row[f'cv_{f}_std']:.1f}" for f in stage.results.FIGURES),
                      *(f"{row[f'test_{f}']:.1f}" for f in stage.results.FIGURES)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
     return ["  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
+
+
+def _places(scores: list[float]) -> int:
+    """The decimals (1 to 4) at which scores that differ are shown different: the rank they give, readable."""
+    for places in range(1, 5):
+        if len({round(v, places) for v in scores}) == len(set(scores)):
+            return places
+    return 4

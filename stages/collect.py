@@ -69,7 +69,13 @@ Progress = Callable[[int, int], None]
 def collect_recordings(options: CollectOptions) -> Collected:
     """Import a user's recordings; ``train_frames``, when given, overrides their split (first K frames train)."""
     recordings = sources.read(options.env, Path(options.source), options.columns, options.recordings, Labels.SOME)
-    frames, meta = collect_frames(recordings, options.columns.classes, options.holdout or Holdout.SHARE)
+    try:
+        frames, meta = collect_frames(recordings, options.columns.classes, options.holdout or Holdout.SHARE)
+    except BadInput as error:  # frames dropped where channels stopped or started late: said with the refusal
+        said = [note for r in recordings for note in r.resolved.get("notes", [])]
+        if not said:
+            raise
+        raise BadInput(f"{error}; a frame needs every channel's value, and: {'; '.join(said)}") from None
     if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
         from mlnseq.sources import clicks
 

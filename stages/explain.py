@@ -9,7 +9,7 @@ value changed and says whether the decision flips.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ import numpy as np
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
+from mlnseq.catalog.methods import decoder_of
 from mlnseq.explaining.frames import class_index, explain, scoring_of
 from mlnseq.explaining.explainer import Explainer, Keys
 from mlnseq.explaining.segments import Segment, segments
@@ -62,7 +63,7 @@ class ExplainOptions:
         if self.what_if is not None and self.segment is not None:
             raise BadInput("--what-if changes one frame: give --frame or --time, not --segment")
         if self.decode is not None:
-            parse_decoding(self.decode)
+            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
         if self.env is not None:
             check_choice("env", self.env, RECORDING_ENVS)
 
@@ -137,6 +138,7 @@ def run(options: ExplainOptions) -> Explained:
     """Read the model and the recording; explain the frame or segment asked for."""
     options.validate()
     model = Recognizer.load(options.model)
+    options = replace(options, decode=decoder_of(options.decode, model.method))
     env, columns, source_options, label = reading_of(model, options)
     recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
     frames, meta, times = prediction_frames(recordings, columns.classes)

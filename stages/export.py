@@ -19,7 +19,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.decoders import Decoder
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import (ALIASES, METHODS, MLN_MODES, Method, MLNMode, PaperFloor, decoded_name, member,
-                                    needs_mln, network_of)
+                                    needs_mln, network_of, split_name)
 from mlnseq.catalog.notes import Note
 from mlnseq.mln import formula_sources
 from mlnseq.model import model_file
@@ -49,15 +49,22 @@ class ExportOptions:
         object.__setattr__(self, "method", member(Method, self.method, ALIASES))
         object.__setattr__(self, "mln_mode", member(MLNMode, self.mln_mode))
 
+    def named(self) -> ExportOptions:
+        """The options with a method or decoder given as commands print it (``conflation+smooth-legal@25``,
+        ``--decode smooth-legal@5``) split into method, decode and lag."""
+        method, decode, lag = split_name(str(self.method), self.decode, self.lag)
+        return replace(self, method=member(Method, method, ALIASES), decode=decode, lag=lag)
+
     def validate(self) -> None:
-        check_choice("method", self.method, ("network", *METHODS, AUTO))
-        check_choice("decode", self.decode, [d.value for d in Decoder])
+        named = self.named()  # a name as commands print it (a sweep's grid too) checked as its parts
+        check_choice("method", named.method, ("network", *METHODS, AUTO))
+        check_choice("decode", named.decode, [d.value for d in Decoder])
         check_choice("mln-mode", self.mln_mode, MLN_MODES)
-        if self.lag is not None and self.lag < 0:
-            raise BadInput(f"--lag {self.lag}: a lag is at least 0 frames")
+        if named.lag is not None and named.lag < 0:
+            raise BadInput(f"--lag {named.lag}: a lag is at least 0 frames")
         if self.latency is not None and not self.latency >= 0:
             raise BadInput(f"--latency {self.latency:g}: a latency is at least 0 seconds")
-        if self.lag is not None and self.latency is not None:
+        if named.lag is not None and self.latency is not None:
             raise BadInput("give --lag FRAMES or --latency SECONDS, not both")
 
     def output_path(self, workdir: Path, decode: str | None = None) -> Path:
@@ -79,6 +86,7 @@ SEGMENT_NOTE = ("its {network} network was trained in segment mode, its state re
 
 def run(workdir: Path, options: ExportOptions) -> Exported:
     """Gather a trained method from ``workdir`` into one model file; it is loaded once before it is written."""
+    options = options.named()
     options.validate()
     workdir = check_output(options, Path(workdir))
     frames_path = workdir / artifacts.FRAMES

@@ -10,7 +10,7 @@ scored as a stream: segment, frame, edit and F1@k).
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ from mlnseq.timeline import metrics
 from mlnseq import sources
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
+from mlnseq.catalog.methods import decoder_of
 from mlnseq.recognition.reading import reading_of
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.sources import RECORDING_ENVS, intervals
@@ -54,7 +55,7 @@ class PredictOptions:
         if self.explain < 0:
             raise BadInput(f"--explain {self.explain}: give how many terms each frame shows (0: none)")
         if self.decode is not None:
-            parse_decoding(self.decode)
+            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
         if self.env is not None:
             check_choice("env", self.env, RECORDING_ENVS)
         if not self.force:
@@ -128,6 +129,7 @@ def _run(options: PredictOptions, stage) -> Predicted:
     options.validate()
     check_outputs(options, [options.model, options.source, options.overrides.get("labels")])
     model = Recognizer.load(options.model)
+    options = replace(options, decode=decoder_of(options.decode, model.method))
     env, columns, source_options, label = reading_of(model, options)
     if options.write_lerobot is not None and env != "lerobot":
         raise BadInput(f"--write-lerobot writes LeRobot datasets, but --source {options.source} is read as --env {env}")

@@ -159,6 +159,7 @@ def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions,
     snakefile = workflow.write(sweep, out, mlnseq_command())
     done = Counting(sweep, out, progress)
     ran = running.run_snakemake(snakemake_command(snakefile, out, options), out / running.LOG, done.heard)
+    done.heard(ran, finished=True)
     if ran.code != 0 and not ran.errors:  # Snakemake itself failed: no job to blame
         last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
         raise MlnseqError(f"the sweep's workflow failed (snakemake exit {ran.code}): {last}; see {out / running.LOG}"
@@ -179,14 +180,15 @@ class Counting:
     def __init__(self, sweep: grid.Sweep, out: Path, progress: Callable[[Progress], None]):
         self.sweep, self.out, self.progress = sweep, out, progress
         self.said: tuple[int, int] | None = None
+        self.jobs: tuple[int, int] = (0, 0)  # the jobs' count last said
         self.heard(running.Run(), starting=True)
 
-    def heard(self, ran: running.Run, starting: bool = False) -> None:
+    def heard(self, ran: running.Run, starting: bool = False, finished: bool = False) -> None:
         done = sum(all(workflow.run_dir(self.out, c.name, s).joinpath(artifacts.METRICS).exists()
                        for s in self.sweep.seeds) for c in self.sweep.configs)
         failed_logs = {log for error in ran.errors for log in error.logs}
         failed = sum(any(log.startswith(f"{workflow.RUNS}/{c.name}/") for log in failed_logs)
                      for c in self.sweep.configs)
-        if (done, failed) != self.said:
-            self.said = (done, failed)
+        if (done, failed) != self.said or (finished and ran.jobs != self.jobs):  # the last line: every job counted
+            self.said, self.jobs = (done, failed), ran.jobs
             self.progress(Progress(done, failed, len(self.sweep.configs), ran.jobs, self.out / running.LOG, starting))

@@ -258,11 +258,11 @@ def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOption
         options.cell, n_features=data.features.shape[1], n_classes=len(meta["classes"]),
         hidden_size=options.hidden_size, prior_layer=options.method == Method.PRIORLAYER, smoothing=options.smoothing,
     )
-    device = resolve_device(options.device)
-    trained = fit(data, config, options, device, progress, seeds)
     folds = [folding.resolve(options.folds, options.mode, options.select, data.episodes, data.splits,
                              data.labels, Path(workdir))
-             for workdir in workdirs]
+             for workdir in workdirs]  # before any epoch: --folds the training split cannot cut is refused at once
+    device = resolve_device(options.device)
+    trained = fit(data, config, options, device, progress, seeds)
     out_of_fold: list[OutOfFold | None] = [None] * len(workdirs)
     if folds[0] is not None:
         for workdir, other in zip(workdirs[1:], folds[1:]):

@@ -18,40 +18,8 @@ STEP, START = 20_000_000, 1_700_000_000 * 10**9  # 50 Hz
 JOINTS = [f"{arm}_{name}" for arm in ("left", "right") for name in ("x", "y", "z", "roll", "pitch", "yaw", "gripper")]
 
 # The paper's DESK predicates written by hand for these bags (stages/specs/desk.binarize.toml's rules on the raw
-# channels: gripper opening in percent, the arms' distance from their positions).
-HAND_SPEC = """[[channel]]
-name = "arm_distance"
-kind = "distance"
-from = ["/joint_states/position/left_x", "/joint_states/position/left_y", "/joint_states/position/left_z"]
-to = ["/joint_states/position/right_x", "/joint_states/position/right_y", "/joint_states/position/right_z"]
-
-[[predicate]]
-name = "arm_distance"
-kind = "change"
-channel = "arm_distance"
-threshold = 0.001
-
-[[predicate]]
-name = "left_gripper"
-kind = "gripper"
-channel = "/joint_states/position/left_gripper"
-open_above = 90.0
-closed_below = 35.0
-threshold = 5.0
-
-[[predicate]]
-name = "right_gripper"
-kind = "gripper"
-channel = "/joint_states/position/right_gripper"
-open_above = 90.0
-closed_below = 35.0
-threshold = 5.0
-
-[[predicate]]
-name = "grippers"
-kind = "pair"
-of = ["left_gripper", "right_gripper"]
-"""
+# channels: gripper opening in percent, the arms' distance from their positions), as the README names them.
+HAND_SPEC = (Path(__file__).resolve().parents[1] / "examples" / "desk-bags.binarize.toml").read_text()
 
 
 def trials(desk: np.ndarray) -> list[np.ndarray]:

@@ -121,3 +121,53 @@ class WeightSource(StrEnum):
     VALIDATION = "validation"  # the best of a grid on the network's validation part
     FIXED = "fixed"  # given (--network-weight), or 1 with nothing to choose on
     LEARNED = "learned"  # by the chain's CLL on out-of-fold predictions
+
+
+def split_name(method: str, decode: str, lag: int | None, option: str = "--method") -> tuple[str, str, int | None]:
+    """``--method``, ``--decode`` and ``--lag`` as any command prints a name: ``conflation+smooth-legal@25`` (a
+    method with its decoder and lag), ``smooth-legal@5`` (a decoder with its lag), or each apart; a part given twice
+    and differently is a BadInput."""
+    from mlnseq.catalog.decoders import parse_decoding
+
+    name, plus, named_decode = str(method).partition("+")
+    if plus:
+        from mlnseq.catalog.decoders import Decoder
+
+        if name not in (*(m.value for m in METHODS), *ALIASES) or named_decode.partition("@")[0] not in {
+                d.value for d in Decoder}:
+            parse_method(str(method), option)  # refused with the names it takes
+        if decode not in ("none", named_decode.partition("@")[0], named_decode):
+            raise BadInput(f"{option} {method} names its decoder; --decode {decode} names another: give one")
+        method, decode = name, named_decode
+    if "@" in decode:
+        decoding = parse_decoding(decode, option if plus else "--decode")
+        if lag is not None and lag != decoding.lag:
+            raise BadInput(f"{decode} waits {decoding.lag} frames; --lag {lag} says another: give the lag once")
+        decode, lag = decoding.decoder.value, decoding.lag
+    return method, decode, lag
+
+
+def decoders_named(names: tuple[str, ...], option: str = "--decode") -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """Decoders as any command prints them (``smooth-legal@5``, ``conflation+viterbi``: its decoder) and the lags
+    named after their @, in order."""
+    decoders, lags = [], []
+    for text in names:
+        name, plus, decode = text.partition("+")
+        if plus:
+            parse_method(text, option)
+        _, decode, lag = split_name(name, decode if plus else text, None, option)
+        decoders.append(decode)
+        lags += [] if lag is None else [lag]
+    return tuple(dict.fromkeys(decoders)), tuple(dict.fromkeys(lags))
+
+
+def decoder_of(text: str | None, method: str, option: str = "--decode") -> str | None:
+    """A decoder given to a model of ``method``: ``smooth-legal@5``, or the model's name as commands print it
+    (``conflation+smooth-legal@5``): its decoder; a name of another method is a BadInput."""
+    if text is None or "+" not in text:
+        return text
+    named, decode = parse_method(text, option)
+    if named != as_method(method):
+        raise BadInput(f"{option} {text}: this model recognises with {as_method(method)}, not {named}; give its "
+                       f"decoder alone (--decode {decode})")
+    return decode

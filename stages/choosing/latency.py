@@ -117,7 +117,9 @@ def choose(figures: dict[str, dict[str, float]], budget: int | None, decoder: De
         limit = "" if budget is None else f" within {budget} frame(s)"
         raise BadInput(f"no cross-validated {what}candidate in {where}{limit}"
                        + (" that keeps its hard rules" if hard_rules else "")
-                       + ": run `mlnseq conflate --decode all` (with --lags including smaller lags) or allow more")
+                       + (": run `mlnseq conflate --decode all` (`mlnseq fit --offline` conflates offline decoders too)"
+                          if decoder is not None and decoder.offline else
+                          ": run `mlnseq conflate --decode all` (with --lags including smaller lags) or allow more"))
     return best(fitting), fitting
 
 

@@ -122,4 +122,4 @@ def header_lines(searched: Searched, frames: int, source: str) -> list[str]:
     text = (f"Predicates `mlnseq binarize --suggest` learned from the training split of frames of source {source!r} "
             f"({frames:,} training frames; {searched.candidates} candidates on {searched.channels} channels), {chosen} "
             "Edit freely, then `mlnseq binarize --spec THIS_FILE`. Keys: docs/predicates.md.")
-    return textwrap.wrap(text, 114)
+    return textwrap.wrap(text, 114, break_on_hyphens=False)

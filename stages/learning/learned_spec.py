@@ -65,13 +65,18 @@ def briefly(candidate: Candidate) -> str:
     return f"{p.name.replace('_', ' ')} ({candidate.channel}): {said}"
 
 
+NEGATIVE_GAIN = (" (below 0: alone, it predicts the held-out frames' classes worse than the class frequencies do; "
+                 "kept for what it adds beside the other predicates)")
+
+
 def predicate_block(candidate: Candidate, labels: np.ndarray | None, train: np.ndarray | None,
                     classes: Sequence[str]) -> list[str]:
     import textwrap
 
     p = candidate.predicate
-    said = f"{candidate.channel}: {how(candidate)}; out-of-fold gain {candidate.oof:.3f} nats per frame"
-    lines = ["", *(f"# {line}" for line in textwrap.wrap(said, 114))]
+    said = f"{candidate.channel}: {how(candidate)}; out-of-fold gain {candidate.oof:.3f} nats per frame" + (
+        NEGATIVE_GAIN if candidate.oof < 0 else "")
+    lines = ["", *(f"# {line}" for line in textwrap.wrap(said, 114, break_on_hyphens=False))]
     if labels is not None:
         lines += [f"#   {value}: {said}" for value, said in zip(p.values, separates(
             candidate.codes[train], labels[train], classes, len(p.values)))]

@@ -44,7 +44,14 @@ READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, Ke
 EOCD = struct.Struct("<4s4H2LH")  # the zip's end-of-central-directory record
 
 
+CORRUPTED = ("Bad CRC-32", "Bad magic number", "Error -3 while decompressing")  # zip's checks of a member's bytes
+
+
 def _foreign(where: Any, reason: Any) -> BadInput:
+    if isinstance(reason, zlib.error) or any(mark in str(reason) for mark in CORRUPTED):
+        return BadInput(f"{where} is corrupted: a member fails the zip's own check ({reason}), its bytes changed "
+                        "since it was written (or it is no file mlnseq wrote); copy it again, or write it again with "
+                        "`mlnseq export`")
     return BadInput(f"{where} is not an mlnseq model file (truncated or foreign: {reason}); "
                     "write one with `mlnseq export`")
 

@@ -46,7 +46,8 @@ def claims(run: Run) -> list[str]:
                      f"({fmt(mean[best])} vs combined {fmt(mean['combined'])}).")
         weakest = min(mean, key=lambda m: mean[m])
         verdict = "holds" if weakest == "mln" else f"does not hold: {METHOD_NAMES[weakest]} is weakest here"
-        lines.append(f"{dataset}: the MLN alone is the weakest: {verdict} ({fmt(mean['mln'])}).")
+        figures = f"{fmt(mean['mln'])}" if weakest == "mln" else f"{fmt(mean[weakest])} vs MLN {fmt(mean['mln'])}"
+        lines.append(f"{dataset}: the MLN alone is the weakest: {verdict} ({figures}).")
     lines += regularisation_claims(run)
     return lines
 

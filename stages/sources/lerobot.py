@@ -137,6 +137,10 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
             resolved={"skipped_features": skipped}))
         if style is not None:
             subtasks.append(_active(table, time, style, path))
+        elif label is Labels.REQUIRED and not labelled and language.PERSISTENT in table.columns \
+                and language.annotated_episodes(table):  # no labels asked for, the dataset's own subtasks there
+            raise BadInput(f"{path}: no label column {columns.label!r}; the dataset's own subtask annotations label "
+                           "its frames with --labels subtask (or name a column with --label-column)")
     if style is not None:
         return _with_annotations(recordings, subtasks, style, label, getattr(options, "unlabelled", None), source)
     return recordings

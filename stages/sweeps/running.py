@@ -18,7 +18,6 @@ from pathlib import Path
 LOG = "sweep.log"
 TAIL_LINES = 40  # of Snakemake's output, kept for a failure that names no job
 STEPS = re.compile(r"^(\d+) of (\d+) steps \(.*\) done")
-FINISHED = re.compile(r"^Finished jobid: \d+ \(Rule: (\w+)\)")
 EXIT_STATUS = re.compile(r"returned non-zero exit status (-?\d+)")
 ERROR = re.compile(r"^Error in rule (\w+):")
 SLURM_STATUS = re.compile(r"SLURM-job '(\w+)' failed, SLURM status is: '(\w+)'")
@@ -108,9 +107,8 @@ class Reader:
             self.run.errors.append(self.block)
             self.status = None
             self.progress(self.run)
-        elif steps:
+        elif steps:  # after each job's `Finished jobid` line: the progress hears the count with the job in it
             self.run.jobs = (int(steps.group(1)), int(steps.group(2)))
-        elif FINISHED.match(line):
             self.progress(self.run)
 
     def _close(self) -> None:

@@ -58,6 +58,8 @@ def test_the_current_folders_file_wins_over_the_workdirs_with_a_note(here, evalu
     assert said.strip() == (f"note: {evaluated / 'mlnseq.toml'} is not read: mlnseq.toml in the current folder wins "
                             "(pass --config to choose)")
     assert shown_file(evaluated) == "project file: mlnseq.toml (from the current folder)"
+    shown = runner.invoke(app, ["config", "show", "-w", str(evaluated)])  # its note on stderr, as eval's
+    assert shown.stderr == said and "is not read" not in shown.stdout
 
 
 def test_the_workdirs_file_is_read_when_the_current_folder_has_none(here, evaluated):

@@ -132,3 +132,19 @@ def test_without_snakemake_the_sweep_names_its_extra(tmp_path, tiny_desk_workdir
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     refused(done, "pip install '.[sweep]' in mlnseq's checkout", "'mlnseq-0.1.0-py3-none-any.whl[sweep]' beside the wheel")
     assert not (tmp_path / "sweep").exists()
+
+
+def test_a_grid_takes_method_names_as_commands_print_them(tmp_path, tiny_desk_workdir):
+    """`export.method = ["mln+viterbi"]`, `decode = ["smooth-legal@5"]`: names as conflate and eval print them, each
+    checked as its parts; a name and a decode that disagree are refused in one line."""
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'export.method = ["mln+viterbi", "conflation"]\n'
+                       'decode = ["none"]\n')
+    sweep = grid.read(path, STAGES)
+    assert [grid.flags("export", c.options["export"])[:2] for c in sweep.configs] == [
+        ["--method", "mln+viterbi"], ["--method", "conflation"]]
+    lagged = write_sweep(tmp_path / "lagged", tiny_desk_workdir, 'export.method = ["conflation"]\n'
+                         'decode = ["smooth-legal@5"]\n')
+    assert len(grid.read(lagged, STAGES).configs) == 1
+    clash = write_sweep(tmp_path / "clash", tiny_desk_workdir, 'export.method = ["conflation+filter"]\n'
+                        'decode = ["viterbi"]\n')
+    refused(mlnseq("sweep", str(clash), cwd=tmp_path), "names its decoder; --decode viterbi names another")

@@ -140,3 +140,24 @@ def test_a_killed_job_fails_its_config_alone_in_one_line_and_the_rerun_redoes_on
     for path, mtime in killed["files"].items():
         if "cell-lstm" in path.parts:
             assert path.stat().st_mtime_ns == mtime, f"{path} was made again"
+
+
+def test_the_summary_shows_the_score_it_ranks_by_and_the_last_progress_line_counts_every_job(local_sweep):
+    """The rows sorted by the `cv score` column they show (the mean of the three cross-validated figures); the last
+    progress line's jobs are the log's last count (it said 11 of 13 where the log said 13 of 13)."""
+    import re
+
+    table = pl.read_parquet(local_sweep["out"] / "results.parquet")
+    lines = local_sweep["result"].stdout.strip().splitlines()
+    header = lines[1].split("  ")
+    assert [h.strip() for h in header if h.strip()][:3] == ["config", "method", "cv score"]
+    column = lines[1].index("cv score")
+    scores = [float(line[column:].split()[0]) for line in lines[2:4]]
+    assert scores == sorted(scores, reverse=True)
+    by_config = {c: s for c, s in zip(table["config"], table["cv_score"])}
+    assert all(abs(by_config[line.split()[0]] - score) < 0.006 for line, score in zip(lines[2:4], scores))
+    progress = [line for line in local_sweep["result"].stderr.splitlines() if line.startswith("sweep: ")]
+    steps = re.findall(r"^(\d+) of (\d+) steps", local_sweep["log"], re.M)
+    said = re.search(r"\((\d+) of (\d+) jobs\)", progress[-1])
+    if steps:  # this run had jobs to do
+        assert said is not None and said.groups() == steps[-1], (progress, steps)

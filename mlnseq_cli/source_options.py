@@ -1,0 +1,35 @@
+"""The options that say how a recording is read, one set for every command that reads one as the model's were read
+(predict, explain): a line of one pasted into the other reads the same frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+from mlnseq.sources import labels_option
+
+Env = Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")]
+LabelColumn = Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; predict scores labelled recordings (metrics printed and stored).")]
+EpisodeColumn = Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")]
+TimeColumn = Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's; else 'frame' if present, else file order]; \"\" reads a recording without the model's time column.")]
+LabelsFile = Annotated[Optional[Path], typer.Option("--labels", help="True labels as intervals (episode, start, end, label), to score the predictions; lerobot: subtask reads the dataset's own subtask annotations.", dir_okay=False)]
+LabelsUnit = Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: the model's].")]
+Topics = Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")]
+Rate = Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")]
+LabelTopic = Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")]
+MaxHold = Annotated[Optional[float], typer.Option(help="rosbag: the longest a frame holds a topic's or joint's last value, in seconds (inf: no bound); past it the frame is dropped \\[default: the model's].")]
+
+
+def overrides(labels: Optional[Path], labels_unit: Optional[str], topics: Optional[str], rate: Optional[float],
+              label_topic: Optional[str], max_hold: Optional[float]) -> dict[str, Any]:
+    """The SourceOptions fields given (the rest: the model's)."""
+    given = dict(**labels_option(labels), labels_unit=labels_unit, topics=names(topics), rate=rate,
+                 label_topic=label_topic, max_hold=max_hold)
+    return {k: v for k, v in given.items() if v not in (None, ())}
+
+
+def names(text: Optional[str]) -> tuple[str, ...]:
+    """A comma list as a tuple of names."""
+    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else ()
