@@ -21,7 +21,7 @@ def explain(
     segment: Annotated[Optional[int], typer.Option(help="Explain the episode's K-th decided segment (from 0): what held it and what ended it.")] = None,
     versus: Annotated[Optional[str], typer.Option(help="The class to compare with \\[default: the runner-up].")] = None,
     what_if: Annotated[Optional[str], typer.Option("--what-if", help="PREDICATE=VALUE (e.g. left_gripper=closed, or a column =true/false): score the frame again with it and say whether the decision flips.")] = None,
-    decode: Annotated[Optional[str], typer.Option(help="A decoder (e.g. smooth-legal@5), or the model's method with it as names are printed (conflation+viterbi) \\[default: the model's].")] = None,
+    decode: read_as.Decode = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines: frame, time, class, versus, margin and terms (kind, text, line, contribution).")] = False,
     env: read_as.Env = None,
     episode_column: read_as.EpisodeColumn = None,

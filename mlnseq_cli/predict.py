@@ -18,7 +18,7 @@ def predict(
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite the output files if they exist.")] = False,
-    decode: Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), or the model's method with it as names are printed (conflation+viterbi) \\[default: the model's]; viterbi or posterior decodes a filter model offline.")] = None,
+    decode: read_as.Decode = None,
     env: read_as.Env = None,
     label_column: read_as.LabelColumn = None,
     episode_column: read_as.EpisodeColumn = None,

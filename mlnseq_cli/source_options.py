@@ -1,5 +1,5 @@
-"""The options that say how a recording is read, one set for every command that reads one as the model's were read
-(predict, explain): a line of one pasted into the other reads the same frames."""
+"""The options that say how a recording is read and decoded, one set for every command that reads one as the model's
+were read (predict, explain, review): a line of one pasted into another reads and decides the same frames."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import typer
 
 from mlnseq.sources import labels_option
 
+Decode = Annotated[Optional[str], typer.Option(help="A decoder, with @LAG for smooth and lagviterbi (e.g. smooth-legal@5), or the model's method with it as names are printed (conflation+viterbi) \\[default: the model's]; viterbi or posterior decodes a filter model offline.")]
 Env = Annotated[Optional[str], typer.Option(help="table, rosbag, lerobot, hdf5 or jigsaws \\[default: as the model's recordings were read].")]
 LabelColumn = Annotated[Optional[str], typer.Option(help="The label column; named, the recordings must have it \\[default: the model's, used if present]; predict scores labelled recordings (metrics printed and stored).")]
 EpisodeColumn = Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import importlib.resources
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from http import HTTPStatus
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -22,6 +22,7 @@ from mlnseq import sources
 from mlnseq.catalog import artifacts, folders
 from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.catalog.methods import decoder_of
 from mlnseq.explaining.explainer import Explainer, Keys, Scores
 from mlnseq.explaining.frames import explain, scoring_of
 from mlnseq.fusion.fuse import EPSILON
@@ -62,7 +63,7 @@ class ReviewOptions:
         if not 0 <= self.port <= 65535:
             raise BadInput(f"--port {self.port}: choose 0-65535 (0: any free port)")
         if self.decode is not None:
-            parse_decoding(self.decode)
+            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
         if self.env is not None:
             check_choice("env", self.env, RECORDING_ENVS)
 
@@ -238,6 +239,7 @@ def prepare(options: ReviewOptions) -> tuple[Review, GuardedServer]:
     options.validate()
     source = Path(options.source) if options.source is not None else workdir_source(options.workdir)
     model = Recognizer.load(options.model)
+    options = replace(options, decode=decoder_of(options.decode, model.method))
     env, columns, source_options, label = reading_of(model, options)
     save = options.save_path()
     corrections.check_path(save, source, [Path(options.model), *filter(None, [source_options.labels])])

@@ -84,18 +84,19 @@ def test_predict_and_explain_take_the_models_decoded_name(desk_stream_workdir, d
 
 
 READS_ONLY_IN_PREDICT = {"output", "force", "intervals", "rerun", "write_lerobot", "write_lerobot_probabilities",
-                         "replace_subtasks", "explain", "decode", "model", "source", "help"}
+                         "replace_subtasks", "explain", "model", "source", "help"}
 
 
-def test_explain_takes_every_source_option_predict_takes():
+@pytest.mark.parametrize("sibling", ["explain", "review"])
+def test_siblings_take_every_source_option_predict_takes(sibling):
     def options(name):
         return {p.name: p for p in _load(name).params}
 
-    predict, explain = options("predict"), options("explain")
+    predict, other = options("predict"), options(sibling)
     shared = set(predict) - READS_ONLY_IN_PREDICT
-    assert shared >= {"label_column", "max_hold", "label_topic", "labels", "episode_column", "topics"}
-    assert shared <= set(explain), shared - set(explain)
-    assert all(predict[n].help == explain[n].help and predict[n].opts == explain[n].opts for n in shared)
+    assert shared >= {"label_column", "max_hold", "label_topic", "labels", "episode_column", "topics", "decode"}
+    assert shared <= set(other), shared - set(other)
+    assert all(predict[n].help == other[n].help and predict[n].opts == other[n].opts for n in shared)
     assert "explain" in COMMANDS
 
 
