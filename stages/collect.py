@@ -19,6 +19,7 @@ from mlnseq import sources
 from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
+from mlnseq.catalog.notes import counted
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
@@ -126,7 +127,27 @@ def run(workdir: Path, options: CollectOptions, progress: Progress | None = None
     collected = collect(options, progress)
     options_record = json.loads(json.dumps({k: v for k, v in asdict(options).items() if k != "cache"}, default=str))
     meta = {"options": options_record, "seed": options.seed, **collected.meta}
+    if (replaced := replacing_another(Path(workdir), options_record)) is not None:
+        meta["notes"] = [*meta.get("notes", []), replaced]
+        collected.meta["notes"] = meta["notes"]
     path = artifacts.write_table(
         collected.frames, Path(workdir) / artifacts.FRAMES, "frames", meta, inputs=collected.inputs
     )
     return path, collected
+
+
+def replacing_another(workdir: Path, options_record: dict) -> str | None:
+    """A note when the workdir's frames came from another source than these: they are replaced, and the files made
+    from them stay until their own stages run again."""
+    path = workdir / artifacts.FRAMES
+    try:
+        before = artifacts.read_metadata(path, "frames")["options"]
+    except (BadInput, KeyError, TypeError):  # none, or not one we can read: nothing to say
+        return None
+    if (before.get("env"), before.get("source")) == (options_record["env"], options_record["source"]):
+        return None
+    others = sorted(p.name for p in workdir.iterdir() if p.name != artifacts.FRAMES and not p.name.startswith("."))
+    was = f"--env {before.get('env')}" + (f" --source {before['source']}" if before.get("source") else "")
+    kept = (f"; {counted(len(others), 'file')} made from those frames stay until their stages run again "
+            f"({', '.join(others[:3])}{', ...' if len(others) > 3 else ''})") if others else ""
+    return f"replaced {path}, which held the frames of {was}{kept}; -w DIR keeps datasets apart"

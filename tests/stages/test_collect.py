@@ -190,6 +190,22 @@ def test_fetch_goals_and_train_frames_options():
     assert frames.select(pl.col("^desired_goal_.$").n_unique()).row(0) == (1, 1, 1)
 
 
+def test_collecting_another_dataset_into_a_workdir_says_what_it_replaces_and_what_stays(tmp_path, shared_data):
+    workdir = tmp_path / "work"
+    collect.run(workdir, collect.CollectOptions(env="desk", source=shared_data / "desk-taurus"))
+    (workdir / "learned.binarize.toml").write_text("# learned from the DESK frames\n")
+    table = tmp_path / "trial.csv"
+    pl.DataFrame({"x": np.linspace(0, 1, 40), "label": ["a"] * 20 + ["b"] * 20}).write_csv(table)
+    replacing = collect.CollectOptions(env="table", source=table)
+
+    _, collected = collect.run(workdir, replacing)
+    said = [note for note in collected.meta["notes"] if note.startswith("replaced")]
+    assert len(said) == 1 and "--env desk" in said[0] and "1 file made from those frames" in said[0]
+    assert "learned.binarize.toml" in said[0] and "-w DIR" in said[0]
+    _, again = collect.run(workdir, replacing)  # the same source again: nothing replaced to speak of
+    assert not [note for note in again.meta["notes"] if note.startswith("replaced")]
+
+
 # --- atomic writes --------------------------------------------------------------------------------
 
 
