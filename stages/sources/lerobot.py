@@ -131,16 +131,19 @@ def read(source: Path, columns: TableColumns, options: Any = None, label: Labels
         time = (table["timestamp"] if "timestamp" in table.columns
                 else table["frame_index"] / float(info.get("fps") or 1))
         labelled = style is None and label is not Labels.NONE and columns.label in table.columns
+        resolved = {"skipped_features": skipped}
+        if style is None and label in (Labels.REQUIRED, Labels.SOME) and not labelled \
+                and language.PERSISTENT in table.columns and language.annotated_episodes(table):
+            resolved["unlabelled"] = (f"{path}: no label column {columns.label!r}; the dataset's own subtask "
+                                      "annotations label its frames with --labels subtask (or name a column with "
+                                      "--label-column)")  # no labels asked for, the dataset's own subtasks there
+            if label is Labels.REQUIRED:
+                raise BadInput(resolved["unlabelled"])
         recordings.append(Recording(
             path=path, features=check_features(pl.DataFrame(flat), path), episode=table["episode_index"].cast(pl.Int64),
-            time=time, label=table[columns.label] if labelled else None,
-            resolved={"skipped_features": skipped}))
+            time=time, label=table[columns.label] if labelled else None, resolved=resolved))
         if style is not None:
             subtasks.append(_active(table, time, style, path))
-        elif label is Labels.REQUIRED and not labelled and language.PERSISTENT in table.columns \
-                and language.annotated_episodes(table):  # no labels asked for, the dataset's own subtasks there
-            raise BadInput(f"{path}: no label column {columns.label!r}; the dataset's own subtask annotations label "
-                           "its frames with --labels subtask (or name a column with --label-column)")
     if style is not None:
         return _with_annotations(recordings, subtasks, style, label, getattr(options, "unlabelled", None), source)
     return recordings
