@@ -1,14 +1,17 @@
-"""One click per phase: ``episode,frame,label`` (or ``time``) rows of a labels file, each saying "this frame is in
-this phase". Between two clicks of an episode the phases follow each other in click order: the frames up to the
-first click are its phase, those from the last click on the last's, and between two clicks of different phases
-one boundary falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``,
-then frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
+"""One click per phase: ``episode,frame,label`` (or ``time``) rows of a labels file, each saying "this frame is in this
+phase". Between two clicks of an episode the phases follow each other in click order: the frames up to the first
+click are its phase, those from the last click on the last's, and between two clicks of different phases one boundary
+falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``, then
+frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
 
-Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best
-into two parts of their own means (the least-squares change point of the standardised features: the two phases
-look different, nothing else is assumed); ``refill`` moves it where a model's per-frame class log-probabilities
-say (the most likely boundary given the clicks: a decoding with the click constraints), so that a network trained
-on the filled labels places them again, an EM step. The clicked frames never change."""
+Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best into
+two parts of their own means (the least-squares change point of the standardised features: the two phases look
+different, nothing else is assumed), then moves each where the frames around it look most like those around the
+boundaries of the same kind (the same two phases) in the other recordings (``aligned``: a change point misses each
+boundary by its own amount, which a network learns as blur; aligned, they miss alike); ``refill`` moves it where a
+model's per-frame class log-probabilities say (the most likely boundary given the clicks: a decoding with the click
+constraints), so that a network trained on the filled labels places them again, an EM step. The clicked frames never
+change."""
 
 from __future__ import annotations
 
@@ -18,6 +21,9 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
+
+ALIGN_HALF_WIDTH = 10  # frames on each side of a boundary compared with the other boundaries of its kind
+ALIGN_ROUNDS = 3  # rounds of moving every boundary to the others' mean window (more drift them together)
 
 
 def checked_clicks(found: list) -> list:
@@ -111,6 +117,33 @@ def best_boundary(log_probs: np.ndarray, before: int, after: int) -> int:
     return int(np.argmax(np.cumsum(log_probs[:, before] - log_probs[:, after])[:-1])) + 1
 
 
+def _window(z: np.ndarray, episodes: np.ndarray, row: int, half: int) -> np.ndarray:
+    """The rows of ``z`` from ``row - half`` to ``row + half - 1``, those outside ``row``'s episode as ``row``."""
+    around = np.clip(np.arange(row - half, row + half), 0, len(z) - 1)
+    return z[np.where(episodes[around] == episodes[row], around, row)]
+
+
+def aligned(z: np.ndarray, episodes: np.ndarray, spans: list[tuple[np.ndarray, int, int]], cuts: list[int],
+            half: int = ALIGN_HALF_WIDTH, rounds: int = ALIGN_ROUNDS) -> list[int]:
+    """Each boundary ``cuts[i]`` (in 1 .. len(rows)-1 of span i) moved, ``rounds`` times, to where the rows around it
+    are nearest (least squares) the mean of the rows around the other boundaries of its kind; one alone of its kind
+    stays."""
+    kinds = [(before, after) for _, before, after in spans]
+    for _ in range(rounds):
+        windows = [_window(z, episodes, rows[t], half) for (rows, _, _), t in zip(spans, cuts)]
+        moved = []
+        for i, (rows, _, _) in enumerate(spans):
+            others = [w for j, w in enumerate(windows) if j != i and kinds[j] == kinds[i]]
+            if not others:
+                moved.append(cuts[i])
+                continue
+            template = np.mean(others, axis=0)
+            cost = [((_window(z, episodes, row, half) - template) ** 2).sum() for row in rows[1:]]
+            moved.append(int(np.argmin(cost)) + 1)
+        cuts = moved
+    return cuts
+
+
 def _spans_rows(frames: pl.DataFrame, clicks: list[list[int]]) -> list[tuple[np.ndarray, int, int]]:
     episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
     return [(np.flatnonzero((episodes == e) & (positions >= first) & (positions <= last)), before, after)
@@ -128,10 +161,11 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     spans = _spans_rows(frames, clicks)
-    for rows, before, after in spans:
-        t = change_point(z[rows])
+    cuts = aligned(z, frames["episode"].to_numpy(), spans, [change_point(z[rows]) for rows, _, _ in spans])
+    for (rows, before, after), t in zip(spans, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
-    return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks",
+    return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks, "
+                                         "aligned with the boundaries of its kind in the other recordings",
                                          "clicks": len(clicks), "boundaries": len(spans)}
 
 

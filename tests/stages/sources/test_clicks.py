@@ -11,6 +11,7 @@ import polars as pl
 import pytest
 
 from mlnseq import collect
+from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources import SourceOptions, clicks
 
@@ -74,6 +75,28 @@ def test_boundaries_are_learned_better_than_halfway(arm, name):
     found = read(arm["bags"], labels=arm["root"] / name)
     learned, halfway = accuracy(found, arm["truth"]), halfway_accuracy(found, arm["truth"])
     assert learned > 0.85 and learned > halfway + 0.01, (learned, halfway)
+
+
+def change_points_alone(collected: collect.Collected) -> np.ndarray:
+    """The labels ``clicks.fill`` gives before it aligns the boundaries: each at its span's change point."""
+    frames, labels = collected.frames, collected.frames["label"].to_numpy().copy()
+    features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
+    z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
+    episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
+    for episode, first, last, before, after in clicks.free_spans(collected.meta["clicks"]):
+        rows = np.flatnonzero((episodes == episode) & (positions >= first) & (positions <= last))
+        t = clicks.change_point(z[rows])
+        labels[rows[:t]], labels[rows[t:]] = before, after
+    return labels
+
+
+@pytest.mark.parametrize("name", ["middle.csv", "quarter.csv"])
+def test_aligned_boundaries_are_more_right_than_change_points_alone(arm, name):
+    found, truth = read(arm["bags"], labels=arm["root"] / name), arm["truth"]
+    true_labels = np.array([found.meta["classes"].index(truth.meta["classes"][t]) for t in truth.frames["label"]])
+    aligned = float(np.mean(found.frames["label"].to_numpy() == true_labels))
+    alone = float(np.mean(change_points_alone(found) == true_labels))
+    assert aligned > alone + 0.02, (aligned, alone)
 
 
 def test_refill_puts_each_boundary_where_the_log_probabilities_say(arm):
