@@ -19,8 +19,6 @@ from mlnseq_cli.train import epoch_progress
 from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
 
-SUGGESTED_SPEC = pipeline.SUGGESTED_SPEC
-
 
 def fit_options(
     spec: Annotated[Optional[Path], typer.Option(help="Your predicate spec \\[default: predicates learned from the training split, written to learned.binarize.toml in the workdir].", dir_okay=False)] = None,

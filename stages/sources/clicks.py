@@ -4,14 +4,13 @@ click are its phase, those from the last click on the last's, and between two cl
 falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``, then
 frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
 
-Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best into
-two parts of their own means (the least-squares change point of the standardised features: the two phases look
+Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best
+into two parts of their own means (the least-squares change point of the standardised features: the two phases look
 different, nothing else is assumed), then moves each where the frames around it look most like those around the
 boundaries of the same kind (the same two phases) in the other recordings (``aligned``: a change point misses each
-boundary by its own amount, which a network learns as blur; aligned, they miss alike); ``refill`` moves it where a
-model's per-frame class log-probabilities say (the most likely boundary given the clicks: a decoding with the click
-constraints), so that a network trained on the filled labels places them again, an EM step. The clicked frames never
-change."""
+boundary by its own amount, which a network learns as blur; aligned, they miss alike). The clicked frames never
+change. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and did not
+help: docs/first-day.md.)"""
 
 from __future__ import annotations
 
@@ -111,12 +110,6 @@ def change_point(z: np.ndarray) -> int:
     return int(np.argmax((left * left).sum(axis=1) / sizes + (right * right).sum(axis=1) / (n - sizes))) + 1
 
 
-def best_boundary(log_probs: np.ndarray, before: int, after: int) -> int:
-    """The t in 1 .. n-1 maximising sum(log_probs[:t, before]) + sum(log_probs[t:, after]) over a span whose first
-    frame is in ``before`` and last in ``after``."""
-    return int(np.argmax(np.cumsum(log_probs[:, before] - log_probs[:, after])[:-1])) + 1
-
-
 def _window(z: np.ndarray, episodes: np.ndarray, row: int, half: int) -> np.ndarray:
     """The rows of ``z`` from ``row - half`` to ``row + half - 1``, those outside ``row``'s episode as ``row``."""
     around = np.clip(np.arange(row - half, row + half), 0, len(z) - 1)
@@ -167,13 +160,3 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks, "
                                          "aligned with the boundaries of its kind in the other recordings",
                                          "clicks": len(clicks), "boundaries": len(spans)}
-
-
-def refill(frames: pl.DataFrame, clicks: list[list[int]], log_probs: np.ndarray) -> pl.DataFrame:
-    """The boundaries placed again where per-frame class ``log_probs`` [n, C] (one row per row of ``frames``: a
-    network's or a fused recogniser's, out of fold where it can be) say."""
-    labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
-    for rows, before, after in _spans_rows(frames, clicks):
-        t = best_boundary(log_probs[rows], before, after)
-        labels[rows[:t]], labels[rows[t:]] = before, after
-    return _relabelled(frames, labels)

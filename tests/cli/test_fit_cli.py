@@ -20,7 +20,7 @@ import desk_bags  # noqa: E402  (tests/desk_bags.py)
 from choice_rule import expected_choice  # noqa: E402  (tests/choice_rule.py)
 from mlnseq_cli.main import app  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
-from mlnseq_cli.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402
+from mlnseq.pipeline.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402
 
 runner = CliRunner()
 

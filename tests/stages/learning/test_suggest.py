@@ -61,12 +61,17 @@ def learned(arm, tmp_path_factory) -> tuple[Path, binarize.Binarized]:
     return spec, binarize.run(arm, binarize.BinarizeOptions(suggest=spec))[1]
 
 
+def gripper_columns(frames: pl.DataFrame, features: list[str]) -> list[str]:
+    """The feature columns suggest reads as grippers, on the training split."""
+    train = frames.filter(pl.col("split") == "train")
+    return [c for c in features if suggest.looks_like_gripper(
+        suggest.Channel(c, c, train[c].to_numpy(), np.abs(np.diff(train[c].to_numpy()))))]
+
+
 def test_the_columns_read_as_grippers_points_and_short_names(kinematics):
     frames = pl.read_parquet(kinematics / artifacts.FRAMES)
     features = artifacts.feature_columns(frames)
-    train = frames.filter(pl.col("split") == "train")
-    grippers = [c for c in features if suggest.looks_like_gripper(
-        suggest.Channel(c, c, train[c].to_numpy(), np.abs(np.diff(train[c].to_numpy()))))]
+    grippers = gripper_columns(frames, features)
     assert grippers == ["left_gripper_opening", "right_gripper_opening"]
     assert suggest.points(features) == [("left", ("left_x", "left_y", "left_z")),
                                         ("right", ("right_x", "right_y", "right_z"))]
@@ -125,9 +130,7 @@ def test_an_edited_spec_is_kept_unless_forced_and_the_class_table_reads_its_pred
 def test_fetch_grippers_are_the_finger_openings_not_their_rates_and_points_are_positions(fetch_frames_workdir):
     frames = pl.read_parquet(fetch_frames_workdir / artifacts.FRAMES)
     features = artifacts.feature_columns(frames)
-    train = frames.filter(pl.col("split") == "train")
-    grippers = [c for c in features if suggest.looks_like_gripper(
-        suggest.Channel(c, c, train[c].to_numpy(), np.abs(np.diff(train[c].to_numpy()))))]
+    grippers = gripper_columns(frames, features)
     assert grippers == ["gripper_state_right", "gripper_state_left"]
     assert [name for name, *_ in suggest.distance_channels(features, set(frames.columns))] == [
         "between_grip_pos_and_object_pos"]

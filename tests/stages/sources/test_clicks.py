@@ -99,16 +99,6 @@ def test_aligned_boundaries_are_more_right_than_change_points_alone(arm, name):
     assert aligned > alone + 0.02, (aligned, alone)
 
 
-def test_refill_puts_each_boundary_where_the_log_probabilities_say(arm):
-    found, truth = read(arm["bags"], labels=arm["root"] / "middle.csv"), arm["truth"]
-    mapping = {t: found.meta["classes"].index(truth.meta["classes"][t]) for t in range(5)}
-    labels = np.array([mapping[t] for t in truth.frames["label"].to_numpy()])
-    log_probs = np.log(np.full((len(labels), 5), 0.05))
-    log_probs[np.arange(len(labels)), labels] = np.log(0.8)
-    again = clicks.refill(found.frames, found.meta["clicks"], log_probs)
-    assert np.array_equal(again["label"].to_numpy(), labels)
-
-
 def test_clicks_in_seconds_mixed_with_intervals(arm, tmp_path):
     rate = arm["rate"]
     lines = (arm["root"] / "middle.csv").read_text().splitlines()
