@@ -2,14 +2,12 @@
 to learn from and held-out recordings of later seeds no stage reads, by frame accuracy on the held-out ones:
 
 - ``all 6``: every recording labelled (/phase);
-- ``L labelled``: L of them labelled (1, 2, 3), the others given unlabelled in the same --source (no /phase);
-  fit ignores them: the figure is that of the L alone (tests/cli/test_fit_unlabelled.py checks they are the same);
-- ``L + self-training``: then one round of self-training (mlnseq.labelling.self_training): the network and the MLN
-  label the unlabelled recordings' frames where they agree at the threshold chosen out of fold on the labelled
-  folds, and fit runs again on the labelled recordings and those frames (--labels, --holdout none);
+- ``L alone``: L of them labelled (1, 2, 3) and nothing else in --source;
+- ``L + unlabelled``: the same L labelled and the other 6 - L in the same --source without /phase: fit labels them by
+  alignment to the labelled ones (mlnseq.sources.alignment) and learns from all 6;
 - ``clicks``: all 6 with one click per phase (a frame drawn at random within each phase) instead of /phase;
-- ``label next``: from 1 labelled + 5 unlabelled, the recording label_next.csv ranks first labelled as well, against
-  the mean of labelling each of the 5 (the difference, in points, per arm).
+- ``next`` and ``any``: from 1 labelled + 5 unlabelled, the recording label_next.csv ranks first labelled as well
+  (the other 4 still unlabelled in --source), against the mean of labelling each of the 5.
 
 ``BENCH_LABELS_ARMS``: robot:seed pairs (default panda:83,iiwa:89,xarm7:97: seeds never used while developing);
 ``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
@@ -43,7 +41,7 @@ def bags(root: Path, robot: str, seed: int, n: int, heldout: int) -> dict:
     """``n`` bags with /phase (``all``), the same without it (``bare``), held-out ones, and one click per phase."""
     import arm_bags
 
-    arm, rng = arm_bags.ROBOTS[robot], np.random.default_rng(seed)
+    arm, rng = arm_bags.ROBOTS[robot], np.random.default_rng(seed)  # rng: where each click falls
     names = {f"episode_{k + 1}": seed * 1000 + k for k in range(n)}
     for name, s in names.items():
         arm_bags.write_bag(root / "all" / name, arm, s)
@@ -85,40 +83,9 @@ def conflation(work: Path) -> Path:
     return model
 
 
-def self_trained(work: Path, folder: Path, epochs: str) -> tuple[Path | None, str]:
-    """One round: the labelled recordings' own intervals and the agreed runs of the unlabelled ones, fitted again."""
-    import polars as pl
-
-    from mlnseq.catalog import artifacts
-    from mlnseq.labelling import self_training
-    from mlnseq.recognition.recognizer import Recognizer
-    from mlnseq.sources import intervals
-
-    chosen = self_training.chosen(work)
-    if chosen.threshold is None:
-        return None, chosen.said()
-    model = Recognizer.load(conflation(work))
-    frames, meta = artifacts.read_table(work / artifacts.FRAMES, "frames")
-    names, classes = meta["episode_names"], meta["classes"]
-    known = artifacts.labelled(frames)
-    rows = intervals.segments([names[e] for e in known["episode"]], known["frame"].to_numpy(),
-                              known["frame"].to_numpy().astype(float),
-                              [classes[k] for k in known["label"]], "frames").rows()
-    bare = frames.filter(pl.col("split") == "unlabelled")
-    for (episode,), part in bare.partition_by("episode", as_dict=True, maintain_order=True).items():
-        scores = model.scored(part.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64))
-        agreed, sure = self_training.agreed(scores.log_p_network, scores.log_p_mln, chosen.threshold)
-        rows += self_training.runs_as_intervals(names[episode], agreed, sure, model.classes)
-    labels = work.parent / f"{work.name}.pseudo.csv"
-    pl.DataFrame(rows, schema=["episode", "start", "end", "label"], orient="row").write_csv(labels)
-    again = fit(folder, work.parent / f"{work.name}-self", epochs, "--labels", str(labels), "--labels-unit",
-                "frames", "--holdout", "none")
-    return again, chosen.said()
-
-
 def label_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[float, float, str]:
     """(accuracy labelling the recording fit's label_next.csv ranks first, mean accuracy labelling each of them, the
-    first's reason)."""
+    first's reason): the first recording and the candidate labelled, the others without labels in --source."""
     import polars as pl
 
     from mlnseq.catalog import artifacts
@@ -127,7 +94,7 @@ def label_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[f
     candidates = ranked["episode"].to_list()[:2 if quick else None]
     accuracy = {}
     for candidate in candidates:
-        folder = source(data, [data["names"][0], candidate], False, f"next-{candidate}")
+        folder = source(data, [data["names"][0], candidate], True, f"next-{candidate}")
         accuracy[candidate] = held_out(fit(folder, data["root"] / f"w-next-{candidate}", epochs), data)
     return accuracy[candidates[0]], float(np.mean(list(accuracy.values()))), ranked["reason"][0]
 
@@ -137,15 +104,12 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     epochs, row = config["epochs"], {}
     row["all"] = held_out(fit(source(data, data["names"], False, "src-all"), root / "w-all", epochs), data)
     for count in config["labelled"]:
-        folder = source(data, data["names"][:count], True, f"src-{count}")
-        work = root / f"w-{count}"
-        row[f"{count} labelled"] = held_out(fit(folder, work, epochs), data)
-        model, said = self_trained(work, folder, epochs)
-        row[f"{count} + self-training"] = held_out(model, data) if model else float("nan")
-        row[f"{count} said"] = said
+        for others, column in ((False, "alone"), (True, "+ unlabelled")):
+            folder = source(data, data["names"][:count], others, f"src-{count}-{others}")
+            row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{others}", epochs), data)
     clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
     row["clicks"] = held_out(clicks, data)
-    row["next"], row["any"], row["next reason"] = label_next_gain(data, root / "w-1", epochs, config["quick"])
+    row["next"], row["any"], row["next reason"] = label_next_gain(data, root / "w-1-True", epochs, config["quick"])
     return row
 
 
@@ -156,15 +120,15 @@ def main() -> None:
         for robot, seed in config["arms"]:
             rows[f"{robot}:{seed}"] = measure(robot, seed, config, Path(tmp) / f"{robot}-{seed}")
             print(f"{robot}:{seed}: {rows[f'{robot}:{seed}']}", flush=True)
-    columns = ["all", *[f"{c} {w}" for c in config["labelled"] for w in ("labelled", "+ self-training")], "clicks",
-               "next", "any"]
+    columns = ["all", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")], "clicks", "next",
+               "any"]
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
           f"{config['epochs']}, {config['episodes']} recordings to learn from")
     print("| arm | " + " | ".join(columns) + " |")
     print("|---" * (len(columns) + 1) + "|")
     for name, row in rows.items():
         print(f"| {name} | " + " | ".join(f"{row[c]:.1f}" for c in columns) + " |")
-    means = {c: float(np.mean([row[c] for row in rows.values()])) for c in columns}  # nan: a row without it
+    means = {c: float(np.mean([row[c] for row in rows.values()])) for c in columns}
     print("| mean | " + " | ".join(f"{means[c]:.1f}" for c in columns) + " |")
     gains = [row["next"] - row["any"] for row in rows.values()]
     print(f"labels: {len(rows)} arm(s) measured; label_next's first against the mean of any: "

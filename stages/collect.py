@@ -21,6 +21,7 @@ from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.notes import counted
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
+from mlnseq.sources.alignment import Aligned
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
@@ -41,6 +42,7 @@ class CollectOptions:
     recordings: SourceOptions = SourceOptions()  # recording sources: labels file, topics, rate...
     cache: Path | None = None  # fetch: folder of simulated episodes to reuse (not recorded: frames are the same)
     holdout: Holdout | None = None  # recordings without a split column; None: SHARE (fit: UNLESS_FEW)
+    align: bool = False  # label recordings without labels by alignment to the labelled training ones (fit: True)
 
     def validate(self) -> None:
         check_choice("env", self.env, ENVS)
@@ -81,6 +83,12 @@ def collect_recordings(options: CollectOptions) -> Collected:
         from mlnseq.sources import clicks
 
         frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
+    aligned = None
+    if options.align and meta.get("unlabelled_episodes"):  # labelled by alignment to the labelled ones
+        from mlnseq.sources import alignment
+
+        frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]))
+        meta["aligned"] = aligned.record()
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))
     meta["source"] = options.env
@@ -94,14 +102,19 @@ def collect_recordings(options: CollectOptions) -> Collected:
                             ("empty_columns", "columns without a value"))
           if r.resolved.get(key)),
         *(note for r in recordings for note in r.resolved.get("notes", [])),  # a source's own notes
-        *([unlabelled_note(len(meta["unlabelled_episodes"]))] if meta.get("unlabelled_episodes") else [])]))
+        *([unlabelled_note(len(meta["unlabelled_episodes"]), aligned)] if meta.get("unlabelled_episodes") else [])]))
     labels = options.recordings.labels
     inputs = (*map(Path, meta["source_files"]), *([Path(labels)] if labels is not None else []))
     return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))
 
 
-def unlabelled_note(n: int) -> str:
-    return f"{n:,} recording{'s' if n != 1 else ''} without labels: used unlabelled (never in a test split or a score)"
+def unlabelled_note(n: int, aligned: Aligned | None = None) -> str:
+    """One line on the recordings without labels: labelled by alignment (fit), or used unlabelled and why."""
+    if aligned is not None and aligned.labelled:
+        return aligned.said()
+    unlabelled = f"{n:,} recording{'s' if n != 1 else ''} without labels: used unlabelled"
+    why = f"; {aligned.said()}" if aligned is not None and aligned.checked is not None else ""
+    return f"{unlabelled} (never in a test split or a score){why}"
 
 
 def table_class_order(columns: TableColumns, classes: list[str]) -> str:

@@ -203,6 +203,24 @@ def clicks(robot: Robot, seeds: dict[str, int], where: float = 0.5) -> list[str]
     return lines
 
 
+def frames_table(signals: list[dict[str, np.ndarray]], splits: list[str]):
+    """frames.parquet of episodes (``episode_signals``' dicts) without writing bags: their 22 channels as features
+    x0 .. x21, each episode with its split, the ``unlabelled`` ones without a label."""
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+
+    rows = [np.concatenate([s["position"], s["velocity"], s["effort"], s["width"][:, None]], axis=1)
+            for s in signals]
+    keys = {"episode": np.concatenate([np.full(len(r), k) for k, r in enumerate(rows)]),
+            "frame": np.concatenate([np.arange(len(r)) for r in rows]),
+            "label": np.concatenate([s["phase"] for s in signals]),
+            "split": np.concatenate([np.full(len(r), str(split)) for r, split in zip(rows, splits)])}
+    values = np.concatenate(rows)
+    table = artifacts.frames_table(keys, {f"x{c}": values[:, c] for c in range(values.shape[1])})
+    return table.with_columns(label=pl.when(pl.col("split") != "unlabelled").then(pl.col("label")))
+
+
 def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: int = 6, heldout: int = 2,
                   rate: float | None = None) -> tuple[Path, Path]:
     """``episodes`` bags of ``robot`` (seeds seed*1000 + 0, 1, ...) in ``folder`` and ``heldout`` more (the next

@@ -1,2 +1,3 @@
-"""Labelling less: where a phase ends between two clicks (``clicks.py``), the unlabelled recordings learned from by
-self-training (``self_training.py``) and which recording to label next (``label_next.py``)."""
+"""Labelling less: which recording to label next, and the phases proposed for every recording given without labels
+(``label_next.py``). Labels filled at collect, from clicks or by alignment, are the sources' (``sources/clicks.py``,
+``sources/alignment.py``)."""

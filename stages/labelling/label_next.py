@@ -89,15 +89,17 @@ def ranked(table: pl.DataFrame) -> pl.DataFrame:
             .select("episode", "rank", "reason", *MEASURES, "score"))
 
 
-def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list) -> Proposal:
-    """The unlabelled recordings of ``frames`` (frames.parquet: split ``unlabelled``) ranked against its labelled
-    ones, with the phases ``recognizer`` (a model file fitted on the labelled ones) predicts for each."""
+def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_labels: list) -> Proposal:
+    """The recordings of ``frames`` (frames.parquet) named in ``without_labels`` (given no labels: unlabelled, or
+    labelled by alignment) ranked against the labelled ones, with the phases ``recognizer`` (a model file fitted on
+    the workdir) predicts for each."""
     from mlnseq.sources import intervals
 
     names = artifacts.feature_columns(frames)
     if list(recognizer.features) != names:
         raise ValueError(f"the model reads {recognizer.features}, the frames hold {names}")
-    unlabelled = frames["split"] == Part.UNLABELLED
+    bare_indices = [k for k, name in enumerate(episode_names) if name in set(without_labels)]
+    unlabelled = frames["episode"].is_in(bare_indices)
 
     def by_episode(rows: pl.DataFrame) -> list[tuple[int, np.ndarray]]:
         return [(int(e), part.select(names).to_numpy().astype(np.float64))

@@ -117,7 +117,8 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     source.validate()
     options.validate()
     workdir = Path(workdir)
-    source = replace(source, holdout=source.holdout or Holdout.UNLESS_FEW)  # few labelled recordings: all train
+    source = replace(source, holdout=source.holdout or Holdout.UNLESS_FEW,  # few labelled recordings: all train
+                     align=True)  # recordings without labels: labelled by alignment to the labelled ones
     collected = _collect(source, workdir, options)
     observer.collected(collected)
     binarized = _binarize(workdir, options)
@@ -156,7 +157,8 @@ def _label_next(workdir: Path, collected: Collected) -> tuple[Proposal | None, t
     try:
         export.run(workdir, export.ExportOptions(method=Method.CONFLATION.value, decode="filter", output=model,
                                                  force=True))
-        proposal = label_next.propose(Recognizer.load(model), collected.frames, collected.meta["episode_names"])
+        proposal = label_next.propose(Recognizer.load(model), collected.frames, collected.meta["episode_names"],
+                                      collected.meta["unlabelled_episodes"])
     finally:
         model.unlink(missing_ok=True)
     return proposal, label_next.write(workdir, proposal)

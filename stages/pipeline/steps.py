@@ -48,8 +48,9 @@ class Collecting:
         """With few labelled recordings and no test split: that every one trains."""
         from mlnseq.sources.splits import FEW_LABELLED
 
-        splits = self.collected.frames["split"]
-        labelled = self.collected.frames.filter(splits != "unlabelled")["episode"].n_unique()
+        splits, meta = self.collected.frames["split"], self.collected.meta
+        aligned = (meta.get("aligned") or {}).get("labelled", 0)  # labelled by alignment, not by the user
+        labelled = self.collected.frames.filter(splits != "unlabelled")["episode"].n_unique() - aligned
         if labelled >= FEW_LABELLED or (splits == "test").any():
             return []
         return [f"{counted(labelled, 'labelled recording')}, fewer than {FEW_LABELLED}: every one trains, none is "

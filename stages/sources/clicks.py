@@ -4,13 +4,16 @@ click are its phase, those from the last click on the last's, and between two cl
 falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``, then
 frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
 
-Where each boundary falls is then learned: ``fill`` places it where the frames between the two clicks split best
-into two parts of their own means (the least-squares change point of the standardised features: the two phases look
-different, nothing else is assumed), then moves each where the frames around it look most like those around the
-boundaries of the same kind (the same two phases) in the other recordings (``aligned``: a change point misses each
-boundary by its own amount, which a network learns as blur; aligned, they miss alike). The clicked frames never
-change. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and did not
-help: docs/first-day.md.)"""
+Where each boundary falls is then learned: ``fill`` first aligns each clicked recording in time to the others
+(``sources/alignment.py``), then cuts each span to where the others' clicks around a boundary of its kind fall once
+aligned (``narrowed``: the boundary comes after their earlier clicks and before their later ones), places the
+boundary where the frames left split best into two parts of their own means (the least-squares change point of the
+standardised features: the two phases look different, nothing else is assumed), moves each where the frames around
+it look most like those around the boundaries of the same kind in the other recordings (``aligned``: a change point
+misses each boundary by its own amount, which a network learns as blur; aligned, they miss alike), and last moves
+each, between its two clicks, to where its frames agree most with the labels the other recordings pair with them
+(``agreed``). The clicked frames never change. (Re-placing the boundaries from a fitted model's log-probabilities,
+an EM step, was measured and did not help: docs/first-day.md.)"""
 
 from __future__ import annotations
 
@@ -20,9 +23,11 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
+from mlnseq.sources import alignment
 
 ALIGN_HALF_WIDTH = 10  # frames on each side of a boundary compared with the other boundaries of its kind
 ALIGN_ROUNDS = 3  # rounds of moving every boundary to the others' mean window (more drift them together)
+PARTNERS = 8  # other recordings each clicked recording is aligned to in time
 
 
 def checked_clicks(found: list) -> list:
@@ -137,10 +142,8 @@ def aligned(z: np.ndarray, episodes: np.ndarray, spans: list[tuple[np.ndarray, i
     return cuts
 
 
-def _spans_rows(frames: pl.DataFrame, clicks: list[list[int]]) -> list[tuple[np.ndarray, int, int]]:
-    episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
-    return [(np.flatnonzero((episodes == e) & (positions >= first) & (positions <= last)), before, after)
-            for e, first, last, before, after in free_spans(clicks)]
+def _spans_rows(rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]]) -> list:
+    return [(rows_of[e][first:last + 1], before, after) for e, first, last, before, after in spans]
 
 
 def _relabelled(frames: pl.DataFrame, labels: np.ndarray) -> pl.DataFrame:
@@ -148,15 +151,73 @@ def _relabelled(frames: pl.DataFrame, labels: np.ndarray) -> pl.DataFrame:
     return frames.with_columns(label=pl.when(labelled).then(pl.Series(labels, dtype=pl.Int16)))
 
 
+def pairings(z: np.ndarray, rows_of: dict[int, np.ndarray]) -> dict[tuple[int, int], alignment.Pairing]:
+    """Each clicked recording aligned to up to PARTNERS others (the next ones in order), on the features weighted as
+    alignment weighs them: ``{(ours, theirs): Pairing}``."""
+    order = list(rows_of)
+    partners = {u: [order[(k + d) % len(order)] for d in range(1, min(PARTNERS, len(order) - 1) + 1)]
+                for k, u in enumerate(order)}
+    weighing = [(z[rows_of[u]], z[rows_of[t]]) for u, ts in partners.items() for t in ts[:1]]
+    weighted = z * alignment.channel_weights(weighing[:alignment.WEIGHING_PAIRS])
+    return {(u, t): alignment.paired(weighted[rows_of[u]], weighted[rows_of[t]]) for u, ts in partners.items()
+            for t in ts}
+
+
+def narrowed(spans: list[tuple[int, int, int, int, int]], found: dict[tuple[int, int], alignment.Pairing]) -> list:
+    """Each span cut to where the other recordings' clicks around a boundary of its kind fall once aligned to it: the
+    boundary comes after their earlier clicks and before their later ones. The one nearest the boundary on each side
+    is let go (a pairing may miss by a few frames); a span is kept whole where they leave no room."""
+    own = {}
+    for episode, first, last, before, after in spans:
+        own.setdefault((episode, before, after), []).append((first, last))
+    cut = []
+    for episode, first, last, before, after in spans:
+        earlier, later = [first], [last]
+        for (ours, theirs), pairing in found.items():
+            theirs_spans = own.get((theirs, before, after), [])
+            if ours == episode and len(theirs_spans) == 1:
+                earlier.append(pairing.ours_at(theirs_spans[0][0]))
+                later.append(pairing.ours_at(theirs_spans[0][1]))
+        low = max(first, sorted(earlier)[-2]) if len(earlier) > 2 else first
+        high = min(last, sorted(later)[1]) if len(later) > 2 else last
+        cut.append((episode, low, high, before, after) if high - low >= 2 else (episode, first, last, before, after))
+    return cut
+
+
+def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]],
+           found: dict[tuple[int, int], alignment.Pairing], n_classes: int) -> np.ndarray:
+    """Each boundary moved, between its two clicks, to where most frames agree with the labels the other recordings
+    pair with them (their own label counts once, each other recording's vote once)."""
+    votes = {u: np.eye(n_classes)[labels[rows]] for u, rows in rows_of.items()}
+    for (ours, theirs), pairing in found.items():
+        votes[ours] = votes[ours] + pairing.votes(labels[rows_of[theirs]], n_classes)
+    moved = labels.copy()
+    for episode, first, last, before, after in spans:
+        span = votes[episode][first:last + 1]
+        earlier, later = np.cumsum(span[:, before]), np.cumsum(span[::-1, after])[::-1]
+        t = int(np.argmax(earlier[:-1] + later[1:])) + 1  # the first frame of ``after``, in 1 .. last - first
+        moved[rows_of[episode][first:first + t]], moved[rows_of[episode][first + t:last + 1]] = before, after
+    return moved
+
+
 def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
-    """frames.parquet with every boundary between two clicks placed at its change point, and a record of how."""
+    """frames.parquet with every boundary between two clicks placed (change point in the span the other recordings'
+    clicks leave, aligned, then agreed), and a record of how."""
     features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
     z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
-    spans = _spans_rows(frames, clicks)
-    cuts = aligned(z, frames["episode"].to_numpy(), spans, [change_point(z[rows]) for rows, _, _ in spans])
-    for (rows, before, after), t in zip(spans, cuts):
+    episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
+    rows_of = {e: np.flatnonzero(episodes == e) for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
+    spans = [(e, *np.searchsorted(frame[rows_of[e]], [first, last]).tolist(), before, after)  # frames to positions
+             for e, first, last, before, after in free_spans(clicks)]
+    found = pairings(z, rows_of) if len(rows_of) > 1 else {}
+    placed = _spans_rows(rows_of, narrowed(spans, found))
+    cuts = aligned(z, episodes, placed, [change_point(z[rows]) for rows, _, _ in placed])
+    for (rows, before, after), t in zip(placed, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
+    if found:
+        labels = agreed(labels, rows_of, spans, found, int(labels.max()) + 1)
     return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks, "
-                                         "aligned with the boundaries of its kind in the other recordings",
-                                         "clicks": len(clicks), "boundaries": len(spans)}
+                                         "within the other recordings' clicks aligned to it, aligned with the "
+                                         "boundaries of its kind in the other recordings, then agreed with their "
+                                         "labels aligned to it", "clicks": len(clicks), "boundaries": len(spans)}

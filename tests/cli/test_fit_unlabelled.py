@@ -1,11 +1,12 @@
-"""`mlnseq fit` on a --source where some recordings have no labels: they never enter a split, a fold or a figure
-(the predictions and cross-validated figures are those of the labelled recordings alone), and with fewer than
-FEW_LABELLED labelled recordings every one of them trains. On the generated arm's bags (tests/arm_bags.py)."""
+"""`mlnseq fit` on a --source where some recordings have no labels: they are labelled by alignment to the labelled
+ones and train (never in a test split), ranked by what labelling each would teach; with fewer than FEW_LABELLED
+labelled recordings every one of them trains. On the generated arm's bags (tests/arm_bags.py)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 import pytest
 from typer.testing import CliRunner
@@ -38,16 +39,21 @@ def fit(bags: Path, source: str, workdir: Path) -> str:
     return " ".join(done.output.split())
 
 
-def test_unlabelled_recordings_change_no_figure(bags, tmp_path):
+def test_recordings_without_labels_are_labelled_by_alignment_and_ranked(bags, tmp_path):
+    import arm_bags
+
     said = fit(bags, "mixed", tmp_path / "mixed")
-    fit(bags, "labelled", tmp_path / "labelled")
-    assert "2 recordings without labels: used unlabelled" in said
+    assert ("2 recordings without labels labelled by aligning each to the 4 labelled training recordings; aligned to "
+            "each other, the labelled ones come out") in said
     assert "4 labelled recordings, fewer than 5: every one trains, none is spent on a test split" in said
-    mixed, mixed_meta = artifacts.read_table(tmp_path / "mixed" / artifacts.PREDICTIONS, "predictions")
-    alone, alone_meta = artifacts.read_table(tmp_path / "labelled" / artifacts.PREDICTIONS, "predictions")
-    assert set(mixed["split"]) == {"train"} and mixed["episode"].unique().sort().to_list() == [1, 2, 4, 5]
-    assert mixed.drop("episode").equals(alone.drop("episode"))
-    assert mixed_meta["cross_validation"] == alone_meta["cross_validation"]
+    frames, meta = artifacts.read_table(tmp_path / "mixed" / artifacts.FRAMES, "frames")
+    assert set(frames["split"]) == {"train"} and meta["unlabelled_episodes"] == ["episode_1", "episode_4"]
+    for episode, k in ((0, 0), (3, 3)):  # their labels by alignment against the phases the bags were made with
+        names = np.asarray(meta["classes"])[frames.filter(pl.col("episode") == episode)["label"].to_numpy()]
+        truth = np.asarray(arm_bags.PHASES)[arm_bags.episode_signals(arm_bags.ROBOTS["panda"], 4100 + k)["phase"]]
+        assert len(names) == len(truth) and np.mean(names == truth) > 0.93
+    predictions = pl.read_parquet(tmp_path / "mixed" / artifacts.PREDICTIONS)
+    assert predictions["episode"].unique().sort().to_list() == [0, 1, 2, 3, 4, 5]  # they train and are in the folds
     ranked = pl.read_csv(tmp_path / "mixed" / artifacts.LABEL_NEXT)
     assert sorted(ranked["episode"]) == ["episode_1", "episode_4"] and ranked["rank"].to_list() == [1, 2]
     first = ranked.row(0, named=True)
@@ -55,18 +61,22 @@ def test_unlabelled_recordings_change_no_figure(bags, tmp_path):
     phases = pl.read_csv(tmp_path / "mixed" / artifacts.UNLABELLED_INTERVALS)
     assert set(phases["episode"]) == {"episode_1", "episode_4"} and phases.columns == ["episode", "start", "end",
                                                                                         "label"]
+    fit(bags, "labelled", tmp_path / "labelled")
     assert not (tmp_path / "labelled" / artifacts.LABEL_NEXT).exists()  # nothing unlabelled: nothing ranked
     scored = CliRunner().invoke(app, ["eval", "-w", str(tmp_path / "mixed")])  # no test split to score
     assert scored.exit_code != 0 and "--holdout share keeps one" in scored.stderr
 
 
-def test_one_labelled_recording_beside_unlabelled_ones_is_not_cut_into_blocks(bags, tmp_path):
+def test_one_labelled_recording_alone_is_not_cut_into_blocks_and_with_others_they_are_the_folds(bags, tmp_path):
     import shutil
 
-    one = tmp_path / "one"
     for name in ("episode_1", "episode_2", "episode_4"):  # episode_2 alone has /phase
-        shutil.copytree(bags / "mixed" / name, one / name)
+        shutil.copytree(bags / "mixed" / name, tmp_path / "three" / name)
+    shutil.copytree(bags / "mixed" / "episode_2", tmp_path / "one" / "episode_2")
     (tmp_path / "hand.toml").write_text((bags / "hand.toml").read_text())
-    said = fit(tmp_path, "one", tmp_path / "work")
+    said = fit(tmp_path, "one", tmp_path / "one-work")
     assert "1 labelled recording, fewer than 5" in said  # no blocks holding whole phases out of training:
     assert "folds: none (one training recording whose task never restarts" in said  # nothing cross-validated
+    said = fit(tmp_path, "three", tmp_path / "three-work")
+    assert "2 recordings without labels labelled by aligning each to the 1 labelled training recording:" in said
+    assert "3 folds by episode" in said

@@ -1,4 +1,4 @@
-"""label_next: the unlabelled recordings of a fitted workdir ranked by what labelling each would teach, with a
+"""label_next: the recordings given without labels in a fitted workdir ranked by what labelling each would teach, with a
 reason each, and their predicted phases as intervals that --labels reads back."""
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from mlnseq.sources import SourceOptions
 @pytest.fixture(scope="module")
 def proposal(fitted) -> label_next.Proposal:
     frames, meta = artifacts.read_table(fitted["workdir"] / artifacts.FRAMES, "frames")
-    return label_next.propose(Recognizer.load(fitted["model"]), frames, meta["episode_names"])
+    return label_next.propose(Recognizer.load(fitted["model"]), frames, meta["episode_names"],
+                              meta["unlabelled_episodes"])
 
 
 def test_every_unlabelled_recording_is_ranked_with_a_reason(proposal):
@@ -39,7 +40,8 @@ def test_the_recording_unlike_the_labelled_ones_is_the_farthest(proposal):
 
 def test_predicted_phases_cover_every_frame_and_read_back_as_labels(proposal, fitted, tmp_path):
     frames, meta = artifacts.read_table(fitted["workdir"] / artifacts.FRAMES, "frames")
-    bare = frames.filter(pl.col("split") == "unlabelled")
+    given_none = [meta["episode_names"].index(name) for name in meta["unlabelled_episodes"]]
+    bare = frames.filter(pl.col("episode").is_in(given_none))  # labelled by alignment: their split is train
     segments = proposal.intervals
     assert (segments["end"] - segments["start"] + 1).sum() == bare.height
     assert set(segments["label"]) <= set(meta["classes"])
@@ -59,4 +61,4 @@ def test_a_model_of_other_features_is_refused(fitted):
     frames, meta = artifacts.read_table(fitted["workdir"] / artifacts.FRAMES, "frames")
     with pytest.raises(ValueError, match="the model reads"):
         label_next.propose(Recognizer.load(fitted["model"]), frames.drop(artifacts.feature_columns(frames)[-1]),
-                           meta["episode_names"])
+                           meta["episode_names"], meta["unlabelled_episodes"])

@@ -77,15 +77,17 @@ def test_boundaries_are_learned_better_than_halfway(arm, name):
     assert learned > 0.85 and learned > halfway + 0.01, (learned, halfway)
 
 
-def change_points_alone(collected: collect.Collected) -> np.ndarray:
-    """The labels ``clicks.fill`` gives before it aligns the boundaries: each at its span's change point."""
+def change_points_alone(collected: collect.Collected, aligned: bool = False) -> np.ndarray:
+    """The labels of each boundary at its span's change point (between the two clicks), ``aligned`` or not: what
+    ``clicks.fill`` does without the other recordings' clicks and labels aligned in time."""
     frames, labels = collected.frames, collected.frames["label"].to_numpy().copy()
     features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
     z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
     episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
-    for episode, first, last, before, after in clicks.free_spans(collected.meta["clicks"]):
-        rows = np.flatnonzero((episodes == episode) & (positions >= first) & (positions <= last))
-        t = clicks.change_point(z[rows])
+    spans = [(np.flatnonzero((episodes == episode) & (positions >= first) & (positions <= last)), before, after)
+             for episode, first, last, before, after in clicks.free_spans(collected.meta["clicks"])]
+    cuts = [clicks.change_point(z[rows]) for rows, _, _ in spans]
+    for (rows, before, after), t in zip(spans, clicks.aligned(z, episodes, spans, cuts) if aligned else cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
     return labels
 
@@ -97,6 +99,45 @@ def test_aligned_boundaries_are_more_right_than_change_points_alone(arm, name):
     aligned = float(np.mean(found.frames["label"].to_numpy() == true_labels))
     alone = float(np.mean(change_points_alone(found) == true_labels))
     assert aligned > alone + 0.02, (aligned, alone)
+
+
+def random_clicks(robot: str, seed: int) -> tuple[pl.DataFrame, list[list[int]], np.ndarray]:
+    """Six recordings of the generated arm (frames.parquet rows), a click at a random frame of each phase, and the
+    truth."""
+    import arm_bags
+
+    signals = [arm_bags.episode_signals(arm_bags.ROBOTS[robot], seed + k) for k in range(6)]
+    rng, given = np.random.default_rng(seed), []
+    for episode, phases in enumerate(s["phase"] for s in signals):
+        for phase in range(len(arm_bags.PHASES)):
+            inside = np.flatnonzero(phases == phase)
+            given.append([episode, int(inside[int(rng.uniform(0.1, 0.9) * (len(inside) - 1))]), phase])
+    return arm_bags.frames_table(signals, ["train"] * 6), given, np.concatenate([s["phase"] for s in signals])
+
+
+def aligned_change_points(frames: pl.DataFrame, given: list[list[int]], labels: np.ndarray) -> np.ndarray:
+    """Each boundary at its span's change point, aligned with those of its kind: fill without the other
+    recordings' clicks and labels aligned in time."""
+    z = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
+    z, episodes, labels = (z - z.mean(axis=0)) / z.std(axis=0), frames["episode"].to_numpy(), labels.copy()
+    spans = [(np.flatnonzero(episodes == e)[first:last + 1], before, after)
+             for e, first, last, before, after in clicks.free_spans(given)]
+    cuts = clicks.aligned(z, episodes, spans, [clicks.change_point(z[rows]) for rows, _, _ in spans])
+    for (rows, before, after), t in zip(spans, cuts):
+        labels[rows[:t]], labels[rows[t:]] = before, after
+    return labels
+
+
+def test_the_other_recordings_clicks_and_labels_aligned_in_time_place_boundaries_better():
+    learned, alone = [], []
+    for robot in ("panda", "iiwa", "xarm7"):
+        for seed in (5300, 5400):
+            frames, given, truth = random_clicks(robot, seed)
+            filled, record = clicks.fill(frames, given)
+            assert record["boundaries"] == 6 * 4 and "agreed" in record["method"]
+            learned.append(np.mean(filled["label"].to_numpy() == truth))
+            alone.append(np.mean(aligned_change_points(frames, given, truth) == truth))
+    assert np.mean(learned) > 0.94 and np.mean(learned) > np.mean(alone) + 0.005, (learned, alone)
 
 
 def test_clicks_in_seconds_mixed_with_intervals(arm, tmp_path):
