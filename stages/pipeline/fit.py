@@ -1,11 +1,12 @@
 """``mlnseq.fit``: a user's recordings to a model file, each stage run by its own ``run``, and what it chose.
 
-collect (collect's own options), binarize (predicates and formulas learned from the training split by
-cross-validation, or ``spec``), formulas (the learned ones, or ``formulas``; with ``spec`` alone the built-in
-temporal.mln), learn-weights and train (stream mode) with K folds, conflate with every decoder within the latency
-budget, export --method auto within it (conflation+filter without folds), then the test split's figures of the
-choice and the network alone. Every stage's file stays in the workdir, so any stage can be rerun on its own. The
-stages are imported where they run: ``import mlnseq`` and ``mlnseq fit --help`` stay light.
+collect (collect's own options; recordings without labels labelled by alignment to the labelled ones), binarize
+(predicates and formulas learned from the training split by cross-validation, or ``spec``), formulas (the learned
+ones, or ``formulas``; with ``spec`` alone the built-in temporal.mln), learn-weights and train (stream mode) with K
+folds, conflate with every decoder within the latency budget, export --method auto within it (conflation+filter
+without folds), then the test split's figures of the choice and the network alone. Every stage's file stays in the
+workdir, so any stage can be rerun on its own. The stages are imported where they run: ``import mlnseq`` and
+``mlnseq fit --help`` stay light.
 """
 
 from __future__ import annotations

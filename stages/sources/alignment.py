@@ -26,6 +26,7 @@ TRUSTED = 0.8  # the share of a labelled recording's frames its alignment to the
 MOST_CELLS = 2_500_000  # pairs of frames one alignment compares; longer recordings are aligned every k-th frame
 ROUNDS = 3  # of weighting the channels by their spread along the pairings, each followed by aligning again
 WEIGHING_PAIRS = 12  # at most this many pairs of recordings measure the channels' spreads
+MOST_TEMPLATES = 8  # labelled recordings a recording is aligned to, spread over them in order
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,8 @@ class Aligned:
 
     def record(self) -> dict:
         return {"labelled": self.labelled, "templates": self.templates, "checked": self.checked,
-                "method": "dynamic time warping of the standardised features, a vote over the labelled recordings"}
+                "method": "dynamic time warping of the standardised features, each channel weighted by its spread along "
+                          "the pairings; a vote over the labelled recordings"}
 
 
 def path(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,8 +131,10 @@ def channel_weights(pairs: list[tuple[np.ndarray, np.ndarray]], rounds: int = RO
 
 
 def transferred(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> np.ndarray:
-    """A recording's labels: the class most of the ``templates`` (features, labels) pair its frames with."""
-    return np.sum([votes(features, f, y, n_classes) for f, y in templates], axis=0).argmax(axis=1)
+    """A recording's labels: the class most of the ``templates`` (features, labels; at most MOST_TEMPLATES of them)
+    pair its frames with."""
+    spread = templates[::-(-len(templates) // MOST_TEMPLATES)]
+    return np.sum([votes(features, f, y, n_classes) for f, y in spread], axis=0).argmax(axis=1)
 
 
 def checked(templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> float:
