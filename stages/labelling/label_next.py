@@ -18,7 +18,6 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
-from mlnseq.catalog.parts import Part
 
 MEASURES = ("entropy", "disagreement", "restarts", "distance")
 
@@ -98,8 +97,8 @@ def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_
     names = artifacts.feature_columns(frames)
     if list(recognizer.features) != names:
         raise ValueError(f"the model reads {recognizer.features}, the frames hold {names}")
-    bare_indices = [k for k, name in enumerate(episode_names) if name in set(without_labels)]
-    unlabelled = frames["episode"].is_in(bare_indices)
+    given_none = set(without_labels)
+    unlabelled = frames["episode"].is_in([k for k, name in enumerate(episode_names) if name in given_none])
 
     def by_episode(rows: pl.DataFrame) -> list[tuple[int, np.ndarray]]:
         return [(int(e), part.select(names).to_numpy().astype(np.float64))

@@ -49,8 +49,8 @@ class Aligned:
 
     def record(self) -> dict:
         return {"labelled": self.labelled, "templates": self.templates, "checked": self.checked,
-                "method": "dynamic time warping of the standardised features, each channel weighted by its spread along "
-                          "the pairings; a vote over the labelled recordings"}
+                "method": "dynamic time warping of the standardised features, each channel weighted by its spread "
+                          "along the pairings; a vote over the labelled recordings"}
 
 
 def path(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
