@@ -88,7 +88,8 @@ def print_collected(path: Path, collected: stage.Collected) -> None:
     if filled:
         console.print(f"clicks: {counted(filled['clicks'], 'click')}, one label each; "
                       f"{counted(filled['boundaries'], 'boundary', 'boundaries')} between them learned "
-                      f"({filled['method']})", highlight=False)
+                      f"({filled['method']}); clicked recordings all train (their labels between clicks are "
+                      "estimates, never a test split's)", highlight=False)
     for note in collected.meta.get("notes", []):
         console.print(f"note: {note}")
     if "success_rate" in collected.meta:

@@ -50,8 +50,9 @@ class Collecting:
 
         splits, meta = self.collected.frames["split"], self.collected.meta
         aligned = (meta.get("aligned") or {}).get("labelled", 0)  # labelled by alignment, not by the user
-        labelled = self.collected.frames.filter(splits != "unlabelled")["episode"].n_unique() - aligned
-        if labelled >= FEW_LABELLED or (splits == "test").any():
+        clicked = len({episode for episode, _, _ in meta.get("clicks", [])})  # these always train (clicks.py)
+        labelled = self.collected.frames.filter(splits != "unlabelled")["episode"].n_unique() - aligned - clicked
+        if not labelled or labelled >= FEW_LABELLED or (splits == "test").any():
             return []
         return [f"{counted(labelled, 'labelled recording')}, fewer than {FEW_LABELLED}: every one trains, none is "
                 "spent on a test split; the cross-validated figures are the estimate"]

@@ -284,9 +284,14 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_want
                                                      return_dtype=pl.Int32).to_numpy()
     within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
     split = np.full(frames.height, "test", dtype=object)
-    if not for_prediction:
+    if not for_prediction:  # a clicked recording's labels between clicks are estimates: it trains, never tests
+        by_clicks = np.concatenate([np.full(r.features.height, bool(r.resolved.get("clicks"))) for r in recordings])
+        estimated = has_label & by_clicks & frames["split"].is_null().to_numpy()
+        exact = has_label & ~estimated
         split[:] = Part.UNLABELLED
-        split[has_label] = split_of(frames.filter(pl.Series(has_label)), episode_index[has_label], at, holdout)
+        split[estimated] = Part.TRAIN
+        if exact.any():
+            split[exact] = split_of(frames.filter(pl.Series(exact)), episode_index[exact], at, holdout)
     features = pl.concat([r.features for r in recordings], how="vertical_relaxed")
     keys = {"episode": episode_index, "frame": within, "label": indices, "split": split.astype(str)}
     table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})

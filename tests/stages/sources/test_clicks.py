@@ -140,6 +140,12 @@ def test_the_other_recordings_clicks_and_labels_aligned_in_time_place_boundaries
     assert np.mean(learned) > 0.94 and np.mean(learned) > np.mean(alone) + 0.005, (learned, alone)
 
 
+def test_clicked_recordings_always_train_and_never_make_a_test_split(arm):
+    found = read(arm["bags"], labels=arm["root"] / "middle.csv")  # 4 recordings: collect's 70 % rule would test one
+    assert set(found.frames["split"]) == {"train"}
+    assert set(arm["truth"].frames["split"]) == {"train", "test"}  # the same recordings labelled by /phase
+
+
 def test_clicks_in_seconds_mixed_with_intervals(arm, tmp_path):
     rate = arm["rate"]
     lines = (arm["root"] / "middle.csv").read_text().splitlines()
@@ -157,6 +163,7 @@ def test_clicks_in_seconds_mixed_with_intervals(arm, tmp_path):
     assert len(found.meta["clicks"]) == 3 * 5 and {e for e, _, _ in found.meta["clicks"]} == {1, 2, 3}
     first = found.frames.filter(pl.col("episode") == 0)
     assert list(np.asarray(found.meta["classes"])[first["label"].to_numpy()]) == list(names)  # intervals as given
+    assert set(found.frames.filter(pl.col("episode") > 0)["split"]) == {"train"}  # the clicked ones all train
     assert accuracy(found, arm["truth"]) > 0.85
 
 
