@@ -12,9 +12,9 @@ standardised features: the two phases look different, nothing else is assumed), 
 it look most like those around the boundaries of the same kind in the other recordings (``aligned``: a change point
 misses each boundary by its own amount, which a network learns as blur; aligned, they miss alike), and last moves
 each, between its two clicks, to where its frames agree most with the labels the other recordings pair with them
-(``agreed``). The clicked frames never change. A clicked recording always trains (``table.py``): its labels between
-clicks are estimates, which a test split would score against. (Re-placing the boundaries from a fitted model's log-probabilities,
-an EM step, was measured and did not help: docs/first-day.md.)"""
+(``agreed``). The clicked frames never change. A clicked recording always trains (``table.py``): its labels
+between clicks are estimates, which a test split would score against. (Re-placing the boundaries from a fitted
+model's log-probabilities, an EM step, was measured and did not help: docs/first-day.md.)"""
 
 from __future__ import annotations
 

@@ -212,6 +212,20 @@ def _without_hint(missing: list[str], episode: str | None, time: str | None) -> 
 
 # ---- the one assembly --------------------------------------------------------------------------------------
 
+def _splits(frames: pl.DataFrame, recordings: list[Recording], has_label: np.ndarray, episode_index: np.ndarray, at,
+            holdout: Holdout) -> np.ndarray:
+    """Each row's split: ``unlabelled`` without a label; ``train`` for a clicked recording without a split column
+    (its labels between clicks are estimates, which a test split would score against); else ``split_of``'s."""
+    by_clicks = np.concatenate([np.full(r.features.height, bool(r.resolved.get("clicks"))) for r in recordings])
+    estimated = has_label & by_clicks & frames["split"].is_null().to_numpy()
+    exact = has_label & ~estimated
+    split = np.full(frames.height, Part.UNLABELLED.value, dtype=object)
+    split[estimated] = Part.TRAIN.value
+    if exact.any():
+        split[exact] = split_of(frames.filter(pl.Series(exact)), episode_index[exact], at, holdout)
+    return split
+
+
 def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = (),
                    holdout: Holdout = Holdout.SHARE) -> tuple[pl.DataFrame, dict]:
     """Frames for ``collect``: labelled recordings (two classes or more) with the split from the source or as
@@ -284,14 +298,8 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_want
                                                      return_dtype=pl.Int32).to_numpy()
     within = frames.with_columns(frame=pl.int_range(pl.len()).over("episode"))["frame"].to_numpy()
     split = np.full(frames.height, "test", dtype=object)
-    if not for_prediction:  # a clicked recording's labels between clicks are estimates: it trains, never tests
-        by_clicks = np.concatenate([np.full(r.features.height, bool(r.resolved.get("clicks"))) for r in recordings])
-        estimated = has_label & by_clicks & frames["split"].is_null().to_numpy()
-        exact = has_label & ~estimated
-        split[:] = Part.UNLABELLED
-        split[estimated] = Part.TRAIN
-        if exact.any():
-            split[exact] = split_of(frames.filter(pl.Series(exact)), episode_index[exact], at, holdout)
+    if not for_prediction:
+        split = _splits(frames, recordings, has_label, episode_index, at, holdout)
     features = pl.concat([r.features for r in recordings], how="vertical_relaxed")
     keys = {"episode": episode_index, "frame": within, "label": indices, "split": split.astype(str)}
     table = artifacts.frames_table(keys, {n: features[n].cast(pl.Float64).to_numpy() for n in feature_names})
