@@ -108,12 +108,13 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     row["all"] = held_out(fit(everything, root / "w-all", epochs), data)
     row["all train"] = held_out(fit(everything, root / "w-all-train", epochs, "--holdout", "none"), data)
     for count in config["labelled"]:
-        for others, column in ((False, "alone"), (True, "+ unlabelled")):
-            folder = source(data, data["names"][:count], others, f"src-{count}-{others}")
-            row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{others}", epochs), data)
+        for others, column, name in ((False, "alone", "alone"), (True, "+ unlabelled", "with-unlabelled")):
+            folder = source(data, data["names"][:count], others, f"src-{count}-{name}")
+            row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{name}", epochs), data)
     clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
     row["clicks"] = held_out(clicks, data)
-    row["next"], row["any"], row["next reason"] = label_next_gain(data, root / "w-1-True", epochs, config["quick"])
+    first = root / "w-1-with-unlabelled"
+    row["next"], row["any"], row["next reason"] = label_next_gain(data, first, epochs, config["quick"])
     return row
 
 
@@ -124,8 +125,8 @@ def main() -> None:
         for robot, seed in config["arms"]:
             rows[f"{robot}:{seed}"] = measure(robot, seed, config, Path(tmp) / f"{robot}-{seed}")
             print(f"{robot}:{seed}: {rows[f'{robot}:{seed}']}", flush=True)
-    columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")], "clicks", "next",
-               "any"]
+    columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")],
+               "clicks", "next", "any"]
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
           f"{config['epochs']}, {config['episodes']} recordings to learn from")
     print("| arm | " + " | ".join(columns) + " |")
