@@ -20,8 +20,7 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.notes import counted
-from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
-from mlnseq.sources.alignment import Aligned
+from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions, alignment
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
@@ -85,8 +84,6 @@ def collect_recordings(options: CollectOptions) -> Collected:
         frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
     aligned = None
     if options.align and meta.get("unlabelled_episodes"):  # labelled by alignment to the labelled ones
-        from mlnseq.sources import alignment
-
         frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]))
         meta["aligned"] = aligned.record()
     if options.train_frames is not None:
@@ -108,7 +105,7 @@ def collect_recordings(options: CollectOptions) -> Collected:
     return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))
 
 
-def unlabelled_note(n: int, aligned: Aligned | None = None) -> str:
+def unlabelled_note(n: int, aligned: alignment.Aligned | None = None) -> str:
     """One line on the recordings without labels: labelled by alignment (fit), or used unlabelled and why."""
     if aligned is not None and aligned.labelled:
         return aligned.said()

@@ -143,12 +143,16 @@ def checked(templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> f
     return float(np.concatenate(right).mean())
 
 
+def standardised(frames: pl.DataFrame) -> np.ndarray:
+    """[rows, F]: every feature column of ``frames`` (frames.parquet) standardised over all its rows."""
+    values = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
+    return (values - values.mean(axis=0)) / (values.std(axis=0) + 1e-9)
+
+
 def label_unlabelled(frames: pl.DataFrame, n_classes: int) -> tuple[pl.DataFrame, Aligned]:
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails."""
-    names = artifacts.feature_columns(frames)
-    values = frames.select(names).to_numpy().astype(np.float64)
-    z = (values - values.mean(axis=0)) / (values.std(axis=0) + 1e-9)
+    z = standardised(frames)
     episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     rows_of = {int(e): np.flatnonzero(episodes == e) for e in dict.fromkeys(episodes.tolist())}

@@ -21,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
 from mlnseq.sources import alignment
@@ -204,8 +203,7 @@ def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple
 def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
     """frames.parquet with every boundary between two clicks placed (change point in the span the other recordings'
     clicks leave, aligned, then agreed), and a record of how."""
-    features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
-    z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
+    z = alignment.standardised(frames)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
     rows_of = {e: np.flatnonzero(episodes == e) for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
