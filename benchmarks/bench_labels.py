@@ -8,6 +8,7 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
 - ``L + unlabelled``: the same L labelled and the other 6 - L in the same --source without /phase: fit labels them by
   alignment to the labelled ones (mlnseq.sources.alignment) and learns from all 6;
 - ``clicks``: all 6 with one click per phase (a frame drawn at random within each phase) instead of /phase;
+- ``1 + clicks``: the first labelled on every frame (intervals) and the other 5 with the same clicks, in one file;
 - ``next`` and ``any``: from 1 labelled + 5 unlabelled, the recording label_next.csv ranks first labelled as well
   (the other 4 still unlabelled in --source), against the mean of labelling each of the 5.
 
@@ -50,13 +51,16 @@ def bags(root: Path, robot: str, seed: int, n: int, heldout: int) -> dict:
         arm_bags.write_bag(root / "bare" / name, arm, s, phases=False)
     for k in range(heldout):
         arm_bags.write_bag(root / "heldout" / f"heldout_{k + 1}", arm, seed * 1000 + 500 + k)
-    lines = ["episode,frame,label"]
-    for name, s in names.items():
+    lines, mixed = ["episode,frame,label"], ["episode,start,end,frame,label"]
+    for k, (name, s) in enumerate(names.items()):
         phase = arm_bags.episode_signals(arm, s)["phase"]
         for index, label in enumerate(arm_bags.PHASES):
             frames = np.flatnonzero(phase == index)
-            lines.append(f"{name},{frames[int(rng.uniform(0.1, 0.9) * (len(frames) - 1))]},{label}")
+            clicked = frames[int(rng.uniform(0.1, 0.9) * (len(frames) - 1))]
+            lines.append(f"{name},{clicked},{label}")
+            mixed.append(f"{name},{frames[0]},{frames[-1]},,{label}" if k == 0 else f"{name},,,{clicked},{label}")
     (root / "clicks.csv").write_text("\n".join(lines) + "\n")
+    (root / "mixed.csv").write_text("\n".join(mixed) + "\n")  # the first labelled on every frame, the others clicked
     return {"root": root, "names": list(names)}
 
 
@@ -113,6 +117,9 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
             row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{name}", epochs), data)
     clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
     row["clicks"] = held_out(clicks, data)
+    mixed = fit(data["root"] / "bare", root / "w-1-clicks", epochs, "--labels", str(data["root"] / "mixed.csv"),
+                "--labels-unit", "frames")
+    row["1 + clicks"] = held_out(mixed, data)
     first = root / "w-1-with-unlabelled"
     row["next"], row["any"], row["next reason"] = label_next_gain(data, first, epochs, config["quick"])
     return row
@@ -126,7 +133,7 @@ def main() -> None:
             rows[f"{robot}:{seed}"] = measure(robot, seed, config, Path(tmp) / f"{robot}-{seed}")
             print(f"{robot}:{seed}: {rows[f'{robot}:{seed}']}", flush=True)
     columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")],
-               "clicks", "next", "any"]
+               "clicks", "1 + clicks", "next", "any"]
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
           f"{config['epochs']}, {config['episodes']} recordings to learn from")
     print("| arm | " + " | ".join(columns) + " |")

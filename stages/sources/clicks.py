@@ -12,9 +12,17 @@ standardised features: the two phases look different, nothing else is assumed), 
 it look most like those around the boundaries of the same kind in the other recordings (``aligned``: a change point
 misses each boundary by its own amount, which a network learns as blur; aligned, they miss alike), and last moves
 each, between its two clicks, to where its frames agree most with the labels the other recordings pair with them
-(``agreed``). The clicked frames never change. A clicked recording always trains (``table.py``): its labels
-between clicks are estimates, which a test split would score against. (Re-placing the boundaries from a fitted
-model's log-probabilities, an EM step, was measured and did not help: docs/first-day.md.)"""
+(``agreed``). The clicked frames never change.
+
+Clicks say which phase a frame is in, not where a phase begins: where a stretch could belong to either phase (a still
+arm before the fingers close), those steps give it to one side in every recording alike. Where training recordings
+labelled on every frame sit beside the clicked ones, they say it: each clicked recording is then aligned to them as
+alignment labels a recording without labels, and each boundary placed, between its two clicks, where their labels
+agree most (``from_labelled``; the clicked-only steps again if aligning them to each other fails alignment's check).
+
+A clicked recording always trains (``table.py``): its labels between clicks are estimates, which a test split would
+score against. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and did
+not help: docs/first-day.md.)"""
 
 from __future__ import annotations
 
@@ -191,6 +199,12 @@ def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple
     votes = {u: np.eye(n_classes)[labels[rows]] for u, rows in rows_of.items()}
     for (ours, theirs), pairing in found.items():
         votes[ours] = votes[ours] + pairing.votes(labels[rows_of[theirs]], n_classes)
+    return moved_to_votes(labels, rows_of, spans, votes)
+
+
+def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]],
+                   votes: dict[int, np.ndarray]) -> np.ndarray:
+    """Each boundary placed, between its two clicks, where most frames agree with their ``votes`` [frames, C]."""
     moved = labels.copy()
     for episode, first, last, before, after in spans:
         span = votes[episode][first:last + 1]
@@ -200,23 +214,63 @@ def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple
     return moved
 
 
+def labelled_training(frames: pl.DataFrame, clicked: dict[int, np.ndarray]) -> list[np.ndarray]:
+    """The rows of each recording labelled on every frame (not by clicks) and training on all of them: the ones that
+    say where a phase begins (a test split's labels never place a boundary)."""
+    episodes, training = frames["episode"].to_numpy(), (frames["split"] == Part.TRAIN).to_numpy()
+    rows_of = {int(e): np.flatnonzero(episodes == e) for e in dict.fromkeys(episodes.tolist())}
+    return [rows for e, rows in rows_of.items() if e not in clicked and training[rows].all()]
+
+
+def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list, known: list,
+                  n_classes: int) -> np.ndarray | None:
+    """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
+    clicked one in time (as alignment labels a recording without labels), agree most; None where aligning the
+    labelled ones to each other fails alignment's check."""
+    pairs = [(z[rows], z[t]) for rows in rows_of.values() for t in known]
+    weighted = z * alignment.channel_weights(pairs[::max(1, len(pairs) // alignment.WEIGHING_PAIRS)]
+                                             [:alignment.WEIGHING_PAIRS])
+    templates = [(weighted[rows], labels[rows]) for rows in known]
+    if len(templates) > 1 and alignment.checked(templates, n_classes) < alignment.TRUSTED:
+        return None
+    spread = templates[::-(-len(templates) // alignment.MOST_TEMPLATES)]
+    votes = {u: np.sum([alignment.votes(weighted[rows], f, y, n_classes) for f, y in spread], axis=0)
+             for u, rows in rows_of.items()}
+    return moved_to_votes(labels, rows_of, spans, votes)
+
+
 def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
-    """frames.parquet with every boundary between two clicks placed (change point in the span the other recordings'
-    clicks leave, aligned, then agreed), and a record of how."""
+    """frames.parquet with every boundary between two clicks placed, and a record of how: by the training recordings
+    labelled on every frame where there are any (``from_labelled``), else from the clicked recordings alone (change
+    point in the span the other recordings' clicks leave, aligned, then agreed)."""
     z = alignment.standardised(frames)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
     rows_of = {e: np.flatnonzero(episodes == e) for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
     spans = [(e, *np.searchsorted(frame[rows_of[e]], [first, last]).tolist(), before, after)  # frames to positions
              for e, first, last, before, after in free_spans(clicks)]
+    record = {"clicks": len(clicks), "boundaries": len(spans)}
+    known = labelled_training(frames, rows_of)
+    placed = from_labelled(z, labels, rows_of, spans, known, int(labels.max()) + 1) if known else None
+    if placed is not None:
+        plural = "s" if len(known) != 1 else ""
+        return _relabelled(frames, placed), {**record, "labelled": len(known), "method": (
+            f"each clicked recording aligned in time to the {len(known)} training recording{plural} labelled on every "
+            "frame, within its clicks")}
+    return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans)), {**record, "method": (
+        "change point of the standardised features between two clicks, within the other recordings' clicks aligned "
+        "to it, aligned with the boundaries of its kind in the other recordings, then agreed with their labels "
+        "aligned to it")}
+
+
+def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of: dict[int, np.ndarray],
+                spans: list) -> np.ndarray:
+    """The labels with each boundary placed from the clicked recordings alone: change point in the span the other
+    recordings' clicks leave (``narrowed``), ``aligned``, then ``agreed``."""
+    labels = labels.copy()
     found = pairings(z, rows_of) if len(rows_of) > 1 else {}
     placed = _spans_rows(rows_of, narrowed(spans, found))
     cuts = aligned(z, episodes, placed, [change_point(z[rows]) for rows, _, _ in placed])
     for (rows, before, after), t in zip(placed, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
-    if found:
-        labels = agreed(labels, rows_of, spans, found, int(labels.max()) + 1)
-    return _relabelled(frames, labels), {"method": "change point of the standardised features between two clicks, "
-                                         "within the other recordings' clicks aligned to it, aligned with the "
-                                         "boundaries of its kind in the other recordings, then agreed with their "
-                                         "labels aligned to it", "clicks": len(clicks), "boundaries": len(spans)}
+    return agreed(labels, rows_of, spans, found, int(labels.max()) + 1) if found else labels
