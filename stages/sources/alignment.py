@@ -130,11 +130,16 @@ def channel_weights(pairs: list[tuple[np.ndarray, np.ndarray]], rounds: int = RO
     return weights
 
 
-def transferred(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> np.ndarray:
-    """A recording's labels: the class most of the ``templates`` (features, labels; at most MOST_TEMPLATES of them)
-    pair its frames with."""
+def template_votes(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> np.ndarray:
+    """[len(features), C]: the votes of the ``templates`` (features, labels; at most MOST_TEMPLATES of them, spread
+    over them in order) aligned to a recording, per frame."""
     spread = templates[::-(-len(templates) // MOST_TEMPLATES)]
-    return np.sum([votes(features, f, y, n_classes) for f, y in spread], axis=0).argmax(axis=1)
+    return np.sum([votes(features, f, y, n_classes) for f, y in spread], axis=0)
+
+
+def transferred(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> np.ndarray:
+    """A recording's labels: the class most of the ``templates`` pair its frames with."""
+    return template_votes(features, templates, n_classes).argmax(axis=1)
 
 
 def checked(templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> float:
@@ -149,6 +154,20 @@ def standardised(frames: pl.DataFrame) -> np.ndarray:
     return (values - values.mean(axis=0)) / (values.std(axis=0) + 1e-9)
 
 
+def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray], labels: np.ndarray,
+                  n_classes: int) -> tuple[list[np.ndarray] | None, float | None]:
+    """Each recording of ``bare`` (its rows of ``z``, the standardised features) aligned to the labelled ones
+    ``known``, the channels weighted by their spread along the pairings: its frames' votes [frames, C], or None where
+    the labelled ones, aligned to each other, come out under TRUSTED right; and that check (None under two)."""
+    pairs = [(z[u], z[t]) for u in bare for t in known]
+    z = z * channel_weights(pairs[::max(1, len(pairs) // WEIGHING_PAIRS)][:WEIGHING_PAIRS])
+    templates = [(z[rows], labels[rows]) for rows in known]
+    check = checked(templates, n_classes) if len(templates) > 1 else None
+    if check is not None and check < TRUSTED:
+        return None, check
+    return [template_votes(z[rows], templates, n_classes) for rows in bare], check
+
+
 def label_unlabelled(frames: pl.DataFrame, n_classes: int) -> tuple[pl.DataFrame, Aligned]:
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails."""
@@ -160,16 +179,13 @@ def label_unlabelled(frames: pl.DataFrame, n_classes: int) -> tuple[pl.DataFrame
     bare = [rows for rows in rows_of.values() if splits[rows[0]] == Part.UNLABELLED]
     if not known or not bare:
         return frames, Aligned(0, len(known))
-    pairs = [(z[u], z[t]) for u in bare for t in known]
-    z = z * channel_weights(pairs[::max(1, len(pairs) // WEIGHING_PAIRS)][:WEIGHING_PAIRS])
-    templates = [(z[rows], labels[rows]) for rows in known]
-    check = checked(templates, n_classes) if len(templates) > 1 else None
-    if check is not None and check < TRUSTED:
-        return frames, Aligned(0, len(templates), check)
+    found, check = aligned_votes(z, bare, known, labels, n_classes)
+    if found is None:
+        return frames, Aligned(0, len(known), check)
     new_splits = splits.astype(object)
-    for rows in bare:
-        labels[rows] = transferred(z[rows], templates, n_classes)
+    for rows, their_votes in zip(bare, found):
+        labels[rows] = their_votes.argmax(axis=1)
         new_splits[rows] = Part.TRAIN.value
     filled = frames.with_columns(label=pl.Series(labels, dtype=frames["label"].dtype),
                                  split=pl.Series(new_splits.astype(str)))
-    return filled, Aligned(len(bare), len(templates), check)
+    return filled, Aligned(len(bare), len(known), check)

@@ -227,16 +227,8 @@ def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarr
     """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
     clicked one in time (as alignment labels a recording without labels), agree most; None where aligning the
     labelled ones to each other fails alignment's check."""
-    pairs = [(z[rows], z[t]) for rows in rows_of.values() for t in known]
-    weighted = z * alignment.channel_weights(pairs[::max(1, len(pairs) // alignment.WEIGHING_PAIRS)]
-                                             [:alignment.WEIGHING_PAIRS])
-    templates = [(weighted[rows], labels[rows]) for rows in known]
-    if len(templates) > 1 and alignment.checked(templates, n_classes) < alignment.TRUSTED:
-        return None
-    spread = templates[::-(-len(templates) // alignment.MOST_TEMPLATES)]
-    votes = {u: np.sum([alignment.votes(weighted[rows], f, y, n_classes) for f, y in spread], axis=0)
-             for u, rows in rows_of.items()}
-    return moved_to_votes(labels, rows_of, spans, votes)
+    found, _ = alignment.aligned_votes(z, list(rows_of.values()), known, labels, n_classes)
+    return None if found is None else moved_to_votes(labels, rows_of, spans, dict(zip(rows_of, found)))
 
 
 def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
