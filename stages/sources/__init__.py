@@ -129,7 +129,8 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
         raise BadInput(f"--labels {options.annotations} reads a LeRobot dataset's own {options.annotations} "
                        f"annotations, but --source is read as --env {env}; give a file of intervals (a file named "
                        f"{options.annotations}: its full path)")
-    own_label = Labels.NONE if options.labels is not None else label  # --labels replaces the recordings' own
+    # --labels replaces the own labels of the episodes it names; collect keeps the others' (a file of corrections)
+    own_label = label if options.labels is None else Labels.SOME if label is Labels.SOME else Labels.NONE
     recordings = reader.load().read(source, columns, options, own_label)
     if options.labels is not None:
         from mlnseq.sources import intervals

@@ -1,7 +1,8 @@
 """Labels as time intervals: ``episode,start,end,label`` rows (CSV or TSV), or a folder of JIGSAWS-style
 ``start end label`` files named by episode, applied to recordings; and one click per phase: ``episode,frame,label``
 (or ``time``) rows, each saying "this frame is in this phase" (``mlnseq.sources.clicks``). A file may mix both,
-episode by episode. An episode of ``--source`` that the file does not name is read unlabelled.
+episode by episode. An episode of ``--source`` that the file does not name keeps its own labels where they
+are read (collect), else is read unlabelled.
 
 Units: ``frames`` counts a frame's position in its episode from 0, an interval holding ``start`` to ``end``
 inclusive (the JIGSAWS convention); ``seconds`` is the recording's time, an interval holding
@@ -134,8 +135,9 @@ def checked(found: list[Interval]) -> list[Interval]:
 def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], unit: str,
           unlabelled: str | None = None) -> list[Recording]:
     """Each recording labelled from its episode's intervals (frames outside every interval dropped or labelled
-    ``unlabelled``) or clicks (``mlnseq.sources.clicks``); the episodes the labels do not name read unlabelled, a
-    recording of their own. Every interval's episode needs a recording."""
+    ``unlabelled``) or clicks (``mlnseq.sources.clicks``); the episodes the labels do not name keep the recording's
+    own labels, if read, else read unlabelled, a recording of their own. Every interval's episode needs a
+    recording."""
     from mlnseq.sources import clicks
 
     clicks.check_classes(intervals)
@@ -170,8 +172,9 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
                             else pl.Series("label", [str(v) for v in values], dtype=pl.String))
             found_parts.append(_part(recording, keep, label_series,
                                      {"clicks": np.flatnonzero(clicked[keep]).tolist()} if clicked.any() else {}))
-        if not named.all():
-            found_parts.append(_part(recording, ~named, None, {}))
+        if not named.all():  # the episodes the labels do not name: their own labels where they have them
+            own = None if recording.label is None else recording.label.filter(pl.Series(~named))
+            found_parts.append(_part(recording, ~named, own, {}))
     if not seen:
         ids = list(dict.fromkeys(str(e) for r in recordings for e in r.episode.unique(maintain_order=True).to_list()))
         first = next(iter(intervals.values()))[0].where.rsplit(":", 1)[0]

@@ -1,7 +1,7 @@
 """Recordings without labels in the same --source (a bag without /phase, a table without the label column, an
-episode --labels does not name): read unlabelled, in a split of their own with a null label, said in one line;
-and with few labelled recordings, every one of them trains (Holdout.UNLESS_FEW). On the generated arm's bags
-(tests/arm_bags.py)."""
+episode --labels does not name that has no labels of its own): read unlabelled, in a split of their own with a null
+label, said in one line; and with few labelled recordings, every one of them trains (Holdout.UNLESS_FEW). On the
+generated arm's bags (tests/arm_bags.py)."""
 
 from __future__ import annotations
 
@@ -100,12 +100,42 @@ def test_tables_without_the_label_column_and_episodes_absent_from_labels_are_unl
     read = collect.collect(collect.CollectOptions(env="table", source=folder))
     assert read.meta["unlabelled_episodes"] == ["episode_1", "episode_4"]
     assert artifacts.labelled(read.frames).height == bag_frames(bags["labelled"]).frames.height
-    labels = tmp_path / "labels.csv"  # intervals for episode 2 alone: 3, 5, 6 become unlabelled too
+    labels = tmp_path / "labels.csv"  # intervals for episode 2 alone: 3, 5, 6 keep their own label column
     labels.write_text("episode,start,end,label\nepisode_2,0,99,0\nepisode_2,100,200,1\n")
     relabelled = collect.collect(collect.CollectOptions(env="table", source=folder, recordings=SourceOptions(
         labels=labels)))
-    assert relabelled.meta["unlabelled_episodes"] == ["episode_1", "episode_3", "episode_4", "episode_5", "episode_6"]
-    assert artifacts.labelled(relabelled.frames).height == 201
+    assert relabelled.meta["unlabelled_episodes"] == ["episode_1", "episode_4"]
+    names = {name: np.asarray(found.meta["classes"])[artifacts.labelled(found.frames)["label"].to_numpy()]
+             for name, found in (("read", read), ("relabelled", relabelled))}
+    by_episode = {name: artifacts.labelled(found.frames)["episode"].to_numpy()
+                  for name, found in (("read", read), ("relabelled", relabelled))}
+    second = by_episode["relabelled"] == 1
+    assert second.sum() == 201 and set(names["relabelled"][second]) == {"0", "1"}  # the file's, on its frames
+    for episode in (2, 4, 5):  # episodes 3, 5, 6: their own labels, frame for frame
+        assert list(names["relabelled"][by_episode["relabelled"] == episode]) == list(
+            names["read"][by_episode["read"] == episode])
+
+
+def test_a_labels_file_naming_one_bag_keeps_the_label_topic_of_the_others(bags, tmp_path):
+    """The loop label_next.csv starts: a recording fit proposed, labelled and given back with --labels; the bags
+    labelled by /phase keep their labels, and the one the file does not name and has no /phase stays unlabelled."""
+    import arm_bags
+
+    phase = arm_bags.episode_signals(arm_bags.ROBOTS["panda"], SEED)["phase"]
+    change = np.r_[0, np.flatnonzero(phase[1:] != phase[:-1]) + 1, len(phase)]
+    labels = tmp_path / "episode_1.csv"
+    labels.write_text("episode,start,end,label\n" + "".join(
+        f"episode_1,{a},{b - 1},{arm_bags.PHASES[phase[a]]}\n" for a, b in zip(change, change[1:])))
+    given = bag_frames(bags["mixed"], labels=labels, labels_unit="frames")
+    assert given.meta["unlabelled_episodes"] == ["episode_4"]
+    names = np.asarray(given.meta["classes"])
+    first = given.frames.filter(pl.col("episode") == 0)
+    assert list(names[first["label"].to_numpy()]) == [arm_bags.PHASES[k] for k in phase]
+    topic = bag_frames(bags["mixed"])
+    for episode in (1, 2, 4, 5):
+        own = given.frames.filter(pl.col("episode") == episode)["label"].to_numpy()
+        read = topic.frames.filter(pl.col("episode") == episode)["label"].to_numpy()
+        assert list(names[own]) == list(np.asarray(topic.meta["classes"])[read])
 
 
 def test_a_labels_file_naming_no_recording_is_refused_in_one_line(bags, tmp_path):
