@@ -10,10 +10,11 @@ divided by the spread of its differences along the pairings, and aligned again (
 Alignment assumes the recordings perform one task the same way (phases in one order). With two labelled training
 recordings or more this is checked on them first: each is aligned to the others as if it had no labels, and the
 recordings without labels are labelled only when ``TRUSTED`` of its frames or more come out right; else they stay
-unlabelled. Test recordings are never aligned to."""
+unlabelled. Test recordings, and recordings partly in a test split, are never aligned to."""
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,6 +155,19 @@ def standardised(frames: pl.DataFrame) -> np.ndarray:
     return (values - values.mean(axis=0)) / (values.std(axis=0) + 1e-9)
 
 
+def rows_by_recording(episodes: np.ndarray) -> dict[int, np.ndarray]:
+    """Each recording's rows of frames.parquet, by episode, in the order they come."""
+    return {int(e): np.flatnonzero(episodes == e) for e in dict.fromkeys(episodes.tolist())}
+
+
+def training_recordings(frames: pl.DataFrame, leaving_out: Collection[int] = ()) -> list[np.ndarray]:
+    """The rows of each recording training on every frame (but those of ``leaving_out``): what a recording is aligned
+    to; one partly in a test split never is, so that no test label labels another recording."""
+    training = (frames["split"] == Part.TRAIN).to_numpy()
+    return [rows for episode, rows in rows_by_recording(frames["episode"].to_numpy()).items()
+            if episode not in leaving_out and training[rows].all()]
+
+
 def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray], labels: np.ndarray,
                   n_classes: int) -> tuple[list[np.ndarray] | None, float | None]:
     """Each recording of ``bare`` (its rows of ``z``, the standardised features) aligned to the labelled ones
@@ -172,11 +186,11 @@ def label_unlabelled(frames: pl.DataFrame, n_classes: int) -> tuple[pl.DataFrame
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails."""
     z = standardised(frames)
-    episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
+    splits = frames["split"].to_numpy()
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
-    rows_of = {int(e): np.flatnonzero(episodes == e) for e in dict.fromkeys(episodes.tolist())}
-    known = [rows for rows in rows_of.values() if splits[rows[0]] == Part.TRAIN]
-    bare = [rows for rows in rows_of.values() if splits[rows[0]] == Part.UNLABELLED]
+    known = training_recordings(frames)
+    bare = [rows for rows in rows_by_recording(frames["episode"].to_numpy()).values()
+            if splits[rows[0]] == Part.UNLABELLED]
     if not known or not bare:
         return frames, Aligned(0, len(known))
     found, check = aligned_votes(z, bare, known, labels, n_classes)

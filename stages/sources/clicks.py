@@ -214,14 +214,6 @@ def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: li
     return moved
 
 
-def labelled_training(frames: pl.DataFrame, clicked: dict[int, np.ndarray]) -> list[np.ndarray]:
-    """The rows of each recording labelled on every frame (not by clicks) and training on all of them: the ones that
-    say where a phase begins (a test split's labels never place a boundary)."""
-    episodes, training = frames["episode"].to_numpy(), (frames["split"] == Part.TRAIN).to_numpy()
-    rows_of = {int(e): np.flatnonzero(episodes == e) for e in dict.fromkeys(episodes.tolist())}
-    return [rows for e, rows in rows_of.items() if e not in clicked and training[rows].all()]
-
-
 def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list, known: list,
                   n_classes: int) -> np.ndarray | None:
     """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
@@ -238,25 +230,27 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     z = alignment.standardised(frames)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
-    rows_of = {e: np.flatnonzero(episodes == e) for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
+    every = alignment.rows_by_recording(episodes)
+    rows_of = {e: every[e] for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
     spans = [(e, *np.searchsorted(frame[rows_of[e]], [first, last]).tolist(), before, after)  # frames to positions
              for e, first, last, before, after in free_spans(clicks)]
     record = {"clicks": len(clicks), "boundaries": len(spans)}
-    known = labelled_training(frames, rows_of)
-    placed = from_labelled(z, labels, rows_of, spans, known, int(labels.max()) + 1) if known else None
+    known = alignment.training_recordings(frames, leaving_out=rows_of)  # labelled on every frame, not by clicks
+    n_classes = int(labels.max()) + 1
+    placed = from_labelled(z, labels, rows_of, spans, known, n_classes) if known else None
     if placed is not None:
         plural = "s" if len(known) != 1 else ""
         return _relabelled(frames, placed), {**record, "labelled": len(known), "method": (
             f"each clicked recording aligned in time to the {len(known)} training recording{plural} labelled on every "
             "frame, within its clicks")}
-    return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans)), {**record, "method": (
+    return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans, n_classes)), {**record, "method": (
         "change point of the standardised features between two clicks, within the other recordings' clicks aligned "
         "to it, aligned with the boundaries of its kind in the other recordings, then agreed with their labels "
         "aligned to it")}
 
 
 def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of: dict[int, np.ndarray],
-                spans: list) -> np.ndarray:
+                spans: list, n_classes: int) -> np.ndarray:
     """The labels with each boundary placed from the clicked recordings alone: change point in the span the other
     recordings' clicks leave (``narrowed``), ``aligned``, then ``agreed``."""
     labels = labels.copy()
@@ -265,4 +259,4 @@ def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of
     cuts = aligned(z, episodes, placed, [change_point(z[rows]) for rows, _, _ in placed])
     for (rows, before, after), t in zip(placed, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
-    return agreed(labels, rows_of, spans, found, int(labels.max()) + 1) if found else labels
+    return agreed(labels, rows_of, spans, found, n_classes) if found else labels

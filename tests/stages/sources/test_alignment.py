@@ -59,6 +59,17 @@ def test_the_labelled_recordings_are_checked_on_each_other_and_test_ones_never_u
     assert filled.filter(pl.col("episode") == 2).equals(frames.filter(pl.col("episode") == 2))  # the test recording
 
 
+def test_a_recording_partly_in_a_test_split_is_never_aligned_to():
+    frames = frames_of(episodes(3), [Part.TRAIN, Part.TRAIN, Part.UNLABELLED])
+    first = frames["episode"] == 0
+    tested = pl.when(first & (pl.col("frame") >= first.sum() * 7 // 10)).then(pl.lit(Part.TEST.value))
+    split = frames.with_columns(split=tested.otherwise(pl.col("split")))  # the first's last 30 %: a test split
+    filled, aligned = alignment.label_unlabelled(split, 5)
+    assert (aligned.labelled, aligned.templates) == (1, 1)  # the second alone is aligned to
+    assert filled.filter(pl.col("episode") < 2).equals(split.filter(pl.col("episode") < 2))
+    assert alignment.training_recordings(split, leaving_out={1}) == []
+
+
 def test_labelled_recordings_that_do_not_align_leave_the_others_unlabelled():
     signals = episodes(3)
     reversed_phases = dict(signals[1], phase=4 - signals[1]["phase"])  # the same task labelled in reverse order
