@@ -20,7 +20,7 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.notes import counted
-from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions, alignment
+from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions, alignment, clicks
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
@@ -79,12 +79,11 @@ def collect_recordings(options: CollectOptions) -> Collected:
             raise
         raise BadInput(f"{error}; a frame needs every channel's value, and: {'; '.join(said)}") from None
     if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
-        from mlnseq.sources import clicks
-
         frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
     aligned = None
     if options.align and meta.get("unlabelled_episodes"):  # labelled by alignment to the labelled ones
-        frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]))
+        clicked = {episode for episode, _, _ in meta.get("clicks", [])}
+        frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]), clicked)
         meta["aligned"] = aligned.record()
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))

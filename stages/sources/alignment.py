@@ -10,7 +10,9 @@ divided by the spread of its differences along the pairings, and aligned again (
 Alignment assumes the recordings perform one task the same way (phases in one order). With two labelled training
 recordings or more this is checked on them first: each is aligned to the others as if it had no labels, and the
 recordings without labels are labelled only when ``TRUSTED`` of its frames or more come out right; else they stay
-unlabelled. Test recordings, and recordings partly in a test split, are never aligned to."""
+unlabelled. Recordings labelled by clicks (``sources/clicks.py``) are aligned to, but not checked: their labels between
+clicks were placed by aligning them to the others, so they would pass the check whatever it measures. Test
+recordings, and recordings partly in a test split, are never aligned to."""
 
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ class Aligned:
     labelled: int
     templates: int
     checked: float | None = None  # the share of labelled frames their alignment to the others got right
+    clicked: int = 0  # of the templates, those labelled by clicks (not checked)
 
     def said(self) -> str:
         check = ("" if self.checked is None else
@@ -44,12 +47,14 @@ class Aligned:
         if not self.labelled:
             return f"not labelled by alignment: {check}, under {TRUSTED:.0%}"
         plural = "s" if self.templates != 1 else ""
+        clicked = f" ({self.clicked} of them by clicks)" if self.clicked else ""
         return (f"{self.labelled:,} recording{'s' if self.labelled != 1 else ''} without labels labelled by "
-                f"aligning each to the {self.templates} labelled training recording{plural}"
+                f"aligning each to the {self.templates} labelled training recording{plural}{clicked}"
                 f"{'; ' + check if check else ''}: they train and enter the folds, never the test split")
 
     def record(self) -> dict:
-        return {"labelled": self.labelled, "templates": self.templates, "checked": self.checked,
+        return {"labelled": self.labelled, "templates": self.templates, "clicked": self.clicked,
+                "checked": self.checked,
                 "method": "dynamic time warping of the standardised features, each channel weighted by its spread "
                           "along the pairings; a vote over the labelled recordings"}
 
@@ -169,37 +174,43 @@ def training_recordings(frames: pl.DataFrame, leaving_out: Collection[int] = ())
 
 
 def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray], labels: np.ndarray,
-                  n_classes: int) -> tuple[list[np.ndarray] | None, float | None]:
+                  n_classes: int, unchecked: int = 0) -> tuple[list[np.ndarray] | None, float | None]:
     """Each recording of ``bare`` (its rows of ``z``, the standardised features) aligned to the labelled ones
     ``known``, the channels weighted by their spread along the pairings: its frames' votes [frames, C], or None where
-    the labelled ones, aligned to each other, come out under TRUSTED right; and that check (None under two)."""
+    the labelled ones, aligned to each other, come out under TRUSTED right; and that check (None under two). The last
+    ``unchecked`` of ``known`` are aligned to but left out of the check."""
     pairs = [(z[u], z[t]) for u in bare for t in known]
     z = z * channel_weights(pairs[::max(1, len(pairs) // WEIGHING_PAIRS)][:WEIGHING_PAIRS])
     templates = [(z[rows], labels[rows]) for rows in known]
-    check = checked(templates, n_classes) if len(templates) > 1 else None
+    checking = templates[:len(templates) - unchecked]
+    check = checked(checking, n_classes) if len(checking) > 1 else None
     if check is not None and check < TRUSTED:
         return None, check
     return [template_votes(z[rows], templates, n_classes) for rows in bare], check
 
 
-def label_unlabelled(frames: pl.DataFrame, n_classes: int) -> tuple[pl.DataFrame, Aligned]:
+def label_unlabelled(frames: pl.DataFrame, n_classes: int, clicked: Collection[int] = ()) -> tuple[pl.DataFrame,
+                                                                                                    Aligned]:
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
-    then ``train``), and what was done; as it was when there is nothing to align to or the check fails."""
+    then ``train``), and what was done; as it was when there is nothing to align to or the check fails. The episodes
+    ``clicked`` (labelled by clicks) are aligned to but not checked."""
     z = standardised(frames)
     splits = frames["split"].to_numpy()
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
-    known = training_recordings(frames)
+    by_hand = training_recordings(frames, leaving_out=clicked)
+    by_clicks = [rows for rows in training_recordings(frames) if int(frames["episode"][int(rows[0])]) in clicked]
+    known = by_hand + by_clicks
     bare = [rows for rows in rows_by_recording(frames["episode"].to_numpy()).values()
             if splits[rows[0]] == Part.UNLABELLED]
     if not known or not bare:
-        return frames, Aligned(0, len(known))
-    found, check = aligned_votes(z, bare, known, labels, n_classes)
+        return frames, Aligned(0, len(known), clicked=len(by_clicks))
+    found, check = aligned_votes(z, bare, known, labels, n_classes, unchecked=len(by_clicks))
     if found is None:
-        return frames, Aligned(0, len(known), check)
+        return frames, Aligned(0, len(known), check, len(by_clicks))
     new_splits = splits.astype(object)
     for rows, their_votes in zip(bare, found):
         labels[rows] = their_votes.argmax(axis=1)
         new_splits[rows] = Part.TRAIN.value
     filled = frames.with_columns(label=pl.Series(labels, dtype=frames["label"].dtype),
                                  split=pl.Series(new_splits.astype(str)))
-    return filled, Aligned(len(bare), len(known), check)
+    return filled, Aligned(len(bare), len(known), check, len(by_clicks))

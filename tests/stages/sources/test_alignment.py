@@ -70,6 +70,19 @@ def test_a_recording_partly_in_a_test_split_is_never_aligned_to():
     assert alignment.training_recordings(split, leaving_out={1}) == []
 
 
+def test_recordings_labelled_by_clicks_are_aligned_to_but_not_checked():
+    signals = episodes(4)
+    reversed_phases = dict(signals[2], phase=4 - signals[2]["phase"])  # clicked, its boundaries placed all wrong
+    frames = frames_of([signals[0], signals[1], reversed_phases, signals[3]], [Part.TRAIN] * 3 + [Part.UNLABELLED])
+    _, all_checked = alignment.label_unlabelled(frames, 5)
+    filled, aligned = alignment.label_unlabelled(frames, 5, clicked={2})
+    assert all_checked.checked < alignment.TRUSTED < aligned.checked  # the check: the two labelled by hand alone
+    assert (aligned.labelled, aligned.templates, aligned.clicked) == (1, 3, 1)
+    assert "to the 3 labelled training recordings (1 of them by clicks)" in aligned.said()
+    one_by_hand = frames.filter(pl.col("episode") != 1)
+    assert alignment.label_unlabelled(one_by_hand, 5, clicked={2})[1].checked is None  # nothing to check it on
+
+
 def test_labelled_recordings_that_do_not_align_leave_the_others_unlabelled():
     signals = episodes(3)
     reversed_phases = dict(signals[1], phase=4 - signals[1]["phase"])  # the same task labelled in reverse order
