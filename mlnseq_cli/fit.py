@@ -40,8 +40,9 @@ def fit(**flags: Any) -> None:
     learned from the training split by cross-validation, or --spec), formulas (or --formulas), learn-weights and train
     in stream mode with K folds, conflate with every decoder within the latency budget, export --method auto into
     MODEL; prints what it chose and why. Recordings without labels in --source are labelled by aligning them in time
-    to the labelled ones, and ranked in WORKDIR/label_next.csv by what labelling each would teach. Every stage's files
-    stay in WORKDIR, so any stage can be rerun on its own."""
+    to the labelled ones, and ranked in WORKDIR/label_next.csv by what labelling each would teach (where every
+    recording is labelled by clicks, the clicked ones, to label one on every frame). Every stage's files stay in
+    WORKDIR, so any stage can be rerun on its own."""
     own = {name: flags.pop(name) for name in inspect.signature(fit_options).parameters}
     workdir = own.pop("workdir")
     with reported_errors():

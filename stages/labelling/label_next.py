@@ -6,7 +6,11 @@ network and the MLN): the mean entropy of the decoded posterior (how unsure the 
 where the network and the MLN's formulas name different classes, the restarts where the decoding had to break a
 rule (a dead end), and how far the recording lies from the labelled ones (its features' means and spreads,
 standardised, to the nearest labelled recording's). A recording's score is the mean of its ranks on the four
-(each 0 to 1, 1 the most to teach); rank 1 is labelled first, and its reason is the measure it ranks highest on."""
+(each 0 to 1, 1 the most to teach); rank 1 is labelled first, and its reason is the measure it ranks highest on.
+
+Where every recording was labelled by clicks, the clicked ones are ranked instead, to label one on every frame: clicks
+cannot say where a still stretch between two phases belongs, a recording labelled on every frame does, for all the
+others (``sources/clicks.py``)."""
 
 from __future__ import annotations
 
@@ -28,6 +32,7 @@ class Proposal:
 
     ranked: pl.DataFrame  # episode, rank, reason, then the four measures
     intervals: pl.DataFrame  # episode, start, end, label: frames, predict --intervals' form
+    clicked: bool = False  # the recordings ranked were labelled by clicks (every one was), to label on every frame
 
     def first(self, n: int = 3) -> list[str]:
         """The first ``n`` recordings to label, one line each."""
@@ -41,14 +46,27 @@ def summary(features: np.ndarray) -> np.ndarray:
 
 
 def distances(unlabelled: list[np.ndarray], labelled: list[np.ndarray]) -> np.ndarray:
-    """Each unlabelled recording's distance to the nearest labelled one, on their summaries standardised over the
-    labelled recordings (a summary that does not vary among them counts by its own unit)."""
-    known = np.stack([summary(f) for f in labelled])
+    """Each unlabelled recording's distance to the nearest labelled one (none labelled: the nearest other one), on
+    their summaries standardised over those it is measured to (a summary that does not vary among them counts by its
+    own unit)."""
+    found = np.stack([summary(f) for f in unlabelled])
+    known = np.stack([summary(f) for f in labelled]) if labelled else found
     scale = known.std(axis=0)
     scale = np.where(scale > 0, scale, 1.0)
-    found = np.stack([summary(f) for f in unlabelled])
-    gaps = (found[:, None, :] - known[None, :, :]) / scale
-    return np.sqrt((gaps ** 2).mean(axis=2)).min(axis=1)
+    squared = (((found[:, None, :] - known[None, :, :]) / scale) ** 2).mean(axis=2)
+    if not labelled:
+        np.fill_diagonal(squared, np.inf)
+    return np.sqrt(squared.min(axis=1))
+
+
+def candidates(meta: dict) -> tuple[list, bool]:
+    """The recordings to rank (frames.parquet's metadata ``meta``), and whether they are clicked ones: those given
+    without labels; else, where every recording was labelled by clicks (two or more), the clicked ones."""
+    if meta.get("unlabelled_episodes"):
+        return list(meta["unlabelled_episodes"]), False
+    names = meta["episode_names"]
+    clicked = list(dict.fromkeys(names[e] for e, _, _ in meta.get("clicks", [])))
+    return (clicked, True) if len(names) > 1 and len(clicked) == len(names) else ([], False)
 
 
 def measured(recognizer: Any, features: np.ndarray) -> dict[str, float]:
@@ -63,35 +81,37 @@ def measured(recognizer: Any, features: np.ndarray) -> dict[str, float]:
             "path": scores.path}
 
 
-def _reason(measure: str, value: float, count: int) -> str:
+def _reason(measure: str, value: float, count: int, others: str) -> str:
     if measure == "entropy":
         return f"the chain is unsure: mean posterior entropy {value:.2f} nats (most of {count})"
     if measure == "disagreement":
         return f"the network and the formulas disagree on {value:.0%} of its frames (most of {count})"
     if measure == "restarts":
         return f"the decoding broke a rule {value:.0f} time{'s' if value != 1 else ''} (most of {count})"
-    return f"it is the least like the labelled recordings: distance {value:.2f} (most of {count})"
+    return f"it is the least like {others}: distance {value:.2f} (most of {count})"
 
 
-def ranked(table: pl.DataFrame) -> pl.DataFrame:
-    """``table`` (episode and the four measures) ranked: the mean of each measure's rank (0..1), highest first."""
+def ranked(table: pl.DataFrame, others: str = "the labelled recordings") -> pl.DataFrame:
+    """``table`` (episode and the four measures) ranked: the mean of each measure's rank (0..1), highest first;
+    ``others``: what the distance is measured to, in the reasons."""
     n = table.height
     share = {m: (table[m].rank("average").to_numpy() - 1) / max(n - 1, 1) for m in MEASURES}
     score = np.mean([share[m] for m in MEASURES], axis=0)
     reasons = []
     for row in range(n):
         best = max(MEASURES, key=lambda m: (share[m][row], -MEASURES.index(m)))
-        reasons.append(_reason(best, float(table[best][row]), n))
+        reasons.append(_reason(best, float(table[best][row]), n, others))
     order = np.lexsort((np.arange(n), -score))
     return (table.with_columns(pl.Series("score", score), pl.Series("reason", reasons))[order]
             .with_columns(pl.int_range(1, n + 1).alias("rank"))
             .select("episode", "rank", "reason", *MEASURES, "score"))
 
 
-def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_labels: list) -> Proposal:
+def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_labels: list,
+            clicked: bool = False) -> Proposal:
     """The recordings of ``frames`` (frames.parquet) named in ``without_labels`` (given no labels: unlabelled, or
-    labelled by alignment) ranked against the labelled ones, with the phases ``recognizer`` (a model file fitted on
-    the workdir) predicts for each."""
+    labelled by alignment; or, ``clicked``, all of them, labelled by clicks) ranked against the labelled ones, with
+    the phases ``recognizer`` (a model file fitted on the workdir) predicts for each."""
     from mlnseq.sources import intervals
 
     names = artifacts.feature_columns(frames)
@@ -115,7 +135,8 @@ def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_
             len(features), dtype=np.float64), classes, "frames"))
     table = pl.DataFrame(rows).with_columns(pl.Series("distance", distances([f for _, f in bare],
                                                                             [f for _, f in known])))
-    return Proposal(ranked(table), pl.concat(segments))
+    return Proposal(ranked(table, "the other clicked recordings" if clicked else "the labelled recordings"),
+                    pl.concat(segments), clicked)
 
 
 def write(workdir: Path, proposal: Proposal) -> tuple[Path, Path]:

@@ -146,20 +146,22 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
 
 
 def _label_next(workdir: Path, collected: Collected) -> tuple[Proposal | None, tuple[Path, ...]]:
-    """The unlabelled recordings ranked by what labelling each would teach, and their predicted phases, from the
-    conflation of the network and the MLN (a model file made for it and removed); nothing without any."""
+    """The unlabelled recordings (where every one was clicked, the clicked ones) ranked by what labelling each would
+    teach, and their predicted phases, from the conflation of the network and the MLN (a model file made for it and
+    removed); nothing without any."""
     from mlnseq import export
     from mlnseq.labelling import label_next
     from mlnseq.recognition.recognizer import Recognizer
 
-    if not collected.meta.get("unlabelled_episodes"):
+    ranking, clicked = label_next.candidates(collected.meta)
+    if not ranking:
         return None, ()
     model = workdir / ".label_next.mlnseq"
     try:
         export.run(workdir, export.ExportOptions(method=Method.CONFLATION.value, decode="filter", output=model,
                                                  force=True))
         proposal = label_next.propose(Recognizer.load(model), collected.frames, collected.meta["episode_names"],
-                                      collected.meta["unlabelled_episodes"])
+                                      ranking, clicked)
     finally:
         model.unlink(missing_ok=True)
     return proposal, label_next.write(workdir, proposal)

@@ -196,8 +196,10 @@ class Fitted:
                 for name, t in self.test.items()))
         if self.proposal is not None:
             ranked, phases = self.proposal_files
-            lines.append(f"label next ({ranked}; the predicted phases of every unlabelled recording in {phases}, "
-                         "--labels-unit frames, to correct):")
+            what, which = (("label one on every frame next, to say where the clicked ones' phases begin", "each")
+                           if self.proposal.clicked else ("label next", "every unlabelled recording"))
+            lines.append(f"{what} ({ranked}; the predicted phases of {which} in {phases}, --labels-unit frames, to "
+                         "correct):")
             lines += [f"  {line}" for line in self.proposal.first(3)]
         return lines
 

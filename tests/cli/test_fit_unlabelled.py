@@ -80,3 +80,32 @@ def test_one_labelled_recording_alone_is_not_cut_into_blocks_and_with_others_the
     said = fit(tmp_path, "three", tmp_path / "three-work")
     assert "2 recordings without labels labelled by aligning each to the 1 labelled training recording:" in said
     assert "3 folds by episode" in said
+
+
+def test_where_every_recording_is_clicked_the_clicked_ones_are_ranked_to_label_one_on_every_frame(bags, tmp_path):
+    import arm_bags
+
+    seeds = {f"episode_{k + 1}": 4100 + k for k in (1, 2, 4, 5)}  # the bags of "labelled"
+    (tmp_path / "clicks.csv").write_text("\n".join(arm_bags.clicks(arm_bags.ROBOTS["panda"], seeds)) + "\n")
+    done = CliRunner().invoke(app, ["fit", "--env", "rosbag", "--source", str(bags / "labelled"), "--labels",
+                                    str(tmp_path / "clicks.csv"), "--spec", str(bags / "hand.toml"), "--epochs", "3",
+                                    "-w", str(tmp_path / "clicked")])
+    assert done.exit_code == 0, done.output
+    said = " ".join(done.output.split())
+    assert f"label one on every frame next, to say where the clicked ones' phases begin ({tmp_path / 'clicked'}" in said
+    ranked = pl.read_csv(tmp_path / "clicked" / artifacts.LABEL_NEXT)
+    assert sorted(ranked["episode"]) == sorted(seeds) and ranked["rank"].to_list() == [1, 2, 3, 4]
+    assert ranked["distance"].is_finite().all() and f"1. {ranked['episode'][0]}: " in said
+    frames = artifacts.read_table(tmp_path / "clicked" / artifacts.FRAMES, "frames")[0]
+    phases = pl.read_csv(tmp_path / "clicked" / artifacts.UNLABELLED_INTERVALS)
+    assert (phases["end"] - phases["start"] + 1).sum() == frames.height  # each one's predicted phases, to correct
+    first = ranked["episode"][0]  # labelled on every frame instead (its proposal as it is), the others clicked
+    clicked = [f"{e},,,{f},{c}" for e, f, c in pl.read_csv(tmp_path / "clicks.csv").iter_rows() if e != first]
+    labelled = [f"{e},{s},{t},,{c}" for e, s, t, c in phases.filter(pl.col("episode") == first).iter_rows()]
+    (tmp_path / "mixed.csv").write_text("\n".join(["episode,start,end,frame,label", *clicked, *labelled]) + "\n")
+    done = CliRunner().invoke(app, ["fit", "--env", "rosbag", "--source", str(bags / "labelled"), "--labels",
+                                    str(tmp_path / "mixed.csv"), "--labels-unit", "frames", "--spec",
+                                    str(bags / "hand.toml"), "--epochs", "3", "-w", str(tmp_path / "one-labelled")])
+    assert done.exit_code == 0, done.output
+    assert "aligned in time to the 1 training recording labelled on every frame" in " ".join(done.output.split())
+    assert not (tmp_path / "one-labelled" / artifacts.LABEL_NEXT).exists()  # nothing left to rank
