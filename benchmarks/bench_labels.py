@@ -10,7 +10,9 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
 - ``clicks``: all 6 with one click per phase (a frame drawn at random within each phase) instead of /phase;
 - ``1 + clicks``: the first labelled on every frame (intervals) and the other 5 with the same clicks, in one file;
 - ``next`` and ``any``: from 1 labelled + 5 unlabelled, the recording label_next.csv ranks first labelled as well
-  (the other 4 still unlabelled in --source), against the mean of labelling each of the 5.
+  (the other 4 still unlabelled in --source), against the mean of labelling each of the 5;
+- ``clicks next`` and ``clicks any``: from all 6 clicked, the recording label_next.csv ranks first labelled on every
+  frame (the other 5 still clicked, as ``1 + clicks``), against the mean of labelling each of the 6 so.
 
 ``BENCH_LABELS_ARMS``: robot:seed pairs (default panda:83,iiwa:89,xarm7:97: seeds never used while developing);
 ``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
@@ -51,17 +53,28 @@ def bags(root: Path, robot: str, seed: int, n: int, heldout: int) -> dict:
         arm_bags.write_bag(root / "bare" / name, arm, s, phases=False)
     for k in range(heldout):
         arm_bags.write_bag(root / "heldout" / f"heldout_{k + 1}", arm, seed * 1000 + 500 + k)
-    lines, mixed = ["episode,frame,label"], ["episode,start,end,frame,label"]
-    for k, (name, s) in enumerate(names.items()):
+    clicked, spans = {}, {}  # per recording: (frame, label) of each click; (first, last, label) of each phase
+    for name, s in names.items():
         phase = arm_bags.episode_signals(arm, s)["phase"]
-        for index, label in enumerate(arm_bags.PHASES):
-            frames = np.flatnonzero(phase == index)
-            clicked = frames[int(rng.uniform(0.1, 0.9) * (len(frames) - 1))]
-            lines.append(f"{name},{clicked},{label}")
-            mixed.append(f"{name},{frames[0]},{frames[-1]},,{label}" if k == 0 else f"{name},,,{clicked},{label}")
-    (root / "clicks.csv").write_text("\n".join(lines) + "\n")
-    (root / "mixed.csv").write_text("\n".join(mixed) + "\n")  # the first labelled on every frame, the others clicked
-    return {"root": root, "names": list(names)}
+        frames = [np.flatnonzero(phase == index) for index in range(len(arm_bags.PHASES))]
+        clicked[name] = [(f[int(rng.uniform(0.1, 0.9) * (len(f) - 1))], label) for f, label in zip(frames,
+                                                                                                    arm_bags.PHASES)]
+        spans[name] = [(f[0], f[-1], label) for f, label in zip(frames, arm_bags.PHASES)]
+    lines = [f"{name},{frame},{label}" for name, found in clicked.items() for frame, label in found]
+    (root / "clicks.csv").write_text("\n".join(["episode,frame,label", *lines]) + "\n")
+    data = {"root": root, "names": list(names), "clicked": clicked, "spans": spans}
+    mixed_file(data, list(names)[0], root / "mixed.csv")
+    return data
+
+
+def mixed_file(data: dict, labelled: str, path: Path) -> Path:
+    """A labels file: ``labelled`` on every frame (intervals), the other recordings by their clicks."""
+    rows = [f"{name},{first},{last},,{label}" for name in data["names"] if name == labelled
+            for first, last, label in data["spans"][name]]
+    rows += [f"{name},,,{frame},{label}" for name in data["names"] if name != labelled
+             for frame, label in data["clicked"][name]]
+    path.write_text("\n".join(["episode,start,end,frame,label", *rows]) + "\n")
+    return path
 
 
 def source(data: dict, labelled: list[str], others: bool, name: str) -> Path:
@@ -105,6 +118,23 @@ def label_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[f
     return accuracy[candidates[0]], float(np.mean(list(accuracy.values()))), ranked["reason"][0]
 
 
+def clicked_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[float, float]:
+    """(accuracy labelling on every frame the clicked recording fit's label_next.csv ranks first, mean accuracy
+    labelling each of them so), the others clicked, as ``1 + clicks``."""
+    import polars as pl
+
+    from mlnseq.catalog import artifacts
+
+    candidates = pl.read_csv(work / artifacts.LABEL_NEXT)["episode"].to_list()[:2 if quick else None]
+    accuracy = {}
+    for candidate in candidates:
+        labels = mixed_file(data, candidate, data["root"] / f"mixed-{candidate}.csv")
+        model = fit(data["root"] / "bare", data["root"] / f"w-clicks-next-{candidate}", epochs, "--labels",
+                    str(labels), "--labels-unit", "frames")
+        accuracy[candidate] = held_out(model, data)
+    return accuracy[candidates[0]], float(np.mean(list(accuracy.values())))
+
+
 def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     data = bags(root, robot, seed, config["episodes"], config["heldout"])
     epochs, row = config["epochs"], {}
@@ -122,6 +152,7 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     row["1 + clicks"] = held_out(mixed, data)
     first = root / "w-1-with-unlabelled"
     row["next"], row["any"], row["next reason"] = label_next_gain(data, first, epochs, config["quick"])
+    row["clicks next"], row["clicks any"] = clicked_next_gain(data, root / "w-clicks", epochs, config["quick"])
     return row
 
 
@@ -133,7 +164,7 @@ def main() -> None:
             rows[f"{robot}:{seed}"] = measure(robot, seed, config, Path(tmp) / f"{robot}-{seed}")
             print(f"{robot}:{seed}: {rows[f'{robot}:{seed}']}", flush=True)
     columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")],
-               "clicks", "1 + clicks", "next", "any"]
+               "clicks", "1 + clicks", "next", "any", "clicks next", "clicks any"]
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
           f"{config['epochs']}, {config['episodes']} recordings to learn from")
     print("| arm | " + " | ".join(columns) + " |")
@@ -142,6 +173,10 @@ def main() -> None:
         print(f"| {name} | " + " | ".join(f"{row[c]:.1f}" for c in columns) + " |")
     means = {c: float(np.mean([row[c] for row in rows.values()])) for c in columns}
     print("| mean | " + " | ".join(f"{means[c]:.1f}" for c in columns) + " |")
-    gains = [row["next"] - row["any"] for row in rows.values()]
-    print(f"labels: {len(rows)} arm(s) measured; label_next's first against the mean of any: "
-          f"{np.mean(gains):+.1f} points (per arm {', '.join(f'{g:+.1f}' for g in gains)})")
+    said = []
+    for first, mean, what in (("next", "any", "label_next's first"), ("clicks next", "clicks any", "all clicked, "
+                                                                      "label_next's first labelled on every frame")):
+        gains = [row[first] - row[mean] for row in rows.values()]
+        said.append(f"{what} against the mean of any: {np.mean(gains):+.1f} points (per arm "
+                    f"{', '.join(f'{g:+.1f}' for g in gains)})")
+    print(f"labels: {len(rows)} arm(s) measured; {'; '.join(said)}")
