@@ -189,8 +189,8 @@ def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray]
     return [template_votes(z[rows], templates, n_classes) for rows in bare], check
 
 
-def label_unlabelled(frames: pl.DataFrame, n_classes: int, clicked: Collection[int] = ()) -> tuple[pl.DataFrame,
-                                                                                                    Aligned]:
+def label_unlabelled(frames: pl.DataFrame, n_classes: int,
+                     clicked: Collection[int] = ()) -> tuple[pl.DataFrame, Aligned]:
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails. The episodes
     ``clicked`` (labelled by clicks) are aligned to but not checked."""
