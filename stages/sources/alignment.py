@@ -174,16 +174,16 @@ def training_recordings(frames: pl.DataFrame, leaving_out: Collection[int] = ())
 
 
 def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray], labels: np.ndarray,
-                  n_classes: int, unchecked: int = 0) -> tuple[list[np.ndarray] | None, float | None]:
+                  n_classes: int, unchecked: list[np.ndarray] = ()) -> tuple[list[np.ndarray] | None, float | None]:
     """Each recording of ``bare`` (its rows of ``z``, the standardised features) aligned to the labelled ones
-    ``known``, the channels weighted by their spread along the pairings: its frames' votes [frames, C], or None where
-    the labelled ones, aligned to each other, come out under TRUSTED right; and that check (None under two). The last
-    ``unchecked`` of ``known`` are aligned to but left out of the check."""
-    pairs = [(z[u], z[t]) for u in bare for t in known]
+    ``known`` and ``unchecked``, the channels weighted by their spread along the pairings: its frames' votes
+    [frames, C], or None where those of ``known``, aligned to each other, come out under TRUSTED right; and that check
+    (None under two)."""
+    every = [*known, *unchecked]
+    pairs = [(z[u], z[t]) for u in bare for t in every]
     z = z * channel_weights(pairs[::max(1, len(pairs) // WEIGHING_PAIRS)][:WEIGHING_PAIRS])
-    templates = [(z[rows], labels[rows]) for rows in known]
-    checking = templates[:len(templates) - unchecked]
-    check = checked(checking, n_classes) if len(checking) > 1 else None
+    templates = [(z[rows], labels[rows]) for rows in every]
+    check = checked(templates[:len(known)], n_classes) if len(known) > 1 else None
     if check is not None and check < TRUSTED:
         return None, check
     return [template_votes(z[rows], templates, n_classes) for rows in bare], check
@@ -195,22 +195,21 @@ def label_unlabelled(frames: pl.DataFrame, n_classes: int,
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails. The episodes
     ``clicked`` (labelled by clicks) are aligned to but not checked."""
     z = standardised(frames)
-    splits = frames["split"].to_numpy()
+    episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     by_hand = training_recordings(frames, leaving_out=clicked)
-    by_clicks = [rows for rows in training_recordings(frames) if int(frames["episode"][int(rows[0])]) in clicked]
-    known = by_hand + by_clicks
-    bare = [rows for rows in rows_by_recording(frames["episode"].to_numpy()).values()
-            if splits[rows[0]] == Part.UNLABELLED]
-    if not known or not bare:
-        return frames, Aligned(0, len(known), clicked=len(by_clicks))
-    found, check = aligned_votes(z, bare, known, labels, n_classes, unchecked=len(by_clicks))
+    by_clicks = [rows for rows in training_recordings(frames) if episodes[rows[0]] in clicked]
+    templates = len(by_hand) + len(by_clicks)
+    bare = [rows for rows in rows_by_recording(episodes).values() if splits[rows[0]] == Part.UNLABELLED]
+    if not templates or not bare:
+        return frames, Aligned(0, templates, clicked=len(by_clicks))
+    found, check = aligned_votes(z, bare, by_hand, labels, n_classes, unchecked=by_clicks)
     if found is None:
-        return frames, Aligned(0, len(known), check, len(by_clicks))
+        return frames, Aligned(0, templates, check, len(by_clicks))
     new_splits = splits.astype(object)
     for rows, their_votes in zip(bare, found):
         labels[rows] = their_votes.argmax(axis=1)
         new_splits[rows] = Part.TRAIN.value
     filled = frames.with_columns(label=pl.Series(labels, dtype=frames["label"].dtype),
                                  split=pl.Series(new_splits.astype(str)))
-    return filled, Aligned(len(bare), len(known), check, len(by_clicks))
+    return filled, Aligned(len(bare), templates, check, len(by_clicks))
