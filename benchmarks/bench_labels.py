@@ -25,6 +25,8 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -96,43 +98,30 @@ def held_out(model: Path, data: dict) -> float:
     return frame_accuracy(model, ["--source", str(data["root"] / "heldout")], model.with_suffix(".parquet"))[0]
 
 
-def conflation(work: Path) -> Path:
-    model = work / "conflation.mlnseq"
-    run(["export", "-w", str(work), "--method", "conflation", "--decode", "filter", "-o", str(model), "--force"])
-    return model
-
-
-def label_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[float, float, str]:
-    """(accuracy labelling the recording fit's label_next.csv ranks first, mean accuracy labelling each of them, the
-    first's reason): the first recording and the candidate labelled, the others without labels in --source."""
+def first_against_any(work: Path, quick: bool, accuracy_of: Callable[[str], float]) -> tuple[float, float, str]:
+    """(held-out accuracy labelling the recording WORK's label_next.csv ranks first, the mean over labelling each it
+    ranks, the first's reason); ``accuracy_of``: the accuracy with a recording, by name, labelled."""
     import polars as pl
 
     from mlnseq.catalog import artifacts
 
     ranked = pl.read_csv(work / artifacts.LABEL_NEXT)
     candidates = ranked["episode"].to_list()[:2 if quick else None]
-    accuracy = {}
-    for candidate in candidates:
-        folder = source(data, [data["names"][0], candidate], True, f"next-{candidate}")
-        accuracy[candidate] = held_out(fit(folder, data["root"] / f"w-next-{candidate}", epochs), data)
+    accuracy = {candidate: accuracy_of(candidate) for candidate in candidates}
     return accuracy[candidates[0]], float(np.mean(list(accuracy.values()))), ranked["reason"][0]
 
 
-def clicked_next_gain(data: dict, work: Path, epochs: str, quick: bool) -> tuple[float, float]:
-    """(accuracy labelling on every frame the clicked recording fit's label_next.csv ranks first, mean accuracy
-    labelling each of them so), the others clicked, as ``1 + clicks``."""
-    import polars as pl
+def beside_unlabelled(data: dict, epochs: str, candidate: str) -> float:
+    """The first recording and ``candidate`` labelled, the others without labels in --source."""
+    folder = source(data, [data["names"][0], candidate], True, f"next-{candidate}")
+    return held_out(fit(folder, data["root"] / f"w-next-{candidate}", epochs), data)
 
-    from mlnseq.catalog import artifacts
 
-    candidates = pl.read_csv(work / artifacts.LABEL_NEXT)["episode"].to_list()[:2 if quick else None]
-    accuracy = {}
-    for candidate in candidates:
-        labels = mixed_file(data, candidate, data["root"] / f"mixed-{candidate}.csv")
-        model = fit(data["root"] / "bare", data["root"] / f"w-clicks-next-{candidate}", epochs, "--labels",
-                    str(labels), "--labels-unit", "frames")
-        accuracy[candidate] = held_out(model, data)
-    return accuracy[candidates[0]], float(np.mean(list(accuracy.values())))
+def beside_clicked(data: dict, epochs: str, candidate: str) -> float:
+    """``candidate`` labelled on every frame, the others clicked, as ``1 + clicks``."""
+    labels = mixed_file(data, candidate, data["root"] / f"mixed-{candidate}.csv")
+    return held_out(fit(data["root"] / "bare", data["root"] / f"w-clicks-next-{candidate}", epochs, "--labels",
+                        str(labels), "--labels-unit", "frames"), data)
 
 
 def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
@@ -150,9 +139,10 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     mixed = fit(data["root"] / "bare", root / "w-1-clicks", epochs, "--labels", str(data["root"] / "mixed.csv"),
                 "--labels-unit", "frames")
     row["1 + clicks"] = held_out(mixed, data)
-    first = root / "w-1-with-unlabelled"
-    row["next"], row["any"], row["next reason"] = label_next_gain(data, first, epochs, config["quick"])
-    row["clicks next"], row["clicks any"] = clicked_next_gain(data, root / "w-clicks", epochs, config["quick"])
+    quick = config["quick"]
+    unlabelled, clicked = partial(beside_unlabelled, data, epochs), partial(beside_clicked, data, epochs)
+    row["next"], row["any"], row["next reason"] = first_against_any(root / "w-1-with-unlabelled", quick, unlabelled)
+    row["clicks next"], row["clicks any"], _ = first_against_any(root / "w-clicks", quick, clicked)
     return row
 
 
