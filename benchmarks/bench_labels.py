@@ -6,7 +6,7 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
 - ``all 6 train``: the same with ``--holdout none``: all 6 train, as every recording does below 5 labelled ones;
 - ``L alone``: L of them labelled (1, 2, 3) and nothing else in --source;
 - ``L + unlabelled``: the same L labelled and the other 6 - L in the same --source without /phase: fit labels them by
-  alignment to the labelled ones (mlnseq.sources.alignment) and learns from all 6;
+  alignment to the labelled ones (mlnseq.labelling.alignment) and learns from all 6;
 - ``clicks``: all 6 with one click per phase (a frame drawn at random within each phase) instead of /phase;
 - ``1 + clicks``: the first labelled on every frame (intervals) and the other 5 with the same clicks, in one file;
 - ``next`` and ``any``: from 1 labelled + 5 unlabelled, the recording label_next.csv ranks first labelled as well

@@ -20,7 +20,9 @@ from mlnseq.sources import desk
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.notes import counted
-from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions, alignment, clicks
+from mlnseq.labelling.alignment import Aligned
+from mlnseq.labelling.estimates import estimated
+from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
 from mlnseq.sources.table import collect_frames, reading_record
@@ -78,13 +80,7 @@ def collect_recordings(options: CollectOptions) -> Collected:
         if not said:
             raise
         raise BadInput(f"{error}; a frame needs every channel's value, and: {'; '.join(said)}") from None
-    if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
-        frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
-    aligned = None
-    if options.align and meta.get("unlabelled_episodes"):  # labelled by alignment to the labelled ones
-        clicked = {episode for episode, _, _ in meta.get("clicks", [])}
-        frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]), clicked)
-        meta["aligned"] = aligned.record()
+    frames, aligned = estimated(frames, meta, options.align)  # the clicks' boundaries, and alignment where asked
     if options.train_frames is not None:
         frames = frames.with_columns(split=pl.Series(split_by_position(frames.height, options.train_frames)))
     meta["source"] = options.env
@@ -104,7 +100,7 @@ def collect_recordings(options: CollectOptions) -> Collected:
     return Collected(frames, meta, inputs=inputs, class_order=table_class_order(options.columns, meta["classes"]))
 
 
-def unlabelled_note(n: int, aligned: alignment.Aligned | None = None) -> str:
+def unlabelled_note(n: int, aligned: Aligned | None = None) -> str:
     """One line on the recordings without labels: labelled by alignment (fit), or used unlabelled and why."""
     if aligned is not None and aligned.labelled:
         return aligned.said()

@@ -1,3 +1,3 @@
-"""Labelling less: which recording to label next, and the phases proposed for every recording given without labels
-(``label_next.py``). Labels filled at collect, from clicks or by alignment, are the sources' (``sources/clicks.py``,
-``sources/alignment.py``)."""
+"""Labelling less: few labels turned into many at collect (recordings without labels labelled by aligning them in time
+to the labelled ones, ``alignment.py``; the boundaries between clicks learned, ``clicks.py``), and which recording to
+label next with the phases proposed for each (``label_next.py``). The labels themselves are read by ``sources/``."""

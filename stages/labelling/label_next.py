@@ -10,7 +10,7 @@ standardised, to the nearest labelled recording's). A recording's score is the m
 
 Where every recording was labelled by clicks, the clicked ones are ranked instead, to label one on every frame: clicks
 cannot say where a still stretch between two phases belongs, a recording labelled on every frame does, for all the
-others (``sources/clicks.py``)."""
+others (``clicks.py``)."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
+from mlnseq.sources.recording import clicked_episodes
 
 MEASURES = ("entropy", "disagreement", "restarts", "distance")
 
@@ -65,7 +66,7 @@ def candidates(meta: dict) -> tuple[list, bool]:
     if meta.get("unlabelled_episodes"):
         return list(meta["unlabelled_episodes"]), False
     names = meta["episode_names"]
-    clicked = list(dict.fromkeys(names[e] for e, _, _ in meta.get("clicks", [])))
+    clicked = [names[e] for e in clicked_episodes(meta.get("clicks", []))]
     return (clicked, True) if len(names) > 1 and len(clicked) == len(names) else ([], False)
 
 

@@ -46,11 +46,12 @@ class Collecting:
     @property
     def said(self) -> list[str]:
         """With few labelled recordings and no test split: that every one trains."""
+        from mlnseq.sources.recording import clicked_episodes
         from mlnseq.sources.splits import FEW_LABELLED
 
         splits, meta = self.collected.frames["split"], self.collected.meta
         aligned = (meta.get("aligned") or {}).get("labelled", 0)  # labelled by alignment, not by the user
-        clicked = len({episode for episode, _, _ in meta.get("clicks", [])})  # these always train (clicks.py)
+        clicked = len(clicked_episodes(meta.get("clicks", [])))  # these always train (sources/table.py)
         labelled = self.collected.frames.filter(splits != "unlabelled")["episode"].n_unique() - aligned - clicked
         if not labelled or labelled >= FEW_LABELLED or (splits == "test").any():
             return []

@@ -1,8 +1,8 @@
 """Labels as time intervals: ``episode,start,end,label`` rows (CSV or TSV), or a folder of JIGSAWS-style
 ``start end label`` files named by episode, applied to recordings; and one click per phase: ``episode,frame,label``
-(or ``time``) rows, each saying "this frame is in this phase" (``mlnseq.sources.clicks``). A file may mix both,
-episode by episode. An episode of ``--source`` that the file does not name keeps its own labels where they
-are read (collect), else is read unlabelled.
+(or ``time``) rows, each saying "this frame is in this phase", each boundary put halfway between two clicks when read
+(``mlnseq.labelling.clicks`` learns where it falls). A file may mix both, episode by episode. An episode of
+``--source`` that the file does not name keeps its own labels where they are read (collect), else is read unlabelled.
 
 Units: ``frames`` counts a frame's position in its episode from 0, an interval holding ``start`` to ``end``
 inclusive (the JIGSAWS convention); ``seconds`` is the recording's time, an interval holding
@@ -119,8 +119,6 @@ def checked(found: list[Interval]) -> list[Interval]:
             raise BadInput(f"{interval.where}: ends ({interval.end:g}) before it starts ({interval.start:g})")
     clicks = [i for i in found if i.unit is not None]
     if clicks:
-        from mlnseq.sources.clicks import checked_clicks
-
         if len(clicks) < len(found):
             raise BadInput(f"{clicks[0].where}: a click in an episode that has intervals too; give an episode "
                            "intervals or clicks, not both")
@@ -132,15 +130,84 @@ def checked(found: list[Interval]) -> list[Interval]:
     return ordered
 
 
+# ---- clicks: one label per phase, each boundary halfway until labelling/clicks.py learns it ---------------
+
+def checked_clicks(found: list[Interval]) -> list[Interval]:
+    """An episode's clicks in time order, a repeated one once; two labels at one frame refused."""
+    ordered = sorted(found, key=lambda i: i.start)
+    kept = ordered[:1]
+    for click in ordered[1:]:
+        before = kept[-1]
+        if click.start == before.start:
+            if click.label != before.label:
+                raise BadInput(f"{click.where}: a second label at {click.unit} {click.start:g} ({click.label!r}; "
+                               f"{before.where} says {before.label!r}); give one label a frame")
+            continue
+        kept.append(click)
+    return kept
+
+
+def positions(key: np.ndarray, found: list[Interval], what: str) -> np.ndarray:
+    """Each click's frame in its episode (``key``: positions 0, 1, ... or the frames' times); outside refused."""
+    unit = found[0].unit
+    if unit == "frames":
+        last = key[-1]
+        at = [int(c.start) if c.start == int(c.start) else -1 for c in found]
+    else:
+        last = key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
+        at = [int(np.searchsorted(key, c.start, side="right")) - 1 for c in found]
+    for click, index in zip(found, at):
+        if not (key[0] <= click.start <= last + 1e-9) or not 0 <= index < len(key):
+            raise BadInput(f"{click.where}: click at {click.start:g} falls outside {what} ({key[0]:g}..{last:g} "
+                           f"{unit})")
+    for (a, click_a), (b, click_b) in zip(zip(at, found), zip(at[1:], found[1:])):
+        if a == b and click_a.label != click_b.label:
+            raise BadInput(f"{click_b.where}: a second label at the frame of {click_a.where} ({click_b.label!r}, "
+                           f"{click_a.label!r}); give one label a frame")
+    return np.asarray(at, dtype=np.int64)
+
+
+def halfway(n: int, at: np.ndarray, labels: list) -> np.ndarray:
+    """The n frames' labels from clicks at frames ``at`` (ascending) of ``labels``: each boundary halfway."""
+    cuts = (at[:-1] + at[1:] + 1) // 2
+    return np.asarray(labels, dtype=object)[np.searchsorted(cuts, np.arange(n), side="right")]
+
+
+def _label_from_clicks(key: np.ndarray, found: list, rows: np.ndarray, labels: np.ndarray, keep: np.ndarray,
+                  clicked: np.ndarray, what: str) -> None:
+    """Label an episode's ``rows`` from its clicks (``found``, in order), each boundary halfway, marking the clicked
+    rows."""
+    at = positions(key, found, what)
+    labels[rows] = halfway(len(rows), at, [c.label for c in found])
+    keep[rows] = True
+    clicked[rows[at]] = True
+
+
+def check_classes(intervals: dict[str, list[Interval]]) -> None:
+    """A click of a class no other episode of the labels file has is refused (a typo, or a phase nothing else shows)
+    when the file labels two episodes or more."""
+    if len(intervals) < 2:
+        return
+    episodes_of: dict = {}
+    for episode, found in intervals.items():
+        for interval in found:
+            episodes_of.setdefault(interval.label, set()).add(episode)
+    for episode, found in intervals.items():
+        for click in (i for i in found if i.unit is not None):
+            if episodes_of[click.label] == {episode}:
+                others = sorted(map(str, (c for c, e in episodes_of.items() if e != {episode})))
+                raise BadInput(f"{click.where}: class {click.label!r} is clicked in episode {episode!r} only, no "
+                               f"other episode has it (theirs: {', '.join(others[:8])}); correct it, or label another "
+                               "episode with it")
+
+
 def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], unit: str,
           unlabelled: str | None = None) -> list[Recording]:
     """Each recording labelled from its episode's intervals (frames outside every interval dropped or labelled
-    ``unlabelled``) or clicks (``mlnseq.sources.clicks``); the episodes the labels do not name keep the recording's
+    ``unlabelled``) or clicks (each boundary halfway); the episodes the labels do not name keep the recording's
     own labels, if read, else read unlabelled, a recording of their own. Every interval's episode needs a
     recording."""
-    from mlnseq.sources import clicks
-
-    clicks.check_classes(intervals)
+    check_classes(intervals)
     seen: set[str] = set()
     found_parts = []
     for recording in recordings:
@@ -158,9 +225,9 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
             own_unit = found[0].unit or unit
             key = np.arange(len(rows), dtype=np.float64) if own_unit == "frames" else recording.time.to_numpy()[rows]
             if found[0].unit is not None:
-                clicks.label_episode(key, found, rows, labels, keep, clicked, what)
+                _label_from_clicks(key, found, rows, labels, keep, clicked, what)
             else:
-                _label_episode(key, found, unit, rows, labels, keep, what)
+                _label_from_intervals(key, found, unit, rows, labels, keep, what)
         if named.any() and not keep[named].any():
             raise BadInput(f"{recording.path}: no frame falls in an interval of --labels")
         if unlabelled is not None:
@@ -209,7 +276,7 @@ def _as_written(episode: str, intervals: dict[str, list[Interval]], ids: pl.Seri
     return same[0] if len(same) == 1 else None
 
 
-def _label_episode(key: np.ndarray, found: list[Interval], unit: str, rows: np.ndarray, labels: np.ndarray,
+def _label_from_intervals(key: np.ndarray, found: list[Interval], unit: str, rows: np.ndarray, labels: np.ndarray,
                    keep: np.ndarray, what: str) -> None:
     last = key[-1] if unit == "frames" else key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
     for interval in found:

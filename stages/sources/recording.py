@@ -3,6 +3,7 @@ the recordings' own labels are read (``Labels``)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -78,6 +79,11 @@ class Collected:
     def classes_line(self) -> str:
         """The classes in label order (label 0 first) and how that order was chosen: one line for the user."""
         return f"classes in label order ({self.class_order}): {', '.join(self.meta['classes'])}"
+
+
+def clicked_episodes(clicks: Iterable[Iterable[int]]) -> list[int]:
+    """The episodes labelled by clicks, in order, from frames.parquet's metadata ``clicks`` (episode, frame, class)."""
+    return list(dict.fromkeys(int(episode) for episode, _, _ in sorted(map(tuple, clicks))))
 
 
 def split_by_position(n_frames: int, train_frames: int) -> np.ndarray:

@@ -13,7 +13,8 @@ import pytest
 from mlnseq import collect
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
-from mlnseq.sources import SourceOptions, clicks
+from mlnseq.labelling import clicks
+from mlnseq.sources import SourceOptions, intervals
 
 pytest.importorskip("rosbags")
 
@@ -51,7 +52,7 @@ def halfway_accuracy(collected: collect.Collected, truth: collect.Collected) -> 
     for episode in range(frames["episode"].max() + 1):
         given = sorted((f, c) for e, f, c in collected.meta["clicks"] if e == episode)
         rows = np.flatnonzero(frames["episode"].to_numpy() == episode)
-        labels[rows] = clicks.halfway(len(rows), np.array([f for f, _ in given]), [c for _, c in given])
+        labels[rows] = intervals.halfway(len(rows), np.array([f for f, _ in given]), [c for _, c in given])
     names = np.asarray(collected.meta["classes"])
     return float(np.mean(names[labels.astype(int)] == np.asarray(truth.meta["classes"])[truth.frames["label"]]))
 
@@ -84,8 +85,8 @@ def change_points_alone(collected: collect.Collected, aligned: bool = False) -> 
     features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
     z = (features - features.mean(axis=0)) / (features.std(axis=0) + 1e-9)
     episodes, positions = frames["episode"].to_numpy(), frames["frame"].to_numpy()
-    spans = [(np.flatnonzero((episodes == episode) & (positions >= first) & (positions <= last)), before, after)
-             for episode, first, last, before, after in clicks.free_spans(collected.meta["clicks"])]
+    spans = [(np.flatnonzero((episodes == s.episode) & (positions >= s.first) & (positions <= s.last)), s.before,
+              s.after) for s in clicks.free_spans(collected.meta["clicks"])]
     cuts = [clicks.change_point(z[rows]) for rows, _, _ in spans]
     for (rows, before, after), t in zip(spans, clicks.aligned(z, episodes, spans, cuts) if aligned else cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
@@ -120,8 +121,8 @@ def aligned_change_points(frames: pl.DataFrame, given: list[list[int]], labels: 
     recordings' clicks and labels aligned in time."""
     z = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
     z, episodes, labels = (z - z.mean(axis=0)) / z.std(axis=0), frames["episode"].to_numpy(), labels.copy()
-    spans = [(np.flatnonzero(episodes == e)[first:last + 1], before, after)
-             for e, first, last, before, after in clicks.free_spans(given)]
+    spans = [(np.flatnonzero(episodes == s.episode)[s.first:s.last + 1], s.before, s.after)
+             for s in clicks.free_spans(given)]
     cuts = clicks.aligned(z, episodes, spans, [clicks.change_point(z[rows]) for rows, _, _ in spans])
     for (rows, before, after), t in zip(spans, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after

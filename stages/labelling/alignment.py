@@ -10,7 +10,7 @@ divided by the spread of its differences along the pairings, and aligned again (
 Alignment assumes the recordings perform one task the same way (phases in one order). With two labelled training
 recordings or more this is checked on them first: each is aligned to the others as if it had no labels, and the
 recordings without labels are labelled only when ``TRUSTED`` of its frames or more come out right; else they stay
-unlabelled. Recordings labelled by clicks (``sources/clicks.py``) are aligned to, but not checked: their labels between
+unlabelled. Recordings labelled by clicks (``clicks.py``) are aligned to, but not checked: their labels between
 clicks were placed by aligning them to the others, so they would pass the check whatever it measures. Test
 recordings, and recordings partly in a test split, are never aligned to."""
 

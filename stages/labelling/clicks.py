@@ -1,11 +1,12 @@
-"""One click per phase: ``episode,frame,label`` (or ``time``) rows of a labels file, each saying "this frame is in this
-phase". Between two clicks of an episode the phases follow each other in click order: the frames up to the first
-click are its phase, those from the last click on the last's, and between two clicks of different phases one boundary
-falls, first put halfway when read. The clicked frames are kept (``Recording.resolved["clicks"]``, then
-frames.parquet's metadata ``clicks``: episode, frame, class) so that it says which labels were given.
+"""Where the phases between clicks begin. A clicks file (``episode,frame,label`` or ``time`` rows, each saying "this
+frame is in this phase"; read by ``sources/intervals.py``) labels the frames between two clicks of an episode in click
+order: the frames up to the first click are its phase, those from the last click on the last's, and between two clicks
+of different phases one boundary falls, first put halfway when read. The clicked frames are kept
+(``Recording.resolved["clicks"]``, then frames.parquet's metadata ``clicks``: episode, frame, class) so that it says
+which labels were given.
 
 Where each boundary falls is then learned: ``fill`` first aligns each clicked recording in time to the others
-(``sources/alignment.py``), then cuts each span to where the others' clicks around a boundary of its kind fall once
+(``labelling/alignment.py``), then cuts each span to where the others' clicks around a boundary of its kind fall once
 aligned (``narrowed``: the boundary comes after their earlier clicks and before their later ones), places the
 boundary where the frames left split best into two parts of their own means (the least-squares change point of the
 standardised features: the two phases look different, nothing else is assumed), moves each where the frames around
@@ -20,98 +21,45 @@ labelled on every frame sit beside the clicked ones, they say it: each clicked r
 alignment labels a recording without labels, and each boundary placed, between its two clicks, where their labels
 agree most (``from_labelled``; the clicked-only steps again if aligning them to each other fails alignment's check).
 
-A clicked recording always trains (``table.py``): its labels between clicks are estimates, which a test split would
-score against. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and did
-not help: docs/first-day.md.)"""
+A clicked recording always trains (``sources/table.py``): its labels between clicks are estimates, which a test split
+would score against. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and
+did not help: docs/first-day.md.)"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, replace
 
 import numpy as np
 import polars as pl
 
-from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
-from mlnseq.sources import alignment
+from mlnseq.labelling import alignment
+from mlnseq.sources.recording import clicked_episodes
 
 ALIGN_HALF_WIDTH = 10  # frames on each side of a boundary compared with the other boundaries of its kind
 ALIGN_ROUNDS = 3  # rounds of moving every boundary to the others' mean window (more drift them together)
 PARTNERS = 8  # other recordings each clicked recording is aligned to in time
 
 
-def checked_clicks(found: list) -> list:
-    """An episode's clicks in time order, a repeated one once; two labels at one frame refused."""
-    ordered = sorted(found, key=lambda i: i.start)
-    kept = ordered[:1]
-    for click in ordered[1:]:
-        before = kept[-1]
-        if click.start == before.start:
-            if click.label != before.label:
-                raise BadInput(f"{click.where}: a second label at {click.unit} {click.start:g} ({click.label!r}; "
-                               f"{before.where} says {before.label!r}); give one label a frame")
-            continue
-        kept.append(click)
-    return kept
+@dataclass(frozen=True)
+class Span:
+    """Where one boundary is learned: the frames ``first`` to ``last`` of ``episode`` between two consecutive clicks in
+    different phases, ``before``'s then ``after``'s; the boundary is the first frame of ``after``, in first+1 .. last.
+    (Frames within the episode, or, once ``fill`` has them, positions among its rows.)"""
+
+    episode: int
+    first: int
+    last: int
+    before: int
+    after: int
 
 
-def positions(key: np.ndarray, found: list, what: str) -> np.ndarray:
-    """Each click's frame in its episode (``key``: positions 0, 1, ... or the frames' times); outside refused."""
-    unit = found[0].unit
-    if unit == "frames":
-        last = key[-1]
-        at = [int(c.start) if c.start == int(c.start) else -1 for c in found]
-    else:
-        last = key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
-        at = [int(np.searchsorted(key, c.start, side="right")) - 1 for c in found]
-    for click, index in zip(found, at):
-        if not (key[0] <= click.start <= last + 1e-9) or not 0 <= index < len(key):
-            raise BadInput(f"{click.where}: click at {click.start:g} falls outside {what} ({key[0]:g}..{last:g} "
-                           f"{unit})")
-    for (a, click_a), (b, click_b) in zip(zip(at, found), zip(at[1:], found[1:])):
-        if a == b and click_a.label != click_b.label:
-            raise BadInput(f"{click_b.where}: a second label at the frame of {click_a.where} ({click_b.label!r}, "
-                           f"{click_a.label!r}); give one label a frame")
-    return np.asarray(at, dtype=np.int64)
-
-
-def halfway(n: int, at: np.ndarray, labels: list) -> np.ndarray:
-    """The n frames' labels from clicks at frames ``at`` (ascending) of ``labels``: each boundary halfway."""
-    cuts = (at[:-1] + at[1:] + 1) // 2
-    return np.asarray(labels, dtype=object)[np.searchsorted(cuts, np.arange(n), side="right")]
-
-
-def label_episode(key: np.ndarray, found: list, rows: np.ndarray, labels: np.ndarray, keep: np.ndarray,
-                  clicked: np.ndarray, what: str) -> None:
-    """Label an episode's ``rows`` from its clicks (``found``, in order), marking the clicked rows."""
-    at = positions(key, found, what)
-    labels[rows] = halfway(len(rows), at, [c.label for c in found])
-    keep[rows] = True
-    clicked[rows[at]] = True
-
-
-def check_classes(intervals: dict[str, list]) -> None:
-    """A click of a class no other episode of the labels file has is refused (a typo, or a phase nothing else shows)
-    when the file labels two episodes or more."""
-    if len(intervals) < 2:
-        return
-    episodes_of: dict = {}
-    for episode, found in intervals.items():
-        for interval in found:
-            episodes_of.setdefault(interval.label, set()).add(episode)
-    for episode, found in intervals.items():
-        for click in (i for i in found if i.unit is not None):
-            if episodes_of[click.label] == {episode}:
-                others = sorted(map(str, (c for c, e in episodes_of.items() if e != {episode})))
-                raise BadInput(f"{click.where}: class {click.label!r} is clicked in episode {episode!r} only, no "
-                               f"other episode has it (theirs: {', '.join(others[:8])}); correct it, or label another "
-                               "episode with it")
-
-
-def free_spans(clicks: list[list[int]]) -> list[tuple[int, int, int, int, int]]:
-    """The boundaries to learn: (episode, first frame, last frame, phase before, phase after) for every two
-    consecutive clicks of an episode in different phases; the boundary is the first frame of the later phase, in
-    first+1 .. last."""
+def free_spans(clicks: list[list[int]]) -> list[Span]:
+    """The boundaries to learn: a ``Span`` for every two consecutive clicks (episode, frame, class) of an episode in
+    different phases."""
     ordered = sorted(map(tuple, clicks))
-    return [(e1, f1, f2, c1, c2) for (e1, f1, c1), (e2, f2, c2) in zip(ordered, ordered[1:]) if e1 == e2 and c1 != c2]
+    return [Span(e1, f1, f2, c1, c2) for (e1, f1, c1), (e2, f2, c2) in zip(ordered, ordered[1:])
+            if e1 == e2 and c1 != c2]
 
 
 def change_point(z: np.ndarray) -> int:
@@ -150,8 +98,8 @@ def aligned(z: np.ndarray, episodes: np.ndarray, spans: list[tuple[np.ndarray, i
     return cuts
 
 
-def _spans_rows(rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]]) -> list:
-    return [(rows_of[e][first:last + 1], before, after) for e, first, last, before, after in spans]
+def _spans_rows(rows_of: dict[int, np.ndarray], spans: list[Span]) -> list:
+    return [(rows_of[s.episode][s.first:s.last + 1], s.before, s.after) for s in spans]
 
 
 def _relabelled(frames: pl.DataFrame, labels: np.ndarray) -> pl.DataFrame:
@@ -171,28 +119,28 @@ def pairings(z: np.ndarray, rows_of: dict[int, np.ndarray]) -> dict[tuple[int, i
             for t in ts}
 
 
-def narrowed(spans: list[tuple[int, int, int, int, int]], found: dict[tuple[int, int], alignment.Pairing]) -> list:
+def narrowed(spans: list[Span], found: dict[tuple[int, int], alignment.Pairing]) -> list[Span]:
     """Each span cut to where the other recordings' clicks around a boundary of its kind fall once aligned to it: the
     boundary comes after their earlier clicks and before their later ones. The one nearest the boundary on each side
     is let go (a pairing may miss by a few frames); a span is kept whole where they leave no room."""
-    own = {}
-    for episode, first, last, before, after in spans:
-        own.setdefault((episode, before, after), []).append((first, last))
+    own: dict[tuple[int, int, int], list[Span]] = {}
+    for span in spans:
+        own.setdefault((span.episode, span.before, span.after), []).append(span)
     cut = []
-    for episode, first, last, before, after in spans:
-        earlier, later = [first], [last]
+    for span in spans:
+        earlier, later = [span.first], [span.last]
         for (ours, theirs), pairing in found.items():
-            theirs_spans = own.get((theirs, before, after), [])
-            if ours == episode and len(theirs_spans) == 1:
-                earlier.append(pairing.ours_at(theirs_spans[0][0]))
-                later.append(pairing.ours_at(theirs_spans[0][1]))
-        low = max(first, sorted(earlier)[-2]) if len(earlier) > 2 else first
-        high = min(last, sorted(later)[1]) if len(later) > 2 else last
-        cut.append((episode, low, high, before, after) if high - low >= 2 else (episode, first, last, before, after))
+            theirs_spans = own.get((theirs, span.before, span.after), [])
+            if ours == span.episode and len(theirs_spans) == 1:
+                earlier.append(pairing.ours_at(theirs_spans[0].first))
+                later.append(pairing.ours_at(theirs_spans[0].last))
+        low = max(span.first, sorted(earlier)[-2]) if len(earlier) > 2 else span.first
+        high = min(span.last, sorted(later)[1]) if len(later) > 2 else span.last
+        cut.append(replace(span, first=low, last=high) if high - low >= 2 else span)
     return cut
 
 
-def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]],
+def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[Span],
            found: dict[tuple[int, int], alignment.Pairing], n_classes: int) -> np.ndarray:
     """Each boundary moved, between its two clicks, to where most frames agree with the labels the other recordings
     pair with them (their own label counts once, each other recording's vote once)."""
@@ -202,19 +150,20 @@ def agreed(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple
     return moved_to_votes(labels, rows_of, spans, votes)
 
 
-def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[tuple[int, int, int, int, int]],
+def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[Span],
                    votes: dict[int, np.ndarray]) -> np.ndarray:
     """Each boundary placed, between its two clicks, where most frames agree with their ``votes`` [frames, C]."""
     moved = labels.copy()
-    for episode, first, last, before, after in spans:
-        span = votes[episode][first:last + 1]
-        earlier, later = np.cumsum(span[:, before]), np.cumsum(span[::-1, after])[::-1]
+    for s in spans:
+        within = votes[s.episode][s.first:s.last + 1]
+        earlier, later = np.cumsum(within[:, s.before]), np.cumsum(within[::-1, s.after])[::-1]
         t = int(np.argmax(earlier[:-1] + later[1:])) + 1  # the first frame of ``after``, in 1 .. last - first
-        moved[rows_of[episode][first:first + t]], moved[rows_of[episode][first + t:last + 1]] = before, after
+        rows = rows_of[s.episode]
+        moved[rows[s.first:s.first + t]], moved[rows[s.first + t:s.last + 1]] = s.before, s.after
     return moved
 
 
-def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list, known: list,
+def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[Span], known: list,
                   n_classes: int) -> np.ndarray | None:
     """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
     clicked one in time (as alignment labels a recording without labels), agree most; None where aligning the
@@ -231,9 +180,9 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
     every = alignment.rows_by_recording(episodes)
-    rows_of = {e: every[e] for e in dict.fromkeys(int(c[0]) for c in sorted(map(tuple, clicks)))}
-    spans = [(e, *np.searchsorted(frame[rows_of[e]], [first, last]).tolist(), before, after)  # frames to positions
-             for e, first, last, before, after in free_spans(clicks)]
+    rows_of = {e: every[e] for e in clicked_episodes(clicks)}
+    spans = [replace(s, first=int(first), last=int(last)) for s in free_spans(clicks)  # frames to positions
+             for first, last in [np.searchsorted(frame[rows_of[s.episode]], [s.first, s.last])]]
     record = {"clicks": len(clicks), "boundaries": len(spans)}
     known = alignment.training_recordings(frames, leaving_out=rows_of)  # labelled on every frame, not by clicks
     n_classes = int(labels.max()) + 1
@@ -250,7 +199,7 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
 
 
 def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of: dict[int, np.ndarray],
-                spans: list, n_classes: int) -> np.ndarray:
+                spans: list[Span], n_classes: int) -> np.ndarray:
     """The labels with each boundary placed from the clicked recordings alone: change point in the span the other
     recordings' clicks leave (``narrowed``), ``aligned``, then ``agreed``."""
     labels = labels.copy()

@@ -1,4 +1,4 @@
-"""Recordings without labels labelled by aligning them in time to the labelled ones (sources/alignment.py), on the
+"""Recordings without labels labelled by aligning them in time to the labelled ones (labelling/alignment.py), on the
 generated arm's episodes (tests/arm_bags.py): the pairing is monotone and whole, its labels are right on most
 frames, and recordings are left unlabelled when the labelled ones do not align with each other."""
 
@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 
 from mlnseq.catalog.parts import Part
-from mlnseq.sources import alignment
+from mlnseq.labelling import alignment
 
 SEED = 7700
 
