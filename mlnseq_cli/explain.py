@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -12,6 +12,7 @@ from mlnseq_cli import source_options as read_as
 from mlnseq_cli.console import reported_errors
 
 
+@read_as.reads_recordings
 def explain(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     source: Annotated[Path, typer.Option(help="The recording, read as `predict` reads it (as the model's recordings were read).")],
@@ -21,28 +22,16 @@ def explain(
     segment: Annotated[Optional[int], typer.Option(help="Explain the episode's K-th decided segment (from 0): what held it and what ended it.")] = None,
     versus: Annotated[Optional[str], typer.Option(help="The class to compare with \\[default: the runner-up].")] = None,
     what_if: Annotated[Optional[str], typer.Option("--what-if", help="PREDICATE=VALUE (e.g. left_gripper=closed, or a column =true/false): score the frame again with it and say whether the decision flips.")] = None,
-    decode: read_as.Decode = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines: frame, time, class, versus, margin and terms (kind, text, line, contribution).")] = False,
-    env: read_as.Env = None,
-    episode_column: read_as.EpisodeColumn = None,
-    time_column: read_as.TimeColumn = None,
-    topics: read_as.Topics = None,
-    rate: read_as.Rate = None,
-    label_column: read_as.LabelColumn = None,
-    labels: read_as.LabelsFile = None,
-    labels_unit: read_as.LabelsUnit = None,
-    label_topic: read_as.LabelTopic = None,
-    max_hold: read_as.MaxHold = None,
+    **reading: Any,
 ) -> None:
     """Read MODEL and the recording at SOURCE, decide it as predict does, and print why the frame (--frame T or --time S) got its class: its margin over the runner-up (or --versus CLASS), the log-ratio of their scores, as terms that add up to it exactly: each formula (its text, line, weight and truth for both classes), the network (its weight x its log-probability difference), the start distribution, the frames before and, for lagged and offline decoders, after (the chain's messages), and the hard rules that removed classes. --segment K: the terms that held the K-th segment and the transition that ended it. Sorted by size, the small ones summed in one line; --json writes JSON lines instead."""
     from mlnseq import explain as stage
     from mlnseq.explaining import text as explanation_text
 
-    overrides = read_as.overrides(labels, labels_unit, topics, rate, label_topic, max_hold)
     options = stage.ExplainOptions(model=model, source=source, episode=episode, frame=frame, time=time,
-                                   segment=segment, versus=versus, what_if=what_if, decode=decode, env=env,
-                                   label_column=label_column, episode_column=episode_column, time_column=time_column,
-                                   overrides=overrides)
+                                   segment=segment, versus=versus, what_if=what_if,
+                                   reading=read_as.read_options(**reading))
     with reported_errors():
         found = stage.run(options)
     if as_json:

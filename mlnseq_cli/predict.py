@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.table import Table
@@ -13,37 +13,25 @@ from mlnseq_cli.console import console, counted, reported_errors
 from mlnseq import predict as stage
 
 
+@read_as.reads_recordings
 def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
     source: Annotated[Path, typer.Option(help="The new recordings, in the form the model's were read (a CSV/Parquet file or folder, a bag, a dataset...).")],
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The predictions file \\[default: the source's name + .predictions.parquet, in the current folder].", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite the output files if they exist.")] = False,
-    decode: read_as.Decode = None,
-    env: read_as.Env = None,
-    label_column: read_as.LabelColumn = None,
-    episode_column: read_as.EpisodeColumn = None,
-    time_column: read_as.TimeColumn = None,
-    labels: read_as.LabelsFile = None,
-    labels_unit: read_as.LabelsUnit = None,
-    topics: read_as.Topics = None,
-    rate: read_as.Rate = None,
-    label_topic: read_as.LabelTopic = None,
-    max_hold: read_as.MaxHold = None,
     intervals: Annotated[Optional[Path], typer.Option(help="Also write the predicted segments as episode, start, end, label rows (the form --labels reads).", dir_okay=False)] = None,
     rerun: Annotated[Optional[Path], typer.Option(help="Also write a Rerun recording (.rrd) of features, true and predicted class and probabilities, and the segments as time ranges (needs rerun-sdk).", dir_okay=False)] = None,
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with the predicted phases as LeRobot's subtask annotations (language_persistent rows of style subtask), everything else as it was; episodes annotated already keep theirs.")] = None,
     write_lerobot_probabilities: Annotated[bool, typer.Option("--write-lerobot-probabilities", help="With --write-lerobot: the class probabilities as a per-frame feature too (docs/lerobot.md names it).")] = False,
     replace_subtasks: Annotated[bool, typer.Option("--replace-subtasks", help="With --write-lerobot: write the predicted subtasks over the episodes' own annotations too.")] = False,
     explain: Annotated[int, typer.Option(help="Explain every frame: a why column of its N largest terms (JSON: kind, text, line, contribution; docs/explain.md), and each segment's why (what held it, what ended it) in --intervals and --rerun.")] = 0,
+    **reading: Any,
 ) -> None:
     """Read MODEL and the recordings at SOURCE, read as the model's own recordings were (env, episode, time and label columns, topics, rate: the model remembers them; options override); write per frame its episode (the recording's own id), frame, label (if any), class and every class's probability (p_CLASS) to a Parquet file, and, when the recordings are labelled, the eval metrics (printed, and kept in the file's metadata). With --write-lerobot OUT, a LeRobot dataset comes back as a copy holding the predicted phases as its own subtask annotations, which `collect --labels subtask` and LeRobot read. An existing output is kept unless --force."""
     options = stage.PredictOptions(
-        model=model, source=source, output=output, decode=decode, env=env, label_column=label_column,
-        episode_column=episode_column, time_column=time_column, force=force, intervals=intervals, rerun=rerun,
+        model=model, source=source, output=output, force=force, intervals=intervals, rerun=rerun,
         write_lerobot=write_lerobot, lerobot_probabilities=write_lerobot_probabilities,
-        replace_subtasks=replace_subtasks, explain=explain,
-        overrides=read_as.overrides(labels, labels_unit, topics, rate, label_topic, max_hold),
-    )
+        replace_subtasks=replace_subtasks, explain=explain, reading=read_as.read_options(**reading))
     with reported_errors():
         result = stage.run(options)
     from mlnseq.fusion.fuse import restart_note

@@ -9,27 +9,22 @@ value changed and says whether the decision flips.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mlnseq import sources
-from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.catalog.decoders import parse_decoding
-from mlnseq.catalog.methods import decoder_of
+from mlnseq.catalog.errors import BadInput
 from mlnseq.explaining.frames import class_index, explain, scoring_of
 from mlnseq.explaining.explainer import Explainer, Keys
 from mlnseq.explaining.segments import Segment, segments
 from mlnseq.explaining.terms import Explanation
-from mlnseq.recognition.reading import reading_of
-from mlnseq.fusion.fuse import EPSILON
-from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.explaining.what_if import WhatIf, parse_what_if
-from mlnseq.sources import RECORDING_ENVS
+from mlnseq.fusion.fuse import EPSILON
+from mlnseq.recognition import reading
+from mlnseq.recognition.reading import ReadOptions
 from mlnseq.sources.recording import stamps as recording_stamps
-from mlnseq.sources.table import prediction_frames
 
 
 @dataclass(frozen=True)
@@ -44,12 +39,7 @@ class ExplainOptions:
     segment: int | None = None  # the episode's K-th decided segment, from 0
     versus: str | None = None  # the class to compare with (default: the runner-up)
     what_if: str | None = None  # PREDICATE=VALUE
-    decode: str | None = None  # default: the model's
-    env: str | None = None
-    label_column: str | None = None
-    episode_column: str | None = None
-    time_column: str | None = None
-    overrides: dict[str, Any] = field(default_factory=dict)  # SourceOptions fields given; the rest: the model's
+    reading: ReadOptions = field(default_factory=ReadOptions)  # the decoder and how the recording is read
 
     def validate(self) -> None:
         given = [name for name, value in (("--frame", self.frame), ("--time", self.time), ("--segment", self.segment))
@@ -62,10 +52,7 @@ class ExplainOptions:
                 raise BadInput(f"{name} {value}: frames and segments count from 0")
         if self.what_if is not None and self.segment is not None:
             raise BadInput("--what-if changes one frame: give --frame or --time, not --segment")
-        if self.decode is not None:
-            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
-        if self.env is not None:
-            check_choice("env", self.env, RECORDING_ENVS)
+        self.reading.validate()
 
 
 @dataclass(frozen=True)
@@ -137,18 +124,14 @@ def _seconds(value: float) -> str:
 def run(options: ExplainOptions) -> Explained:
     """Read the model and the recording; explain the frame or segment asked for."""
     options.validate()
-    model = Recognizer.load(options.model)
-    options = replace(options, decode=decoder_of(options.decode, model.method))
-    env, columns, source_options, label = reading_of(model, options)
-    recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
-    frames, meta, times = prediction_frames(recordings, columns.classes)
-    names = meta["episode_names"]
+    read = reading.read(options.model, options.source, options.reading)
+    model, decode, frames, times, names = read.model, read.decode, read.frames, read.times, read.names
     index = _episode(names, options.episode)
-    rows = np.flatnonzero(frames["episode"].to_numpy() == index)
+    rows = read.episode(index)
     features = frames[rows].select(model.features).to_numpy()
     keys = Keys([names[index]] * len(rows), frames["frame"].to_numpy()[rows], np.asarray(times, dtype=float)[rows])
     versus = class_index(model.classes, options.versus, "--versus")
-    scores = model.scored(features, None, options.decode)
+    scores = model.scored(features, None, decode)
     explainer = Explainer(scoring_of(model, scores.decode, EPSILON))
     if options.segment is not None:
         found = segments(explainer, scores, explain(explainer, scores, list(range(len(rows))), None, keys), keys)
@@ -156,14 +139,14 @@ def run(options: ExplainOptions) -> Explained:
             raise BadInput(f"--segment {options.segment}: episode {names[index]} has {len(found)} decided segments "
                            f"(0-{len(found) - 1})")
         return Explained(names[index], segment=found[options.segment], episodes=len(names))
-    stamps = recording_stamps(recordings, names, frames["episode"].to_numpy(), times)
+    stamps = recording_stamps(read.recordings, names, frames["episode"].to_numpy(), times)
     row = _row(options, keys.frame, keys.time, None if stamps is None else stamps[rows])
     explanation = explain(explainer, scores, [row], versus, keys)[0]
     if options.what_if is None:
         return Explained(names[index], explanation, episodes=len(names))
     evidence_columns = list(getattr(model, "columns", []))
     change = parse_what_if(options.what_if, model.spec, evidence_columns)
-    again = model.scored(features, None, options.decode, change.edit(model.spec, evidence_columns, row))
+    again = model.scored(features, None, decode, change.edit(model.spec, evidence_columns, row))
     flipped = model.classes[int(again.path[row])] != explanation.chosen  # then: the new class over the old one
     other = explanation.chosen if flipped else explanation.versus
     rescored = explain(Explainer(explainer.scoring), again, [row], class_index(model.classes, other), keys)

@@ -10,7 +10,7 @@ scored as a stream: segment, frame, edit and F1@k).
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,16 +18,14 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts, folders
-from mlnseq.timeline import metrics
-from mlnseq import sources
-from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.decoders import parse_decoding
-from mlnseq.catalog.methods import decoder_of
-from mlnseq.recognition.reading import reading_of
+from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition import reading
+from mlnseq.recognition.reading import ReadOptions
 from mlnseq.recognition.recognizer import Recognizer
-from mlnseq.sources import RECORDING_ENVS, intervals
+from mlnseq.sources import intervals
 from mlnseq.sources.recording import stamps as recording_stamps
-from mlnseq.sources.table import prediction_frames
+from mlnseq.timeline import metrics
 
 
 @dataclass(frozen=True)
@@ -37,12 +35,7 @@ class PredictOptions:
     model: Path
     source: Path
     output: Path | None = None  # default: SOURCE's name + .predictions.parquet, in the current folder
-    decode: str | None = None  # default: the model's own; viterbi decodes a filter model offline
-    env: str | None = None  # table, rosbag, lerobot, hdf5 or jigsaws; default: the model's (table for fetch/desk)
-    label_column: str | None = None  # given: the recordings must have it
-    episode_column: str | None = None
-    time_column: str | None = None
-    overrides: dict[str, Any] = field(default_factory=dict)  # SourceOptions fields given; the rest: the model's
+    reading: ReadOptions = field(default_factory=ReadOptions)  # the decoder and reading; default: the model's
     force: bool = False  # overwrite an existing output
     intervals: Path | None = None  # also write the predicted segments as episode,start,end,label
     rerun: Path | None = None  # also write a Rerun recording
@@ -54,10 +47,7 @@ class PredictOptions:
     def validate(self) -> None:
         if self.explain < 0:
             raise BadInput(f"--explain {self.explain}: give how many terms each frame shows (0: none)")
-        if self.decode is not None:
-            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
-        if self.env is not None:
-            check_choice("env", self.env, RECORDING_ENVS)
+        self.reading.validate()
         if not self.force:
             for path in (self.output_path(), self.intervals, self.rerun):
                 if path is not None and Path(path).exists():
@@ -67,7 +57,7 @@ class PredictOptions:
 
             lerobot_writer.check_target(Path(self.source), Path(self.write_lerobot), self.force, {
                 "-o": self.output_path(), "--intervals": self.intervals, "--rerun": self.rerun, "the model": self.model,
-                "--labels": self.overrides.get("labels")})
+                "--labels": self.reading.overrides.get("labels")})
         elif self.lerobot_probabilities or self.replace_subtasks:
             raise BadInput("--write-lerobot-probabilities and --replace-subtasks go with --write-lerobot OUT")
 
@@ -89,16 +79,30 @@ class Predicted:
 
 
 def predict(model: Recognizer, frames: pl.DataFrame, decode: str | None = None) -> tuple[pl.DataFrame, np.ndarray]:
-    """Per frame of ``frames`` (keys and the model's features): its keys, class name and probabilities; and
-    the predicted class indices."""
+    """Per frame of ``frames`` (keys and the model's features): its keys, label where labelled (empty where a
+    recording has none), class name and probabilities; and the predicted class indices."""
     probabilities, predicted = model.predict(frames.select(model.features).to_numpy(), frames["episode"].to_numpy(),
                                              decode)
-    keys = frames.select("episode", "frame", *(["label"] if (frames["label"] >= 0).all() else []))
+    labelled = (frames["label"] >= 0).any()
+    keys = frames.select("episode", "frame", *([pl.when(pl.col("label") >= 0).then("label")] if labelled else []))
     return keys.with_columns(
         pl.Series("class", np.array(model.classes)[predicted], dtype=pl.String),
         *(pl.Series(artifacts.class_probability_column(name), probabilities[:, k], dtype=pl.Float32)
           for k, name in enumerate(model.classes)),
     ), predicted
+
+
+def labelled_scores(model: Recognizer, frames: pl.DataFrame, predicted: np.ndarray) -> dict[str, Any] | None:
+    """The eval metrics over the labelled recordings' frames (each scored as a stream), with how many recordings they
+    are (``recordings``) of how many (``of``); None where none is labelled."""
+    labels = frames["label"].to_numpy().astype(np.int64)
+    rows = labels >= 0
+    if not rows.any():
+        return None
+    episodes = frames["episode"].to_numpy()
+    scores = metrics.score_method(predicted[rows], labels[rows], episodes[rows], len(model.classes), 0.5,
+                                  segmental=True)
+    return {**scores, "recordings": len(np.unique(episodes[rows])), "of": len(np.unique(episodes))}
 
 
 def check_outputs(options: PredictOptions, inputs: list) -> None:
@@ -127,22 +131,19 @@ def run(options: PredictOptions) -> Predicted:
 
 def _run(options: PredictOptions, stage) -> Predicted:
     options.validate()
-    check_outputs(options, [options.model, options.source, options.overrides.get("labels")])
-    model = Recognizer.load(options.model)
-    options = replace(options, decode=decoder_of(options.decode, model.method))
-    env, columns, source_options, label = reading_of(model, options)
+    check_outputs(options, [options.model, options.source, options.reading.overrides.get("labels")])
+    read = reading.read(options.model, options.source, options.reading)
+    model, env = read.model, read.env
     if options.write_lerobot is not None and env != "lerobot":
         raise BadInput(f"--write-lerobot writes LeRobot datasets, but --source {options.source} is read as --env {env}")
-    recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
-    frames, meta, times = prediction_frames(recordings, columns.classes)
-    check_outputs(options, [*meta["source_files"], source_options.labels])
-    table, predicted = predict(model, frames, options.decode)
-    names = meta["episode_names"]
+    check_outputs(options, read.inputs())
+    frames, meta, times, names = read.frames, read.meta, read.times, read.names
+    table, predicted = predict(model, frames, read.decode)
     table = table.with_columns(pl.Series("episode", names).gather(table["episode"].to_numpy()))
-    if "label" in table.columns and not recordings[0].label.dtype.is_numeric():  # named labels stay names, as class is
-        table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"].to_numpy()))
+    if "label" in table.columns and read.labels_named():  # named labels stay names, as class is
+        table = table.with_columns(pl.Series("label", model.classes, dtype=pl.String).gather(table["label"]))
     table = table.insert_column(2, pl.Series("time", np.asarray(times, dtype=np.float64)))  # the recording's own
-    stamp = recording_stamps(recordings, names, frames["episode"].to_numpy(), times)
+    stamp = recording_stamps(read.recordings, names, frames["episode"].to_numpy(), times)
     if stamp is not None:  # messages (a bag): their clock too, as live lines carry it
         table = table.insert_column(3, pl.Series("stamp", stamp))
     found = None
@@ -152,30 +153,26 @@ def _run(options: PredictOptions, stage) -> Predicted:
 
         found = reasons(model, Keys(table["episode"].to_list(), table["frame"].to_numpy(), times), options.explain)
         table = table.with_columns(pl.Series("why", found.frames, dtype=pl.String))
-    scores = None
-    if meta["labelled"]:
-        scores = metrics.score_method(predicted, frames["label"].to_numpy().astype(np.int64),
-                                      frames["episode"].to_numpy(), len(model.classes), 0.5, segmental=True)
-    decoding = parse_decoding(options.decode) if options.decode else model.decoding
-    reading = {"env": env, "label_column": columns.label, "episode_column": columns.episode,
-               "time_column": columns.time, **source_options.record(env),
-               **{k: v for k, v in recordings[0].resolved.items() if k in ("topics", "rate")}}
+    scores = labelled_scores(model, frames, predicted)
+    decoding = parse_decoding(read.decode) if read.decode else model.decoding
+    source_options = read.source
+    reading_record = {"env": env, "label_column": read.columns.label, "episode_column": read.columns.episode,
+                      "time_column": read.columns.time, **source_options.record(env),
+                      **{k: v for k, v in read.recordings[0].resolved.items() if k in ("topics", "rate")}}
     restarts = [(names[episode] if 0 <= episode < len(names) else episode, frame) for episode, frame in model.restarts]
-    inputs = [Path(options.model), *map(Path, meta["source_files"])]
-    if source_options.labels is not None:
-        inputs.append(Path(source_options.labels))
     path = options.output_path()
     artifacts.write_table(
         table, stage(path), "predicted",
         {"model": str(Path(options.model).resolve()), "method": model.method, "decode": decoding.name,
          "lag": decoding.lag,
-         "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading,
+         "classes": model.classes, "episodes": names, "metrics": scores, "reading": reading_record,
          "restarts": [[str(episode), frame] for episode, frame in restarts]},
-        inputs=inputs,
+        inputs=[Path(options.model), *read.inputs()],
     )
     written, lerobot = _write_beside(options, stage, model, frames, times, table, found, source_options.unit(env))
-    notes = tuple(note for r in recordings for note in r.resolved.get("notes", []))
-    return Predicted(path, table, scores, len(names), reading, written, restarts, lerobot=lerobot, notes=notes)
+    notes = tuple(note for r in read.recordings for note in r.resolved.get("notes", []))
+    return Predicted(path, table, scores, len(names), reading_record, written, restarts, lerobot=lerobot,
+                     notes=notes)
 
 
 def _write_beside(options: PredictOptions, stage, model: Recognizer, frames: pl.DataFrame, times: Any,

@@ -11,29 +11,25 @@ from __future__ import annotations
 
 import csv
 import importlib.resources
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from http import HTTPStatus
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from mlnseq import sources
 from mlnseq.catalog import artifacts, folders
-from mlnseq.catalog.decoders import parse_decoding
-from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.catalog.methods import decoder_of
+from mlnseq.catalog.errors import BadInput
 from mlnseq.explaining.explainer import Explainer, Keys, Scores
 from mlnseq.explaining.frames import explain, scoring_of
 from mlnseq.fusion.fuse import EPSILON
-from mlnseq.recognition.reading import reading_of
+from mlnseq.recognition import reading
+from mlnseq.recognition.reading import ReadOptions
 from mlnseq.recognition.recognizer import Recognizer
 from mlnseq.reviewing import corrections, views
 from mlnseq.serving.guarded import BODY_LIMIT, GuardedServer, Reply, serve
 from mlnseq.sources import RECORDING_ENVS
-from mlnseq.sources.table import prediction_frames
 
-LABEL_NEXT = "label_next.csv"  # a fit's workdir: its unlabelled recordings ranked (episode, rank, reason)
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
          ".css": "text/css; charset=utf-8"}
 
@@ -49,12 +45,7 @@ class ReviewOptions:
     save_lerobot: Path | None = None  # a LeRobot source: also a copy of it with the labels as subtask annotations
     host: str = "127.0.0.1"
     port: int = 8750  # 0: any free port
-    decode: str | None = None
-    env: str | None = None
-    label_column: str | None = None
-    episode_column: str | None = None
-    time_column: str | None = None
-    overrides: dict[str, Any] = field(default_factory=dict)  # SourceOptions fields given; the rest: the model's
+    reading: ReadOptions = field(default_factory=ReadOptions)  # the decoder and how the recordings are read
     body_limit: int = BODY_LIMIT
 
     def validate(self) -> None:
@@ -62,10 +53,7 @@ class ReviewOptions:
             raise BadInput("give the recordings: --source RECORDINGS, or -w WORKDIR (a fit's workdir)")
         if not 0 <= self.port <= 65535:
             raise BadInput(f"--port {self.port}: choose 0-65535 (0: any free port)")
-        if self.decode is not None:
-            parse_decoding(self.decode.rpartition("+")[2])  # a method's name (conflation+filter): checked on the model
-        if self.env is not None:
-            check_choice("env", self.env, RECORDING_ENVS)
+        self.reading.validate()
 
     def save_path(self) -> Path:
         if self.save is not None:
@@ -87,7 +75,7 @@ def workdir_source(workdir: Path) -> Path:
 
 def ranks_of(workdir: Path | None) -> dict[str, tuple[int, str]]:
     """WORKDIR/label_next.csv's ranks by episode (episode, rank, reason), if the workdir has one."""
-    path = None if workdir is None else Path(workdir) / LABEL_NEXT
+    path = None if workdir is None else Path(workdir) / artifacts.LABEL_NEXT
     if path is None or not path.is_file():
         return {}
     found = {}
@@ -238,23 +226,20 @@ def prepare(options: ReviewOptions) -> tuple[Review, GuardedServer]:
     yet): every refusal comes here, before the address is printed."""
     options.validate()
     source = Path(options.source) if options.source is not None else workdir_source(options.workdir)
-    model = Recognizer.load(options.model)
-    options = replace(options, decode=decoder_of(options.decode, model.method))
-    env, columns, source_options, label = reading_of(model, options)
     save = options.save_path()
-    corrections.check_path(save, source, [Path(options.model), *filter(None, [source_options.labels])])
+    given = options.reading.overrides.get("labels")
+    corrections.check_path(save, source, [Path(options.model), *([Path(given)] if given is not None else [])])
+    read = reading.read(options.model, source, options.reading)
     if options.save_lerobot is not None:
-        _check_lerobot(options, env, source, save)
-    recordings = sources.read(env, source, columns, source_options, label=label)
-    frames, meta, times = prediction_frames(recordings, columns.classes)
-    for path in meta["source_files"]:
+        _check_lerobot(options, read.env, source, save)
+    for path in read.meta["source_files"]:
         corrections.check_path(save, Path(path), [])
-    labels = corrections.LabelsFile(save, source_options.unit(env))
-    decided = decide(model, frames, list(meta["episode_names"]), times, options.decode)
+    labels = corrections.LabelsFile(save, read.source.unit(read.env))
+    decided = decide(read.model, read.frames, list(read.names), read.times, read.decode)
     for recording in decided:  # a labels file that does not fit the recordings is refused now, not at a click
-        labels.saved(recording.decided.id, recording.decided.time, list(model.classes))
+        labels.saved(recording.decided.id, recording.decided.time, list(read.model.classes))
     lerobot = None if options.save_lerobot is None else (source, Path(options.save_lerobot))
-    site = Review(model, decided, labels, ranks_of(options.workdir), options.decode, lerobot)
+    site = Review(read.model, decided, labels, ranks_of(options.workdir), read.decode, lerobot)
     return site, GuardedServer(options.host, options.port, site, options.body_limit)
 
 

@@ -129,8 +129,9 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
         raise BadInput(f"--labels {options.annotations} reads a LeRobot dataset's own {options.annotations} "
                        f"annotations, but --source is read as --env {env}; give a file of intervals (a file named "
                        f"{options.annotations}: its full path)")
-    # --labels replaces the own labels of the episodes it names; collect keeps the others' (a file of corrections)
-    own_label = label if options.labels is None else Labels.SOME if label is Labels.SOME else Labels.NONE
+    # --labels replaces the own labels of the episodes it names; the others keep theirs where read (a file of
+    # corrections), unless a label column is required of every recording
+    own_label = label if options.labels is None or label is not Labels.REQUIRED else Labels.NONE
     recordings = reader.load().read(source, columns, options, own_label)
     if options.labels is not None:
         from mlnseq.sources import intervals

@@ -165,14 +165,11 @@ def _active(table: pl.DataFrame, time: pl.Series, style: str, path: Path) -> tup
 
 def _with_annotations(recordings: list[Recording], subtasks: list, style: str, label: Labels, unlabelled: str | None,
                       source: Path) -> list[Recording]:
-    """Recordings labelled by their ``style`` annotations. For predict (labels optional) all or none: labelled only
-    when every frame is. Else episodes without annotations read unlabelled (``Labels.SOME``, collect) or left out,
+    """Recordings labelled by their ``style`` annotations. For predict (labels optional) an episode is labelled where
+    every frame of it is. Else episodes without annotations read unlabelled (``Labels.SOME``, collect) or left out,
     frames before an episode's first annotation left out (or labelled ``unlabelled``), each with a note."""
-    if label is Labels.OPTIONAL:
-        complete = all(found is not None and found[1].all() and (unlabelled is not None or not found[0].null_count())
-                       for found in subtasks)
-        return [dataclasses.replace(r, label=_filled(found[0], unlabelled) if complete else None)
-                for r, found in zip(recordings, subtasks)]
+    if label is Labels.OPTIONAL:  # labelled where every frame of an episode is
+        return [part for r, found in zip(recordings, subtasks) for part in _whole_episodes(r, found, unlabelled)]
     if all(found is None for found in subtasks):
         raise BadInput(f"{source}: no {language.PERSISTENT} column, so no {style} annotations to label frames with; "
                        "annotate episodes with LeRobot's tools, or give label intervals with --labels FILE")
@@ -224,6 +221,27 @@ def _flat(table: pl.DataFrame, chosen: list[str], features: dict[str, Any], path
         else:
             flat[names[0]] = column
     return flat
+
+
+def _whole_episodes(recording: Recording, found: tuple[pl.Series, pl.Series] | None,
+                    unlabelled: str | None) -> list[Recording]:
+    """A file's recording for predict: its episodes annotated on every frame labelled, the others not (two parts
+    where it holds both)."""
+    if found is None:
+        return [recording]
+    labels, annotated = found
+    whole = (annotated & (labels.is_not_null() | (unlabelled is not None))).to_frame("whole").with_columns(
+        pl.col("whole").all().over(recording.episode.alias("episode")))["whole"]
+    parts = []
+    for mask, label in ((whole, _filled(labels, unlabelled)), (~whole, None)):
+        if mask.all():
+            return [dataclasses.replace(recording, label=label)]
+        if mask.any():
+            parts.append(dataclasses.replace(
+                recording, features=recording.features.filter(mask), episode=recording.episode.filter(mask),
+                time=recording.time.filter(mask), label=None if label is None else label.filter(mask),
+                row=pl.int_range(len(mask), eager=True).filter(mask)))
+    return parts
 
 
 def _filled(labels: pl.Series, unlabelled: str | None) -> pl.Series:

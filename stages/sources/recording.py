@@ -18,7 +18,7 @@ class Labels(Enum):
 
     REQUIRED = "required"  # every recording is labelled (predict given --label-column)
     SOME = "some"  # collect: recordings carry labels where they have them, the others are read unlabelled
-    OPTIONAL = "optional"  # predict: read where the recordings carry them (then all must)
+    OPTIONAL = "optional"  # predict: read where the recordings carry them, the others unlabelled
     NONE = "none"  # not read: ``--labels`` intervals give them, or there are none
 
 

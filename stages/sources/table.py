@@ -148,18 +148,17 @@ def check_features(features: pl.DataFrame, path: Path, where: str = "{file} row 
 
 
 def read(source: Path, columns: TableColumns, options: Any = None, label: Labels = Labels.REQUIRED) -> list[Recording]:
-    """A user's CSV/Parquet file or folder as recordings; with ``Labels.OPTIONAL`` the label column is read if
-    the first file has it."""
+    """A user's CSV/Parquet file or folder as recordings; with ``Labels.OPTIONAL`` the label column is read from each
+    file that has it."""
     files = table_files(Path(source))
-    labelled = label in (Labels.REQUIRED, Labels.SOME)
     recordings = []
-    for file_number, path in enumerate(files):
+    for path in files:
         table = read_one(path)
         is_csv = path.suffix.lower() == ".csv"
         episode_col = columns.episode or ("episode" if "episode" in table.columns else None)
         time_col = columns.time or ("frame" if "frame" in table.columns else None)
-        if label is Labels.OPTIONAL and file_number == 0:
-            labelled = columns.label in table.columns
+        labelled = label in (Labels.REQUIRED, Labels.SOME) or (label is Labels.OPTIONAL
+                                                               and columns.label in table.columns)
         label_col = columns.label if labelled else None
         missing = [n for n in (label_col, episode_col, time_col, *columns.features)
                    if n is not None and n not in table.columns]
@@ -235,23 +234,20 @@ def collect_frames(recordings: list[Recording], classes: tuple[str, ...] = (),
 
 
 def prediction_frames(recordings: list[Recording], classes: tuple[str, ...]) -> tuple[pl.DataFrame, dict, np.ndarray]:
-    """Frames for ``predict``: labels optional (absent: every label -1, ``labelled: false``), one class enough,
-    every frame test; and each frame's time, row by row."""
+    """Frames for ``predict``: labels where a recording has them (label -1 where not; ``labelled``: any has), one
+    class enough, every frame test; and each frame's time, row by row."""
     return _assemble(recordings, classes, Labels.OPTIONAL)
 
 
 def _check_recordings(recordings: list[Recording], for_prediction: bool) -> None:
-    """The same features everywhere; for predict labels on all or none, for collect on one at least."""
+    """The same features everywhere; for collect labels on one recording at least."""
     if not recordings:
         raise BadInput("no recording to read")
     feature_names = recordings[0].features.columns
-    labelled = recordings[0].label is not None
     for recording in recordings[1:]:
         if recording.features.columns != feature_names:
             raise BadInput(f"{recording.path}: feature columns {recording.features.columns} differ from "
                            f"{recordings[0].path}'s {feature_names}")
-        if for_prediction and (recording.label is not None) != labelled:
-            raise BadInput(f"{recording.path}: {'has no' if labelled else 'has'} labels, unlike {recordings[0].path}")
     if not for_prediction and all(r.label is None for r in recordings):
         why = recordings[0].resolved.get("unlabelled")  # the reader's own word: a missing column or topic
         if why:

@@ -23,6 +23,7 @@ import pytest
 import ros_episode
 from mlnseq import explain, predict
 from mlnseq.catalog import artifacts
+from mlnseq.recognition.reading import ReadOptions
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
 DRIVER = Path(__file__).resolve().parents[1] / "ros_driver.py"
@@ -212,7 +213,8 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     assert back[0].endswith("registered again 3 publications and 1 subscriptions")  # /rosout beside the node's two
     assert lines[-1] == f"ros: stopped after {len(rows)} frames (0 bad messages)"
     expected = predict.run(predict.PredictOptions(
-        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows), decode="smooth@3",
+        model=lagged_joint_state_model, source=ros_episode.write_bag(tmp_path / "live.bag", rows),
+        reading=ReadOptions(decode="smooth@3"),
         output=tmp_path / "p.parquet")).table
     answers = [json.loads(line) for line in frames()]
     assert [a["class"] for a in answers] == expected["class"].to_list() and {a["lag"] for a in answers} == {3}
@@ -221,7 +223,8 @@ def test_the_node_goes_on_after_its_master_restarts_and_drains_every_frame_it_ho
     assert all(len(a["why"]) == 2 for a in answers)  # --explain 2: as explain gives them, by the frame's own time
     for answer in (answers[0], answers[-1]):
         found = explain.run(explain.ExplainOptions(model=lagged_joint_state_model, source=tmp_path / "live.bag",
-                                                   decode="smooth@3", time=answer["stamp"])).explanation
+                                                   reading=ReadOptions(decode="smooth@3"),
+                                                   time=answer["stamp"])).explanation
         assert (found.frame, [t.text for t in found.largest(2)]) == (answer["frame"], [t["text"] for t in answer["why"]])
         np.testing.assert_allclose([t["contribution"] for t in answer["why"]],
                                    [t.contribution for t in found.largest(2)], atol=2e-6)

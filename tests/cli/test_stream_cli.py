@@ -19,6 +19,7 @@ import pytest
 from mlnseq.catalog import artifacts
 from mlnseq import export, predict
 from mlnseq import stream as stage
+from mlnseq.recognition.reading import ReadOptions
 
 MLNSEQ = str(Path(sys.executable).parent / "mlnseq")
 FRAMES = 2000  # of the DESK test recording, through the pipe
@@ -180,7 +181,7 @@ def test_decode_streams_as_predict_decodes(model, recording, tmp_path):
     assert done.returncode == 0, done.stderr
     answers = [json.loads(line) for line in done.stdout.splitlines()]
     expected = predict.run(predict.PredictOptions(model=model, source=recording, output=tmp_path / "p.parquet",
-                                                  decode="smooth@3")).table
+                                                  reading=ReadOptions(decode="smooth@3"))).table
     plain = predict.run(predict.PredictOptions(model=model, source=recording, output=tmp_path / "q.parquet")).table
     assert {a["lag"] for a in answers} == {3} and len(answers) == FRAMES
     assert [a["class"] for a in answers] == expected["class"].to_list() != plain["class"].to_list()

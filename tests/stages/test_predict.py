@@ -12,6 +12,7 @@ from mlnseq.catalog import artifacts
 from mlnseq import export, predict
 from mlnseq.timeline import metrics
 from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition.reading import ReadOptions
 
 
 @pytest.fixture(scope="module")
@@ -66,12 +67,13 @@ def test_viterbi_decodes_a_filter_model_offline_and_refuses_an_undecoded_one(des
                                                                      output=tmp_path / "mln+filter.mlnseq")).path
     online = predict.run(predict.PredictOptions(model=filtering, source=source, output=tmp_path / "f.parquet"))
     offline = predict.run(predict.PredictOptions(model=filtering, source=source, output=tmp_path / "v.parquet",
-                                                 decode="viterbi"))
+                                                 reading=ReadOptions(decode="viterbi")))
     runs = {name: int((t["class"] != t["class"].shift(1)).sum()) for name, t in (("f", online.table), ("v", offline.table))}
     assert runs["v"] <= runs["f"]  # the most probable path switches no more often than the online belief
     assert offline.metrics["edit"] >= online.metrics["edit"] - 5
     with pytest.raises(BadInput, match="exported without decoding"):
-        predict.run(predict.PredictOptions(model=combined, source=source, output=tmp_path / "x.parquet", decode="viterbi"))
+        predict.run(predict.PredictOptions(model=combined, source=source, output=tmp_path / "x.parquet",
+                                           reading=ReadOptions(decode="viterbi")))
 
 
 # --- a frame that no allowed transition reaches ----------------------------------------------------------
@@ -100,7 +102,8 @@ def assert_same_as_stream(table: pl.DataFrame, steps: list) -> None:
 def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_as_the_stream_does(own_data_glitch, tmp_path):
     csv, model, frame = own_data_glitch["csv"], own_data_glitch["model"], own_data_glitch["frame"]
     columns = dict(label_column="phase", episode_column="trial", time_column="t")
-    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet", **columns))
+    result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet",
+                                                reading=ReadOptions(**columns)))
     assert result.restarts == [(11, frame)]
     frames = pl.read_csv(csv)
     steps = streamed(model, frames, frames["trial"].to_list())
@@ -109,7 +112,7 @@ def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_as_the_stream_does(o
     _, meta = artifacts.read_table(result.path, "predicted")
     assert meta["restarts"] == [["11", frame]]
     viterbi = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "v.parquet",
-                                                 **columns, decode="viterbi"))
+                                                 reading=ReadOptions(**columns, decode="viterbi")))
     assert viterbi.restarts == [(11, frame)]
 
 
@@ -120,7 +123,7 @@ def test_merged_episodes_are_decoded_as_the_stream_decodes_them(own_data_glitch,
     csv = tmp_path / "merged.csv"
     pl.read_csv(own_data_glitch["csv"]).drop("trial").with_columns(run=pl.lit(0), t=pl.int_range(pl.len())).write_csv(csv)
     result = predict.run(predict.PredictOptions(model=model, source=csv, output=tmp_path / "out.parquet",
-                                                episode_column="run"))
+                                                reading=ReadOptions(episode_column="run")))
     assert result.episodes == 1 and len(result.restarts) >= 1 and {e for e, _ in result.restarts} == {0}
     steps = streamed(model, pl.read_csv(csv))
     assert_same_as_stream(result.table, steps)

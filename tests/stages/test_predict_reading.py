@@ -17,6 +17,7 @@ from mlnseq import collect, export, predict, train
 from mlnseq.sources.desk import CLASSES as DESK_CLASSES
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import TableColumns
+from mlnseq.recognition.reading import ReadOptions
 
 TRIAL = 1500  # frames per trial
 
@@ -73,7 +74,7 @@ def test_predict_reads_as_the_model_did_and_keeps_the_trial_ids(model, recording
     with pytest.raises(BadInput, match="renamed.csv: no column 'trial'"):
         predict.run(predict.PredictOptions(model=model, source=renamed, output=tmp_path / "r.parquet"))
     flagged = predict.run(predict.PredictOptions(model=model, source=renamed, output=tmp_path / "r.parquet",
-                                                 episode_column="session"))  # a flag overrides the model's reading
+                                                 reading=ReadOptions(episode_column="session")))  # a flag overrides the model's reading
     assert flagged.table.equals(result.table)
 
 
@@ -84,7 +85,7 @@ def test_a_named_label_column_must_be_there_and_bad_values_name_row_and_column(m
     assert plain.metrics is None and plain.episodes == 2  # the model's label column, absent: unlabelled
     with pytest.raises(BadInput, match="unlabelled.csv: no column 'phase'"):
         predict.run(predict.PredictOptions(model=model, source=unlabelled, output=tmp_path / "x.parquet",
-                                           label_column="phase"))
+                                           reading=ReadOptions(label_column="phase")))
     typo = tmp_path / "typo.csv"
     text = recordings[1].read_text().splitlines()
     cells = text[9].split(",")
@@ -114,7 +115,8 @@ def test_predicted_intervals_read_back_as_labels_give_the_predicted_classes(mode
 
     segments = tmp_path / f"segments-{unit}.csv"
     result = predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "p.parquet",
-                                                intervals=segments, overrides={"labels_unit": unit}))
+                                                intervals=segments,
+                                                reading=ReadOptions(overrides={"labels_unit": unit})))
     assert result.written == (segments,)
     written = pl.read_csv(segments)
     assert written.columns == ["episode", "start", "end", "label"] and set(written["episode"]) == {101, 102}
@@ -146,3 +148,31 @@ def test_predict_writes_a_rerun_recording_of_signals_classes_and_probabilities(m
     assert {"time", "frame"} <= timelines
     with pytest.raises(BadInput, match="view.rrd exists; pass --force"):
         predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "q.parquet", rerun=path))
+
+
+def test_a_folder_partly_labelled_is_read_with_labels_where_a_recording_has_them(model, recordings, tmp_path):
+    """Every command that reads with a model takes the folder fit took: one file with its phase column, one without
+    (and then a labels file naming one of its trials): labels where a recording has them, never a refusal."""
+    from mlnseq import explain
+
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    new = pl.read_csv(recordings[1])
+    new.write_csv(folder / "a.csv")
+    new.drop("phase").with_columns(trial=pl.col("trial") + 100).write_csv(folder / "b.csv")
+    result = predict.run(predict.PredictOptions(model=model, source=folder, output=tmp_path / "p.parquet"))
+    assert result.episodes == 4 and (result.metrics["recordings"], result.metrics["of"]) == (2, 4)
+    table = result.table
+    assert table.filter(pl.col("episode").str.starts_with("b/"))["label"].null_count() == 2 * TRIAL
+    assert table.filter(pl.col("episode").str.starts_with("a/"))["label"].to_list() == new["phase"].to_list()
+    alone = predict.run(predict.PredictOptions(model=model, source=recordings[1], output=tmp_path / "a.parquet"))
+    assert result.metrics["frame_accuracy"] == alone.metrics["frame_accuracy"]  # the labelled ones, scored as alone
+    phases = new.filter(pl.col("trial") == 101)["phase"].to_list()
+    runs = [(k, phases[k]) for k in range(len(phases)) if k == 0 or phases[k] != phases[k - 1]]
+    rows = [f"b/201,{a},{b - 1},{name}" for (a, name), (b, _) in zip(runs, [*runs[1:], (len(phases), None)])]
+    (tmp_path / "labels.csv").write_text("\n".join(["episode,start,end,label", *rows]) + "\n")
+    labelled = predict.run(predict.PredictOptions(model=model, source=folder, output=tmp_path / "q.parquet",
+                                                  reading=ReadOptions(overrides={"labels": tmp_path / "labels.csv"})))
+    assert (labelled.metrics["recordings"], labelled.metrics["of"]) == (3, 4)  # the file's, and a.csv's own
+    found = explain.run(explain.ExplainOptions(model=model, source=folder, episode="b/202", frame=10))
+    assert found.episode == "b/202" and found.explanation.frame == 10

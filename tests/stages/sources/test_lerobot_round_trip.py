@@ -22,6 +22,7 @@ from mlnseq.sources import SourceOptions, lerobot_language, lerobot_writer
 from mlnseq.sources.recording import TableColumns
 from mlnseq.sources.table import collect_frames
 from mlnseq_cli.main import app
+from mlnseq.recognition.reading import ReadOptions
 
 DATA_FILE = Path("data/chunk-000/file-000.parquet")
 INFO = Path("meta/info.json")
@@ -187,7 +188,9 @@ def test_episodes_without_annotations_are_read_unlabelled_with_a_note(mixed, ler
 def test_annotated_episodes_keep_their_annotations_unless_replaced(mixed, model, lerobot_data, tmp_path):
     result = predict.run(predict.PredictOptions(model=model, source=mixed, output=tmp_path / "p.parquet",
                                                 write_lerobot=tmp_path / "out"))
-    assert result.metrics is None  # not every episode annotated: nothing scored
+    assert (result.metrics["recordings"], result.metrics["of"]) == (5, 8)  # the annotated episodes scored alone
+    assert result.table.filter(pl.col("episode") >= 5)["label"].null_count() == result.table.filter(
+        pl.col("episode") >= 5).height  # the others: no label
     assert result.lerobot == lerobot_writer.Written(predicted=3, kept=5)
     frames, meta = subtask_frames(tmp_path / "out")
     labels = np.asarray(meta["classes"])[frames["label"].to_numpy()]
@@ -252,7 +255,7 @@ def test_a_failed_write_leaves_nothing_half_written(model, lerobot_data, tmp_pat
                                        r"frame: predict without --labels, or with --unlabelled CLASS"):
         predict.run(predict.PredictOptions(model=model, source=lerobot_data / "pick-place-heldout",
                                            output=tmp_path / "p.parquet", write_lerobot=tmp_path / "out",
-                                           overrides={"labels": intervals}))
+                                           reading=ReadOptions(overrides={"labels": intervals})))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["part.csv"]  # no dataset, no predictions, no leftovers
 
 

@@ -21,6 +21,7 @@ from mlnseq.catalog.errors import BadInput  # noqa: E402
 from mlnseq.sources import SourceOptions  # noqa: E402
 from mlnseq.sources.recording import Labels, TableColumns  # noqa: E402
 from mlnseq.sources.table import collect_frames  # noqa: E402
+from mlnseq.recognition.reading import ReadOptions  # noqa: E402
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 JointState, Header, Time, String, Float64 = (STORE.types[f"{n}"] for n in (
@@ -120,7 +121,8 @@ def test_predict_reads_a_new_bag_with_the_models_hold_and_says_the_stale_joints(
                             "dropped",)
     assert result.reading["max_hold"] == 2.0
     held = predict.run(predict.PredictOptions(model=joint_state_model["model"], source=tmp_path / "arm.bag",
-                                              output=tmp_path / "q.parquet", overrides={"max_hold": float("inf")}))
+                                              output=tmp_path / "q.parquet",
+                                              reading=ReadOptions(overrides={"max_hold": float("inf")})))
     assert held.table.height == 405 and "held to the end" in held.notes[0]
     assert held.table.head(350)["class"].equals(result.table["class"])
 
