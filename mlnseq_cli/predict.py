@@ -13,6 +13,13 @@ from mlnseq_cli.console import console, counted, reported_errors
 from mlnseq import predict as stage
 
 
+def scored(metrics: dict) -> str:
+    """Which recordings the metrics score: every one, or the labelled ones of them."""
+    if metrics["recordings"] == metrics["of"]:
+        return "labelled recordings"
+    return f"the {metrics['recordings']} labelled recordings of {metrics['of']}"
+
+
 @read_as.reads_recordings
 def predict(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export`.", dir_okay=False)],
@@ -53,7 +60,7 @@ def predict(
     if result.metrics is not None:
         m = result.metrics
         table = Table("segments", "frames", "macro F1 (segments)", "edit", "F1@10", "F1@25", "F1@50", box=None,
-                      title="labelled recordings: segment recognised at half of its frames")
+                      title=f"{scored(m)}: segment recognised at half of its frames")
         table.add_row(f"{m['segment_accuracy']:.1%}", f"{m['frame_accuracy']:.1%}", f"{m['macro_f1']:.3f}",
                       *(f"{m[k]:.1f}" for k in ("edit", "f1@10", "f1@25", "f1@50")))
         console.print(table)

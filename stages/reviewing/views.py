@@ -22,6 +22,8 @@ class Decided:
     path: np.ndarray  # [T] the decided class indices
     probabilities: np.ndarray  # [T, C]
     labels: np.ndarray | None  # [T] the true labels' class indices (-1: none), if the recording has labels
+    origin: str | None = None  # where those labels came from (a fit's workdir says: its own, estimated, ...)
+    proposal: np.ndarray | None = None  # [T] the phases a fit proposes to correct (-1: none), if it proposes any
 
     @property
     def confidence(self) -> float:
@@ -60,7 +62,8 @@ def runs(classes: np.ndarray) -> list[list[int]]:
 
 
 def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: set[str]) -> list[dict]:
-    """The recordings' rows: id, frames, seconds, confidence, rank to label (1 first) and why, labelled, saved.
+    """The recordings' rows: id, frames, seconds, confidence, rank to label (1 first) and why, labelled (and where
+    its labels came from), saved.
     ``ranks``: the workdir's label_next.csv (episode: rank, reason), whose recordings come first in its order; the
     others after them, the least sure first."""
     others = sorted((i for i, r in enumerate(recordings) if r.id not in ranks), key=lambda i: recordings[i].confidence)
@@ -77,7 +80,7 @@ def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: s
                      "seconds": float(time[-1] - time[0]) if len(time) else 0.0,
                      "confidence": round(recording.confidence, 4), "rank": int(rank), "reason": reason,
                      "labelled": recording.labels is not None and bool((recording.labels >= 0).any()),
-                     "saved": recording.id in saved})
+                     "origin": recording.origin, "saved": recording.id in saved})
     return sorted(rows, key=lambda row: (row["rank"], row["index"]))
 
 
@@ -89,7 +92,8 @@ def _rounded(values: np.ndarray) -> list:
 def view(recording: Decided, features: list[str], classes: list[str], saved: np.ndarray | None,
          buckets: int = BUCKETS) -> dict:
     """One recording's view: times (every frame's, so an edit lands on a frame), each channel's decimated rows and
-    values, the decided phases, the true and saved labels as runs, and the chosen class's probability."""
+    values, the decided phases, the true labels (and where they came from), the proposed phases and the saved labels
+    as runs, and the chosen class's probability."""
     chosen = recording.probabilities[np.arange(len(recording.path)), recording.path]
     at = decimated(chosen, buckets)
     channels = []
@@ -99,6 +103,7 @@ def view(recording: Decided, features: list[str], classes: list[str], saved: np.
     labels = recording.labels if recording.labels is not None and (recording.labels >= 0).any() else None
     return {"id": recording.id, "classes": classes, "time": recording.time.astype(float).tolist(),
             "channels": channels, "phases": runs(recording.path),
-            "labels": None if labels is None else runs(labels),
+            "labels": None if labels is None else runs(labels), "origin": recording.origin,
+            "proposal": None if recording.proposal is None else runs(recording.proposal),
             "saved": None if saved is None else runs(saved),
             "probability": {"rows": at.tolist(), "values": _rounded(chosen[at])}}

@@ -84,6 +84,17 @@ def _loopback(host: str) -> bool:
         return False
 
 
+def reachable_from(host: str) -> str | None:
+    """Who else can open a page served on ``host``, in words; None where only this machine can (loopback)."""
+    if _loopback(host):
+        return None
+    if host.strip("[]") in ("0.0.0.0", "::", ""):
+        names = sorted(own_names(host) - {"localhost", "127.0.0.1", "::1"})
+        return (f"every machine that can reach this one on any of its addresses ({', '.join(names[:4]) or host}), "
+                "not this machine alone")
+    return f"every machine that can reach {host}, not this machine alone"
+
+
 def split_host(value: str) -> tuple[str, int | None]:
     """``name:port`` (``[v6]:port``) as (name, port); a bad port: -1."""
     value = value.strip().lower()
@@ -97,7 +108,8 @@ class GuardedServer(ThreadingHTTPServer):
     """Serves ``site`` at (host, port); port 0: a free one. ``bound``: the address it listens on."""
 
     daemon_threads = True
-    allow_reuse_address = False  # a port in use is refused, never shared
+    allow_reuse_address = True  # SO_REUSEADDR: the port again at once after a stop; on Linux a port another socket
+    # listens on is still refused (that takes SO_REUSEPORT, never set)
 
     def __init__(self, host: str, port: int, site: Site, body_limit: int = BODY_LIMIT):
         self.site, self.body_limit, self.names = site, body_limit, own_names(host)

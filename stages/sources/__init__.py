@@ -137,6 +137,5 @@ def read(env: str, source: Path, columns: TableColumns, options: SourceOptions,
         from mlnseq.sources import intervals
 
         found = intervals.read(Path(options.labels), options.labels_unit)
-        recordings = intervals.apply(recordings, found, options.unit(env),
-                                     options.unlabelled)
+        recordings = intervals.apply(recordings, found, options.unit(env), options.unlabelled, columns.classes)
     return recordings

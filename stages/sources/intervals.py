@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
@@ -24,6 +25,8 @@ from mlnseq.sources.recording import Recording
 
 COLUMNS = ("episode", "start", "end", "label")
 POINT_COLUMNS = {"frame": "frames", "time": "seconds"}  # a click's column, and its unit unless --labels-unit says
+UNIT_COLUMN = "unit"  # optional: a row's own unit (frames or seconds), so that the file says it (review writes it)
+UNITS = ("frames", "seconds")
 
 
 @dataclass(frozen=True)
@@ -32,7 +35,8 @@ class Interval:
     end: float
     label: str | int
     where: str  # file and line, for messages
-    unit: str | None = None  # a click (start == end): its own unit, from its column's name; None: an interval
+    unit: str | None = None  # its own: a click's column's, the file's unit column's or --labels-unit; None: default
+    click: bool = False  # a click (start == end): one frame said to be in this phase
 
 
 def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
@@ -52,6 +56,9 @@ def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
                             schema_overrides={"episode": pl.String})  # ids as written: 001 is not 1
     except Exception as error:  # polars raises many types for unreadable files
         raise BadInput(f"{path}: cannot read it as intervals ({str(error).strip().splitlines()[0][:120]})") from error
+    if table.height == 0:
+        raise BadInput(f"{path} holds no interval or click, only {'its header' if table.width else 'nothing'}; give "
+                       f"{','.join(COLUMNS)} rows, or episode,frame,label clicks")
     point = next((c for c in POINT_COLUMNS if c in table.columns), None)
     spans = [c for c in ("start", "end") if c in table.columns]
     missing = [c for c in COLUMNS if c not in table.columns and (point is None or c not in ("start", "end"))]
@@ -75,18 +82,33 @@ def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
     return {episode: checked(found) for episode, found in by_episode.items()}
 
 
+def _unit(row: dict, given: str | None, where: str) -> str | None:
+    """A row's own unit, from the file's unit column (checked against --labels-unit, ``given``), else ``given``."""
+    said = row.get(UNIT_COLUMN)
+    if said is None or str(said).strip() == "":
+        return given
+    said = str(said).strip()
+    if said not in UNITS:
+        raise BadInput(f"{where}: unit {said!r}; a row's unit is frames or seconds")
+    if given is not None and given != said:
+        raise BadInput(f"{where}: the file says its unit is {said}, --labels-unit says {given}; leave --labels-unit "
+                       "out (the file says its own)")
+    return said
+
+
 def _row(row: dict, point: str | None, spans: list[str], unit: str | None, where: str) -> Interval:
     """One line as an interval (start and end given) or a click (its point column given, start and end empty)."""
+    own = _unit(row, unit, where)
     if spans and any(row[c] is not None for c in spans):
         empty = [c for c in ("start", "end") if row.get(c) is None]
         if empty:
             raise BadInput(f"{where}: {empty[0]} is empty; give start and end (an interval) or only "
                            f"{point or 'frame'} (a click)")
-        return Interval(row["start"], row["end"], row["label"], where)
+        return Interval(row["start"], row["end"], row["label"], where, own)
     if point is None or row[point] is None:
         raise BadInput(f"{where}: neither start,end nor {point or 'frame'} given; an interval needs start and end, "
                        "a click its frame")
-    return Interval(row[point], row[point], row["label"], where, unit or POINT_COLUMNS[point])
+    return Interval(row[point], row[point], row["label"], where, own or POINT_COLUMNS[point], click=True)
 
 
 def transcription(path: Path, first_frame: int = 0) -> list[Interval]:
@@ -117,11 +139,15 @@ def checked(found: list[Interval]) -> list[Interval]:
     for interval in found:
         if interval.end < interval.start:
             raise BadInput(f"{interval.where}: ends ({interval.end:g}) before it starts ({interval.start:g})")
-    clicks = [i for i in found if i.unit is not None]
+    clicks = [i for i in found if i.click]
+    if clicks and len(clicks) < len(found):
+        raise BadInput(f"{clicks[0].where}: a click in an episode that has intervals too; give an episode "
+                       "intervals or clicks, not both")
+    other = next((i for i in found if i.unit != found[0].unit), None)
+    if other is not None:
+        raise BadInput(f"{other.where}: in {other.unit or 'the default unit'}, unlike {found[0].where} "
+                       f"({found[0].unit or 'the default unit'}); give an episode's rows one unit")
     if clicks:
-        if len(clicks) < len(found):
-            raise BadInput(f"{clicks[0].where}: a click in an episode that has intervals too; give an episode "
-                           "intervals or clicks, not both")
         return checked_clicks(clicks)
     ordered = sorted(found, key=lambda i: i.start)
     for before, after in zip(ordered, ordered[1:]):
@@ -183,31 +209,36 @@ def _label_from_clicks(key: np.ndarray, found: list, rows: np.ndarray, labels: n
     clicked[rows[at]] = True
 
 
-def check_classes(intervals: dict[str, list[Interval]]) -> None:
-    """A click of a class no other episode of the labels file has is refused (a typo, or a phase nothing else shows)
-    when the file labels two episodes or more."""
-    if len(intervals) < 2:
+def check_classes(intervals: dict[str, list[Interval]], others: set[str], classes: tuple[str, ...] = ()) -> None:
+    """A class of the labels file that one of its episodes alone uses, that no other labels (``others``: the
+    recordings' own) use and that --classes (``classes``) does not name is refused: a typo, or a phase nothing else
+    shows. Where there is nothing to compare with (one episode, no other labels) or --classes names the classes
+    (then checked against them), nothing is refused."""
+    if classes or (len(intervals) < 2 and not others):
         return
-    episodes_of: dict = {}
+    episodes_of: dict[str, set[str]] = {}
     for episode, found in intervals.items():
         for interval in found:
-            episodes_of.setdefault(interval.label, set()).add(episode)
+            episodes_of.setdefault(str(interval.label), set()).add(episode)
     for episode, found in intervals.items():
-        for click in (i for i in found if i.unit is not None):
-            if episodes_of[click.label] == {episode}:
-                others = sorted(map(str, (c for c, e in episodes_of.items() if e != {episode})))
-                raise BadInput(f"{click.where}: class {click.label!r} is clicked in episode {episode!r} only, no "
-                               f"other episode has it (theirs: {', '.join(others[:8])}); correct it, or label another "
-                               "episode with it")
+        for interval in found:
+            name = str(interval.label)
+            if episodes_of[name] == {episode} and name not in others:
+                theirs = sorted(others | {c for c, e in episodes_of.items() if e != {episode}})
+                what = "is clicked in" if interval.click else "labels"
+                raise BadInput(f"{interval.where}: class {interval.label!r} {what} episode {episode!r} only, no other "
+                               f"labels have it (theirs: {', '.join(theirs[:8])}{', ...' if len(theirs) > 8 else ''}); "
+                               "correct it, label another episode with it, or name every class with --classes")
 
 
 def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], unit: str,
-          unlabelled: str | None = None) -> list[Recording]:
+          unlabelled: str | None = None, classes: tuple[str, ...] = ()) -> list[Recording]:
     """Each recording labelled from its episode's intervals (frames outside every interval dropped or labelled
     ``unlabelled``) or clicks (each boundary halfway); the episodes the labels do not name keep the recording's
     own labels, if read, else read unlabelled, a recording of their own. Every interval's episode needs a
     recording."""
-    check_classes(intervals)
+    own = {str(v) for r in recordings if r.label is not None for v in r.label.unique().drop_nulls().to_list()}
+    check_classes(intervals, own | ({unlabelled} if unlabelled is not None else set()), classes)
     seen: set[str] = set()
     found_parts = []
     for recording in recordings:
@@ -224,10 +255,10 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
             named[rows] = True
             own_unit = found[0].unit or unit
             key = np.arange(len(rows), dtype=np.float64) if own_unit == "frames" else recording.time.to_numpy()[rows]
-            if found[0].unit is not None:
+            if found[0].click:
                 _label_from_clicks(key, found, rows, labels, keep, clicked, what)
             else:
-                _label_from_intervals(key, found, unit, rows, labels, keep, what)
+                _label_from_intervals(key, found, own_unit, rows, labels, keep, what)
         if named.any() and not keep[named].any():
             raise BadInput(f"{recording.path}: no frame falls in an interval of --labels")
         if unlabelled is not None:
@@ -237,8 +268,8 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
             values = labels[keep].tolist()
             label_series = (pl.Series("label", values, dtype=pl.Int64) if all(isinstance(v, int) for v in values)
                             else pl.Series("label", [str(v) for v in values], dtype=pl.String))
-            found_parts.append(_part(recording, keep, label_series,
-                                     {"clicks": np.flatnonzero(clicked[keep]).tolist()} if clicked.any() else {}))
+            found_parts.append(_part(recording, keep, label_series, {
+                "labels_file": True, **({"clicks": np.flatnonzero(clicked[keep]).tolist()} if clicked.any() else {})}))
         if not named.all():  # the episodes the labels do not name: their own labels where they have them
             own = None if recording.label is None else recording.label.filter(pl.Series(~named))
             found_parts.append(_part(recording, ~named, own, {}))
@@ -251,6 +282,22 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
     if unused:
         raise BadInput(f"{intervals[unused[0]][0].where}: episode {unused[0]!r} is in no recording")
     return found_parts
+
+
+def given(recordings: list[Recording], table: pl.DataFrame, order: np.ndarray, names: list) -> dict[str, Any]:
+    """What a labels file gave ``recordings`` (``apply``'s), as frames.parquet's metadata keeps it (``table``: its
+    frames in the recordings' order taken by ``order``; ``names``: its episodes' ids): the episodes it labelled
+    (``labels_file_episodes``) and its clicks (``clicks``: episode, frame, class; the rest filled from them)."""
+    given: dict[str, Any] = {}
+    by_file = {str(e) for r in recordings if r.resolved.get("labels_file") for e in r.episode.unique().to_list()}
+    if by_file:
+        given["labels_file_episodes"] = [name for name in names if str(name) in by_file]
+    clicked = np.concatenate([np.isin(np.arange(r.features.height), r.resolved.get("clicks", []))
+                              for r in recordings])[order]
+    if clicked.any():  # one click per phase: which labels were given, the rest filled
+        given["clicks"] = [list(map(int, row)) for row in table.filter(pl.Series(clicked))
+                           .select("episode", "frame", "label").rows()]
+    return given
 
 
 def _some(names: list[str]) -> str:

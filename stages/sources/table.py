@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
+from mlnseq.sources import intervals
 from mlnseq.sources.recording import Labels, Recording, TableColumns
 from mlnseq.sources.splits import Holdout, split_of
 
@@ -309,11 +310,8 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_want
     unlabelled = ids.filter(ids.is_in(frames["episode"].filter(pl.Series(~has_label)).implode())).to_list()
     if unlabelled and not for_prediction:
         meta["unlabelled_episodes"] = unlabelled
-    clicked = np.concatenate([np.isin(np.arange(r.features.height), r.resolved.get("clicks", []))
-                              for r in recordings])[order]
-    if clicked.any() and not for_prediction:  # one click per phase: which labels were given, the rest filled
-        meta["clicks"] = [list(map(int, row)) for row in table.filter(pl.Series(clicked))
-                          .select("episode", "frame", "label").rows()]
+    if not for_prediction:
+        meta.update(intervals.given(recordings, table, order, ids.to_list()))
     return table, meta, frames["time"].to_numpy()[order]
 
 

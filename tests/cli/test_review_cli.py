@@ -139,9 +139,9 @@ def test_boundaries_moved_by_keyboard_and_mouse_are_saved_and_read_back_by_colle
                 until(page, "window.review.saved")
             assert page.errors == []
     table = pl.read_csv(saved, schema_overrides={"episode": pl.String})
-    assert table.columns == ["episode", "start", "end", "label"]
+    assert table.columns == ["episode", "start", "end", "label", "unit"]  # the file says its unit
     mine = table.filter(pl.col("episode") == str(TRIALS[0]))
-    assert mine.rows() == [(str(TRIALS[0]), a, b, CLASSES[k]) for a, b, k in expected]
+    assert mine.rows() == [(str(TRIALS[0]), a, b, CLASSES[k], "frames") for a, b, k in expected]
     workdir = tmp_path / "work"
     done = mlnseq("collect", "--env", "table", "--source", trials["csv"], "--episode-column", "trial",
                   "--time-column", "t", "--labels", saved, "-w", workdir)
@@ -216,7 +216,7 @@ def test_requests_from_elsewhere_outside_the_page_or_too_large_are_refused(trial
         assert request(url, "GET", "/api/explain?index=7&frame=1", {})[0] == 400
         assert not saved.exists()
         assert request(url, "POST", "/api/save", as_json, save)[0] == 200
-    assert pl.read_csv(saved).rows() == [(TRIALS[0], 0, 106, "approach")]
+    assert pl.read_csv(saved).rows() == [(TRIALS[0], 0, 106, "approach", "frames")]
 
 
 def refused(*args: str | Path) -> str:
@@ -298,8 +298,8 @@ def test_a_segment_relabelled_split_and_merged_with_undo_is_saved_as_shown(trial
             page.click("#save")
             until(page, "window.review.saved")
             assert page.errors == []
-    assert pl.read_csv(saved).rows() == [(trial, 0, before, "approach"), (trial, a, split - 1, "grasp"),
-                                         (trial, split, c, "lift"), (trial, d, e, "release")]
+    assert pl.read_csv(saved).drop("unit").rows() == [(trial, 0, before, "approach"), (trial, a, split - 1, "grasp"),
+                                                      (trial, split, c, "lift"), (trial, d, e, "release")]
 
 
 @pytest.fixture(scope="module")

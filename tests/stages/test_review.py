@@ -74,7 +74,8 @@ def test_the_labels_file_in_seconds_reads_back_and_keeps_the_recordings_saved_be
     names = corrections.labels_of([[0, 3, "reach"], [4, 6, "grasp"], [7, 9, "lift"]], 10, CLASSES)
     assert labels.put("mine", time, names) == 3
     labels.write()
-    read = intervals.read(path)
+    read = intervals.read(path, "seconds")  # the unit it says: the same as --labels-unit seconds, or none given
+    assert read == intervals.read(path) and pl.read_csv(path)["unit"].to_list() == ["seconds"] * 4
     assert list(read) == ["old", "mine"]
     assert [(i.start, i.end, i.label) for i in read["mine"]] == [(3.0, 3.4, "reach"), (3.4, 3.7, "grasp"),
                                                                  (3.7, 4.0, "lift")]
@@ -87,7 +88,8 @@ def test_the_labels_file_in_frames_and_a_label_the_model_lacks(tmp_path):
     labels = corrections.LabelsFile(path, "frames")
     labels.put("7", np.arange(6) * 0.5, ["reach", "reach", "lift", "lift", "lift", "grasp"])
     labels.write()
-    assert pl.read_csv(path).rows() == [(7, 0, 1, "reach"), (7, 2, 4, "lift"), (7, 5, 5, "grasp")]
+    assert pl.read_csv(path).rows() == [(7, 0, 1, "reach", "frames"), (7, 2, 4, "lift", "frames"),
+                                        (7, 5, 5, "grasp", "frames")]  # the file says its unit
     path.write_text("episode,start,end,label\n7,0,5,dance\n")
     with pytest.raises(BadInput, match="labels.csv:2: label 'dance' is not a class of the model"):
         corrections.LabelsFile(path, "frames").saved("7", np.arange(6), CLASSES)

@@ -46,10 +46,32 @@ function table() {
     row.title = r.reason;
     row.classList.toggle("current", r.index === state.index);
     for (const text of [r.rank, r.id, r.frames, r.seconds.toFixed(1), `${(100 * r.confidence).toFixed(0)}%`,
-      r.saved ? "saved" : r.labelled ? "yes" : "–"]) cell(row, text);
+      labelsCell(r)]) cell(row, text);
     row.addEventListener("click", () => open(r.index));
     body.append(row);
   }
+}
+
+const ORIGINS = { "its own labels": "own", "the labels file": "file", "estimated between your clicks": "clicks",
+  "estimated by alignment": "aligned" };
+
+function labelsCell(r) {  // what the table says of a recording's labels
+  if (r.unsaved) return "not saved";
+  if (r.saved) return "saved";
+  if (!r.labelled) return "–";
+  return ORIGINS[r.origin] || "yes";
+}
+
+function niceStep(span) {  // 1, 2 or 5 times a power of ten, about a third of ``span``
+  const raw = span / 3, power = 10 ** Math.floor(Math.log10(raw)), unit = raw / power;
+  return power * (unit < 1.5 ? 1 : unit < 3.5 ? 2 : 5);
+}
+
+function splits(u, axis, min, max) {  // every axis gets two ticks or more, whatever its range
+  if (!(max > min)) return [min];
+  const step = niceStep(max - min), ticks = [];
+  for (let t = Math.ceil(min / step) * step; t <= max + step * 1e-9; t += step) ticks.push(+t.toPrecision(12));
+  return ticks.length >= 2 ? ticks : [min, max];
 }
 
 function choices() {
@@ -76,7 +98,11 @@ async function open(index) {
   status("loading…");
   const data = await getJSON(`/api/recording?index=${index}`);
   Object.assign(state, { index, data, undo: [], boundary: null, segment: null, frame: null, explained: null });
-  state.edit = (data.saved || data.labels || data.phases).map((s) => s.slice());
+  state.edit = (data.saved || data.proposal || data.labels || data.phases).map((s) => s.slice());
+  const from = data.saved ? "saved" : data.proposal ? "proposed by the fit" : data.labels ?
+    (data.origin || "the recording's labels") : "the model's phases";
+  document.getElementById("labels-from").textContent = `labels to correct, from ${from}` +
+    (data.labels && !data.saved ? ` · fit trained on ${data.origin || "its labels"}` : "");
   table();
   choices();
   draw();
@@ -101,7 +127,7 @@ function plotOptions(title, width, height, extra) {
     title, width, height, legend: { show: false },
     cursor: { sync: { key: "review" }, drag: { x: true, y: false } },
     scales: { x: { time: false } },
-    axes: [{ size: 28 }, { size: 56 }],
+    axes: [{ size: 28, splits }, { size: 56, splits }],
     hooks: { setScale: [(u, key) => key === "x" && follow(u)] },
   }, extra || {});
 }
@@ -324,10 +350,13 @@ async function save() {
       body: JSON.stringify({ index: state.index, segments }),
     });
     state.saved = done;
-    state.meta.recordings.find((r) => r.index === state.index).saved = true;
+    Object.assign(state.meta.recordings.find((r) => r.index === state.index), { saved: true, unsaved: false });
     table();
     status(`saved ${done.rows} intervals of ${done.episode} to ${done.saved}`);
   } catch (error) {
+    state.saved = null;
+    Object.assign(state.meta.recordings.find((r) => r.index === state.index), { saved: false, unsaved: true });
+    table();
     status(`not saved: ${error.message}`);
   }
 }

@@ -14,7 +14,7 @@ from mlnseq import collect, sources
 from mlnseq.sources.desk import CLASSES as DESK_CLASSES
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources import SourceOptions, jigsaws
-from mlnseq.sources.recording import TableColumns
+from mlnseq.sources.recording import Labels, TableColumns
 from mlnseq.sources.table import collect_frames
 
 TRIALS = {"A": 400, "B": 300}
@@ -123,3 +123,52 @@ def test_collect_jigsaws_and_labels_through_the_cli(lab, tmp_path):
                               "-w", str(tmp_path / "t")])
     assert bad.exit_code == 2 and "is not one of --classes" in bad.stderr
     assert bad.stderr.strip().count("\n") == 0 and not (tmp_path / "t" / "frames.parquet").exists()
+
+
+def test_a_file_that_says_its_unit_is_read_without_labels_unit(lab, tmp_path):
+    """A unit column (as `mlnseq review` saves) says each row's unit: seconds read as seconds without --labels-unit;
+    a --labels-unit that says otherwise, or an episode in two units, is one line."""
+    expected = frames_of("table", lab / "labelled.csv")
+    lines = (lab / "seconds.tsv").read_text().splitlines()
+    said = tmp_path / "said.csv"
+    said.write_text("\n".join(["episode,start,end,label,unit", *(",".join([*line.split("\t"), "seconds"])
+                                                                 for line in lines[1:])]) + "\n")
+    assert frames_of("table", lab / "plain.csv", labels=said).equals(expected)  # the table's default unit: frames
+    with pytest.raises(BadInput, match=r"said.csv:2: the file says its unit is seconds, --labels-unit says frames"):
+        frames_of("table", lab / "plain.csv", labels=said, labels_unit="frames")
+    mixed = tmp_path / "mixed.csv"
+    text = said.read_text().splitlines()
+    mixed.write_text("\n".join([*text[:2], text[2].replace("seconds", ""), *text[3:]]) + "\n")
+    with pytest.raises(BadInput, match=r"mixed.csv:3: in the default unit, unlike .*mixed.csv:2 \(seconds\)"):
+        frames_of("table", lab / "plain.csv", labels=mixed)
+
+
+@pytest.mark.parametrize(("text", "needle"), [
+    ("episode,start,end,label\n", r"empty.csv holds no interval or click, only its header"),
+    ("", r"empty.csv: cannot read it as intervals|empty.csv holds no interval or click"),
+])
+def test_a_labels_file_without_a_row_is_one_line(lab, tmp_path, text, needle):
+    (tmp_path / "empty.csv").write_text(text)
+    done = CliRunner().invoke(app, ["collect", "--env", "table", "--source", str(lab / "plain.csv"), "--episode-column",
+                                    "trial", "--labels", str(tmp_path / "empty.csv"), "-w", str(tmp_path / "w")])
+    assert done.exit_code == 2 and len(done.stderr.strip().splitlines()) == 1, done.output
+    assert __import__("re").search(needle, done.stderr), done.stderr
+
+
+def test_a_class_no_other_labels_use_is_refused_as_a_typo(lab, tmp_path):
+    """A class of the labels file that one episode alone has, and no other labels (the recordings' own, the file's
+    other episodes) do, is refused in one line naming the line, unless --classes names it."""
+    lines = (lab / "frames.csv").read_text().splitlines()
+    typo = tmp_path / "typo.csv"
+    typo.write_text("\n".join([*lines[:2], lines[2].replace(lines[2].split(",")[3], "S2 grsap peg"), *lines[3:]]) + "\n")
+    with pytest.raises(BadInput, match=r"typo.csv:3: class 'S2 grsap peg' labels episode 'A' only, no other labels "
+                                       r"have it .*--classes") as refused:
+        frames_of("table", lab / "plain.csv", labels=typo)
+    assert "\n" not in str(refused.value)
+    one = tmp_path / "one.csv"  # trial A from the file, trial B by its own phase column: the others are B's own
+    one.write_text("\n".join(line for line in typo.read_text().splitlines() if not line.startswith("B,")) + "\n")
+    with pytest.raises(BadInput, match=r"one.csv:3: class 'S2 grsap peg' labels episode 'A' only"):
+        sources.read("table", lab / "labelled.csv", COLUMNS, SourceOptions(labels=one), Labels.SOME)  # as collect
+    named = (*DESK_CLASSES, "S2 grsap peg")
+    found = frames_of("table", lab / "plain.csv", TableColumns(episode="trial", time="t", classes=named), labels=typo)
+    assert found.height == sum(TRIALS.values())  # named in --classes: a class of its own
