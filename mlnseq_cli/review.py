@@ -33,9 +33,9 @@ def review(
         print(f"review: {counted(where.recordings, 'recording')} ({counted(where.frames, 'frame')}) at {where.url} "
               f"; saves go to {where.save}; Ctrl+C stops", flush=True)
         if where.reached_from is not None:
-            print(f"review: --host {host}: {where.reached_from} can open this page, read these recordings and save "
-                  "labels (it answers only requests naming this machine; nothing checks who asks); --host 127.0.0.1 "
-                  "keeps it to this machine", flush=True)
+            print(f"review: --host {host} listens beyond this machine: {where.reached_from} can open this page, read "
+                  "these recordings and save labels (nothing checks who asks); --host 127.0.0.1 keeps it to this "
+                  "machine", flush=True)
 
     with reported_errors():
         stopped = stage.run(options, started, lambda line: print(line, flush=True))

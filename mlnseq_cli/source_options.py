@@ -22,7 +22,7 @@ LabelColumn = Annotated[Optional[str], typer.Option(help="The label column; name
 EpisodeColumn = Annotated[Optional[str], typer.Option(help="The episode column \\[default: the model's; else 'episode' if present, else one episode per file]; \"\" reads a recording without the model's episode column.")]
 TimeColumn = Annotated[Optional[str], typer.Option(help="The time/frame column \\[default: the model's; else 'frame' if present, else file order]; \"\" reads a recording without the model's time column.")]
 LabelsFile = Annotated[Optional[Path], typer.Option("--labels", help="True labels as intervals (episode, start, end, label), to score the predictions; lerobot: subtask reads the dataset's own subtask annotations.", dir_okay=False)]
-LabelsUnit = Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: the model's].")]
+LabelsUnit = Annotated[Optional[str], typer.Option(help="--labels' unit: seconds or frames \\[default: as the file's unit column says; else the model's].")]
 Topics = Annotated[Optional[str], typer.Option(help="rosbag: topics, comma-separated \\[default: the model's].")]
 Rate = Annotated[Optional[float], typer.Option(help="rosbag: the clock in Hz \\[default: the model's].")]
 LabelTopic = Annotated[Optional[str], typer.Option(help="rosbag: a std_msgs/String topic of true phases \\[default: the model's].")]

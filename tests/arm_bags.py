@@ -280,6 +280,25 @@ values = {'["place", "object"]' if arm.side > 0 else '["object", "place"]'}
 """
 
 
+def main(argv: list[str]) -> int:
+    """The script: ``FOLDER [ROBOT] [SEED] [EPISODES]``; a usage line (nothing written) for -h, --help or bad
+    arguments."""
+    usage = f"usage: python tests/arm_bags.py FOLDER [ROBOT: {'|'.join(ROBOTS)}] [SEED] [EPISODES]"
+    if not argv or argv[0].startswith("-") or len(argv) > 4:
+        print(usage, file=sys.stderr if argv and argv[0] not in ("-h", "--help") else sys.stdout)
+        return 0 if argv[:1] in (["-h"], ["--help"]) else 2
+    robot = argv[1] if len(argv) > 1 else "panda"
+    if robot not in ROBOTS or not all(a.isdigit() for a in argv[2:]):
+        print(f"{usage}\nerror: {robot!r} is not a robot here, or SEED and EPISODES are not whole numbers",
+              file=sys.stderr)
+        return 2
+    out = Path(argv[0])
+    if out.exists() or out.with_name(out.name + "-heldout").exists():
+        print(f"error: {out} or {out}-heldout exists; name a new folder", file=sys.stderr)
+        return 2
+    write_folders(out, robot, *(int(a) for a in argv[2:4]))
+    return 0
+
+
 if __name__ == "__main__":
-    out = Path(sys.argv[1])
-    write_folders(out, *(sys.argv[2:3] or ["panda"]), *(int(a) for a in sys.argv[3:5]))
+    sys.exit(main(sys.argv[1:]))

@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -36,10 +37,11 @@ def missing() -> str | None:
 
 
 @contextlib.contextmanager
-def served(*args: str | Path, cwd: Path | None = None, stop: int = signal.SIGTERM) -> Iterator[tuple[str, list]]:
-    """`mlnseq review ARGS --port 0` running: (its address, its printed lines so far); stopped by ``stop`` at the
+def served(*args: str | Path, cwd: Path | None = None, stop: int = signal.SIGTERM,
+           port: int = 0) -> Iterator[tuple[str, list]]:
+    """`mlnseq review ARGS --port PORT` running: (its address, its printed lines so far); stopped by ``stop`` at the
     end, which must end it cleanly (exit 0, 'stopped' printed)."""
-    command = [sys.executable, "-m", "mlnseq_cli.main", "review", *map(str, args), "--port", "0"]
+    command = [sys.executable, "-m", "mlnseq_cli.main", "review", *map(str, args), "--port", str(port)]
     process = subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     printed = []
     try:
@@ -49,12 +51,16 @@ def served(*args: str | Path, cwd: Path | None = None, stop: int = signal.SIGTER
         if match is None:
             process.kill()
             raise AssertionError(f"review printed no address: {line!r}\n{process.stderr.read()}")
+        reader = threading.Thread(target=lambda: printed.extend(text.rstrip("\n") for text in process.stdout),
+                                  daemon=True)  # every later line, as it comes (the pipe's buffer read too)
+        reader.start()
         yield match.group(1), printed
     finally:
         if process.poll() is None:
             process.send_signal(stop)
-        out, err = process.communicate(timeout=20)
-        printed += out.splitlines()
+        process.wait(timeout=20)
+        reader.join(timeout=5)
+        err = process.stderr.read()
     assert process.returncode == 0, f"review ended with {process.returncode}: {err}"
     assert printed[-1].startswith(f"review: stopped ({signal.Signals(stop).name})"), printed
 

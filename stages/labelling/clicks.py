@@ -164,12 +164,12 @@ def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: li
 
 
 def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[Span], known: list,
-                  n_classes: int) -> np.ndarray | None:
+                  n_classes: int) -> tuple[np.ndarray | None, float | None]:
     """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
     clicked one in time (as alignment labels a recording without labels), agree most; None where aligning the
-    labelled ones to each other fails alignment's check."""
-    found, _ = alignment.aligned_votes(z, list(rows_of.values()), known, labels, n_classes)
-    return None if found is None else moved_to_votes(labels, rows_of, spans, dict(zip(rows_of, found)))
+    labelled ones to each other fails alignment's check; and that check (None under two)."""
+    found, check = alignment.aligned_votes(z, list(rows_of.values()), known, labels, n_classes)
+    return None if found is None else moved_to_votes(labels, rows_of, spans, dict(zip(rows_of, found))), check
 
 
 def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
@@ -186,10 +186,10 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     record = {"clicks": len(clicks), "boundaries": len(spans)}
     known = alignment.training_recordings(frames, leaving_out=rows_of)  # labelled on every frame, not by clicks
     n_classes = int(labels.max()) + 1
-    placed = from_labelled(z, labels, rows_of, spans, known, n_classes) if known else None
+    placed, check = from_labelled(z, labels, rows_of, spans, known, n_classes) if known else (None, None)
     if placed is not None:
         plural = "s" if len(known) != 1 else ""
-        return _relabelled(frames, placed), {**record, "labelled": len(known), "method": (
+        return _relabelled(frames, placed), {**record, "labelled": len(known), "checked": check, "method": (
             f"each clicked recording aligned in time to the {len(known)} training recording{plural} labelled on every "
             "frame, within its clicks")}
     return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans, n_classes)), {**record, "method": (

@@ -140,28 +140,34 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     method, decoding = latency.FALLBACK
     test = held_out(workdir, [standing.chosen.name if standing else decoded_name(method, decoding.name),
                               Method.NETWORK.value])
-    proposal, files = _label_next(workdir, collected.collected)
+    proposal, files = _label_next(workdir, collected.collected, standing)
     return Fitted(exported, standing, test, collected, binarized, folding, formulas, weights, trained, conflated,
                   proposal, files)
 
 
-def _label_next(workdir: Path, collected: Collected) -> tuple[Proposal | None, tuple[Path, ...]]:
+def _label_next(workdir: Path, collected: Collected,
+                standing: latency.Standing | None) -> tuple[Proposal | None, tuple[Path, ...]]:
     """The unlabelled recordings (where every one was clicked, the clicked ones) ranked by what labelling each would
-    teach, and their predicted phases, from the conflation of the network and the MLN (a model file made for it and
-    removed); nothing without any."""
+    teach, and their proposed phases: the labels fit trained on, or the decoding of the conflation of the network
+    and the MLN (a model file made for it and removed) where it cross-validates better; an earlier fit's ranking
+    removed where there is nothing to rank."""
     from mlnseq import export
     from mlnseq.labelling import label_next
     from mlnseq.recognition.recognizer import Recognizer
 
     ranking, clicked = label_next.candidates(collected.meta)
     if not ranking:
+        label_next.remove(workdir)
         return None, ()
+    meta = collected.meta
+    checked = (meta.get("aligned") or meta.get("clicks_filled") or {}).get("checked")
+    proposed, why = label_next.chosen(checked, standing.chosen.figures["frame_accuracy"] if standing else None)
     model = workdir / ".label_next.mlnseq"
     try:
         export.run(workdir, export.ExportOptions(method=Method.CONFLATION.value, decode="filter", output=model,
                                                  force=True))
         proposal = label_next.propose(Recognizer.load(model), collected.frames, collected.meta["episode_names"],
-                                      ranking, clicked)
+                                      ranking, clicked, proposed, why)
     finally:
         model.unlink(missing_ok=True)
     return proposal, label_next.write(workdir, proposal)

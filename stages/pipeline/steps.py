@@ -191,6 +191,7 @@ class Fitted:
         if standing:
             lines.append(f"chose {standing.chosen.name} of {standing.among} candidates within the budget by "
                          f"{self.folding.k}-fold cross-validation on the training split: {RULE}")
+            lines += self.estimated_said
         if self.test:
             lines.append("test split (held out of everything above): " + "; ".join(
                 f"{name} frame accuracy {t.frame_accuracy:.1%}, segment accuracy {t.segment_accuracy:.1%}"
@@ -199,9 +200,26 @@ class Fitted:
             ranked, phases = self.proposal_files
             what, which = (("label one on every frame next, to say where the clicked ones' phases begin", "each")
                            if self.proposal.clicked else ("label next", "every unlabelled recording"))
-            lines.append(f"{what} ({ranked}; the predicted phases of {which} in {phases}, --labels-unit frames, to "
-                         "correct):")
+            lines.append(f"{what} ({ranked}; the phases of {which} to correct in {phases}, from "
+                         f"{self.proposal.proposed.value}: {self.proposal.why}; `mlnseq review {self.path} -w "
+                         f"{ranked.parent}` shows them):")
             lines += [f"  {line}" for line in self.proposal.first(3)]
+        return lines
+
+    @property
+    def estimated_said(self) -> list[str]:
+        """Where the folds score against labels fit estimated (between clicks, by alignment): how many, and, where
+        only clicks label the training recordings, that the figures cannot be trusted yet."""
+        from mlnseq.labelling.estimates import counted
+
+        estimated = counted(self.collected.collected.frames, self.collected.collected.meta)
+        if not estimated.frames:
+            return []
+        lines = [f"  the folds score against {estimated.frames:,} labelled frames fit estimated ({estimated.said()}) "
+                 "beside those you gave: where the estimates are wrong, these figures read too high"]
+        if not estimated.exact_recordings and estimated.between_clicks:
+            lines.append("  only clicks label the training recordings: these figures cannot be trusted until one "
+                         "recording is labelled on every frame (label_next.csv ranks which)")
         return lines
 
     @property

@@ -89,10 +89,10 @@ def reachable_from(host: str) -> str | None:
     if _loopback(host):
         return None
     if host.strip("[]") in ("0.0.0.0", "::", ""):
-        names = sorted(own_names(host) - {"localhost", "127.0.0.1", "::1"})
-        return (f"every machine that can reach this one on any of its addresses ({', '.join(names[:4]) or host}), "
-                "not this machine alone")
-    return f"every machine that can reach {host}, not this machine alone"
+        names = sorted(own_names(host) - {"localhost", "127.0.0.1", "::1", "0.0.0.0", "::", ""})
+        shown = f" ({', '.join(names[:4])})" if names else ""
+        return f"any machine that can reach this one at any of its addresses{shown}"
+    return f"any machine that can reach {host}"
 
 
 def split_host(value: str) -> tuple[str, int | None]:

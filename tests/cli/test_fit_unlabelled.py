@@ -60,11 +60,17 @@ def test_recordings_without_labels_are_labelled_by_alignment_and_ranked(bags, tm
     assert f"label next ({tmp_path / 'mixed' / artifacts.LABEL_NEXT}" in said and f"1. {first['episode']}: " in said
     phases = pl.read_csv(tmp_path / "mixed" / artifacts.UNLABELLED_INTERVALS)
     assert set(phases["episode"]) == {"episode_1", "episode_4"} and phases.columns == ["episode", "start", "end",
-                                                                                        "label"]
-    fit(bags, "labelled", tmp_path / "labelled")
-    assert not (tmp_path / "labelled" / artifacts.LABEL_NEXT).exists()  # nothing unlabelled: nothing ranked
+                                                                                        "label", "unit"]
+    labelled = frames.filter(~pl.col("episode").is_in([0, 3]))
+    shortest = min(labelled.group_by("episode").agg(pl.col("label").rle().struct.field("len").min())["len"])
+    assert (phases["end"] - phases["start"] + 1).min() >= shortest  # no run shorter than a phase seen labelled
+    estimated = frames.filter(pl.col("episode").is_in([0, 3])).height
+    assert f"the folds score against {estimated:,} labelled frames fit estimated ({estimated:,} by alignment)" in said
     scored = CliRunner().invoke(app, ["eval", "-w", str(tmp_path / "mixed")])  # no test split to score
     assert scored.exit_code != 0 and "--holdout share keeps one" in scored.stderr
+    said = fit(bags, "labelled", tmp_path / "mixed")  # a refit with nothing unlabelled: nothing ranked, none left
+    assert not (tmp_path / "mixed" / artifacts.LABEL_NEXT).exists()
+    assert not (tmp_path / "mixed" / artifacts.UNLABELLED_INTERVALS).exists() and "estimated" not in said
 
 
 def test_one_labelled_recording_alone_is_not_cut_into_blocks_and_with_others_they_are_the_folds(bags, tmp_path):
@@ -96,12 +102,16 @@ def test_where_every_recording_is_clicked_the_clicked_ones_are_ranked_to_label_o
     ranked = pl.read_csv(tmp_path / "clicked" / artifacts.LABEL_NEXT)
     assert sorted(ranked["episode"]) == sorted(seeds) and ranked["rank"].to_list() == [1, 2, 3, 4]
     assert ranked["distance"].is_finite().all() and f"1. {ranked['episode'][0]}: " in said
+    assert ("only clicks label the training recordings: these figures cannot be trusted until one recording is "
+            "labelled on every frame") in said
+    assert "from the labels fit trained on (alignment's, or the clicks' fill)" in said
     frames = artifacts.read_table(tmp_path / "clicked" / artifacts.FRAMES, "frames")[0]
     phases = pl.read_csv(tmp_path / "clicked" / artifacts.UNLABELLED_INTERVALS)
     assert (phases["end"] - phases["start"] + 1).sum() == frames.height  # each one's predicted phases, to correct
     first = ranked["episode"][0]  # labelled on every frame instead (its proposal as it is), the others clicked
     clicked = [f"{e},,,{f},{c}" for e, f, c in pl.read_csv(tmp_path / "clicks.csv").iter_rows() if e != first]
-    labelled = [f"{e},{s},{t},,{c}" for e, s, t, c in phases.filter(pl.col("episode") == first).iter_rows()]
+    own = phases.filter(pl.col("episode") == first).drop("unit")
+    labelled = [f"{e},{s},{t},,{c}" for e, s, t, c in own.iter_rows()]
     (tmp_path / "mixed.csv").write_text("\n".join(["episode,start,end,frame,label", *clicked, *labelled]) + "\n")
     done = CliRunner().invoke(app, ["fit", "--env", "rosbag", "--source", str(bags / "labelled"), "--labels",
                                     str(tmp_path / "mixed.csv"), "--labels-unit", "frames", "--spec",

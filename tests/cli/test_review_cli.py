@@ -365,3 +365,45 @@ def test_save_lerobot_needs_a_lerobot_source_and_a_folder_outside_it(trials, ler
     source = lerobot_model["source"]
     assert "--save-lerobot" in refused(lerobot_model["model"], "--source", source, "--port", "0", "--save",
                                        tmp_path / "b.csv", "--save-lerobot", source / "copy")
+
+
+def test_another_host_is_said_and_the_same_port_serves_again_at_once_after_a_stop(trials, tmp_path):
+    """--host other than this machine's own says who else can open the page; after SIGTERM (with connections it
+    answered and closed), the same port serves again at once."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    args = (trials["model"], "--source", trials["csv"], "--save", tmp_path / "labels.csv")
+    with served(*args, port=port) as (url, printed):
+        assert url == f"http://127.0.0.1:{port}/"
+        for _ in range(3):
+            assert request(url, "GET", "/api/recordings", {})[0] == 200
+    assert not any("--host" in line for line in printed)  # this machine alone: nothing more to say
+    with served(*args, port=port) as (url, _):  # at once: no "Address already in use" for a minute
+        assert request(url, "GET", "/", {})[0] == 200
+    with served(*args, "--host", "0.0.0.0") as (url, printed):
+        assert request(url, "GET", "/", {})[0] == 200
+    said = " ".join(" ".join(printed).split())  # every line it printed, the one after the address too
+    assert "--host 0.0.0.0 listens beyond this machine: any machine that can reach this one at any of its" in said
+    assert "--host 127.0.0.1 keeps it to this machine" in said
+
+
+@pytest.mark.usefixtures("needs_browser")
+def test_a_save_refused_names_save_says_so_in_the_terminal_and_the_row_says_not_saved(trials, tmp_path):
+    folder = tmp_path / "labels"
+    folder.mkdir()
+    with served(trials["model"], "--source", trials["csv"], "--save", folder / "labels.csv") as (url, printed):
+        folder.rmdir()
+        folder.write_text("a file where the folder was: nothing can be written inside it\n")
+        with browser() as page:
+            opened(page, url)
+            show(page, TRIALS[0])
+            page.click("#save")
+            until(page, "document.getElementById('status').textContent.startsWith('not saved')")
+            status = page.inner_text("#status")
+            row = page.eval_on_selector(f"#recordings tr:has(td:text-is('{TRIALS[0]}'))",
+                                        "r => r.cells[5].textContent")
+            assert row == "not saved" and page.evaluate("window.review.saved") is None
+    assert f"--save {folder / 'labels.csv'}: not saved" in status and "start review again with --save" in status
+    said = [line for line in printed if "not saved" in line]
+    assert len(said) == 1 and said[0].startswith(f"review: {TRIALS[0]} not saved: --save {folder / 'labels.csv'}")
