@@ -56,8 +56,15 @@ class Proposal:
     intervals: pl.DataFrame  # episode, start, end, label, unit (frames): predict --intervals' form
     clicked: bool = False  # the recordings ranked were labelled by clicks (every one was), to label on every frame
     proposed: Proposed = Proposed.DECODING  # what the phases start from, where a recording has it
-    shortest: int = 1  # no run of the proposed phases is shorter (frames), but in a recording shorter than it
+    shortest: int = 1  # no run of the proposed phases is shorter (frames; half the shortest labelled phase)
     why: str = ""  # why ``proposed`` (``chosen``'s words)
+
+    @property
+    def starts_from(self) -> str:
+        """What the proposed phases start from, in words."""
+        if self.proposed is Proposed.DECODING:
+            return self.proposed.value
+        return "the clicks' fill fit trained on" if self.clicked else "alignment's labels fit trained on"
 
     def first(self, n: int = 3) -> list[str]:
         """The first ``n`` recordings to label, one line each."""
@@ -157,6 +164,13 @@ def shortest_phase(labelled: list[np.ndarray]) -> int:
     return min((int(runs_of(labels)[1].min()) for labels in labelled if len(labels)), default=1)
 
 
+def shortest_run(labelled: list[np.ndarray]) -> int:
+    """The shortest run a proposal keeps: half the shortest phase of the ``labelled`` recordings. A phase lasts
+    longer in one recording than in another (the generated arm's grasp: 66 to 89 frames): held to the whole
+    shortest, a proposal loses real phases; runs under half of it are flicker."""
+    return max(1, shortest_phase(labelled) // 2)
+
+
 def without_short_runs(classes: np.ndarray, shortest: int) -> np.ndarray:
     """``classes`` with every run shorter than ``shortest`` frames given to the longer run beside it, the shortest
     first (a recording shorter than ``shortest`` keeps one run)."""
@@ -176,8 +190,8 @@ def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_
     """The recordings of ``frames`` (frames.parquet) named in ``without_labels`` (given no labels: unlabelled, or
     labelled by alignment; or, ``clicked``, all of them, labelled by clicks) ranked against the labelled ones, with
     the phases proposed for each: ``proposed`` (the labels fit trained on, where a recording has them on every frame,
-    else the decoding of ``recognizer``, a model file fitted on the workdir), without a run shorter than the shortest
-    phase of the labelled recordings."""
+    else the decoding of ``recognizer``, a model file fitted on the workdir), without a run under half the shortest
+    phase of the labelled recordings (``shortest_run``)."""
     from mlnseq.sources import intervals
 
     names = artifacts.feature_columns(frames)
@@ -192,7 +206,7 @@ def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_
                 for (e,), part in rows.partition_by("episode", as_dict=True, maintain_order=True).items()]
 
     bare, known = by_episode(frames.filter(unlabelled)), by_episode(frames.filter(~unlabelled))
-    shortest = shortest_phase([y for _, _, y in (known or bare) if (y >= 0).all()])
+    shortest = shortest_run([y for _, _, y in (known or bare) if (y >= 0).all()])
     rows, segments = [], []
     for episode, features, labels in bare:
         found = measured(recognizer, features)

@@ -201,7 +201,7 @@ class Fitted:
             what, which = (("label one on every frame next, to say where the clicked ones' phases begin", "each")
                            if self.proposal.clicked else ("label next", "every unlabelled recording"))
             lines.append(f"{what} ({ranked}; the phases of {which} to correct in {phases}, from "
-                         f"{self.proposal.proposed.value}: {self.proposal.why}; `mlnseq review {self.path} -w "
+                         f"{self.proposal.starts_from}: {self.proposal.why}; `mlnseq review {self.path} -w "
                          f"{ranked.parent}` shows them):")
             lines += [f"  {line}" for line in self.proposal.first(3)]
         return lines

@@ -22,8 +22,8 @@ from mlnseq.sources.recording import clicked_episodes
 class Origin(enum.Enum):
     """Where the labels fit trained on for a recording came from (the value: how the page says it)."""
 
-    OWN = "its own labels"
-    FILE = "the labels file"
+    OWN = "its own"
+    FILE = "the labels file's"
     CLICKS = "estimated between your clicks"
     ALIGNED = "estimated by alignment"
 

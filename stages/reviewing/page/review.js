@@ -52,7 +52,7 @@ function table() {
   }
 }
 
-const ORIGINS = { "its own labels": "own", "the labels file": "file", "estimated between your clicks": "clicks",
+const ORIGINS = { "its own": "own", "the labels file's": "file", "estimated between your clicks": "clicks",
   "estimated by alignment": "aligned" };
 
 function labelsCell(r) {  // what the table says of a recording's labels
@@ -99,10 +99,10 @@ async function open(index) {
   const data = await getJSON(`/api/recording?index=${index}`);
   Object.assign(state, { index, data, undo: [], boundary: null, segment: null, frame: null, explained: null });
   state.edit = (data.saved || data.proposal || data.labels || data.phases).map((s) => s.slice());
-  const from = data.saved ? "saved" : data.proposal ? "proposed by the fit" : data.labels ?
-    (data.origin || "the recording's labels") : "the model's phases";
-  document.getElementById("labels-from").textContent = `labels to correct, from ${from}` +
-    (data.labels && !data.saved ? ` · fit trained on ${data.origin || "its labels"}` : "");
+  const from = data.saved ? "the saved labels" : data.proposal ? "fit's proposal" : data.labels ?
+    "the recording's labels" : "the model's phases";
+  document.getElementById("labels-from").textContent = `the labels band starts from ${from}` +
+    (data.origin ? ` · the labels fit trained on: ${data.origin}` : "");
   table();
   choices();
   draw();

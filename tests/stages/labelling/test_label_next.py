@@ -99,6 +99,7 @@ def test_proposed_phases_have_no_run_shorter_than_the_shortest_phase():
     assert np.mean(smoothed == classes) > 0.9
     assert label_next.without_short_runs(np.array([0, 1, 1]), 10).tolist() == [1, 1, 1]  # shorter than it: one run
     assert label_next.shortest_phase([np.array([0, 0, 1, 1, 1]), np.array([2] * 9)]) == 2
+    assert label_next.shortest_run([np.array([0] * 80 + [1] * 95)]) == 40  # half: phases last longer in one than another
 
 
 def test_the_labels_fit_trained_on_are_proposed_unless_the_decoding_cross_validates_better():
