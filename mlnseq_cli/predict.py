@@ -17,7 +17,7 @@ def scored(metrics: dict) -> str:
     """Which recordings the metrics score: every one, or the labelled ones of them."""
     if metrics["recordings"] == metrics["of"]:
         return "labelled recordings"
-    return f"the {metrics['recordings']} labelled recordings of {metrics['of']}"
+    return f"{counted(metrics['recordings'], 'labelled recording')} of {metrics['of']}"
 
 
 @read_as.reads_recordings

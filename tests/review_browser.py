@@ -6,6 +6,7 @@ tests/cli/test_review_cli.py and benchmarks/bench_review.py."""
 from __future__ import annotations
 
 import contextlib
+import http.client
 import os
 import re
 import shutil
@@ -43,7 +44,7 @@ def served(*args: str | Path, cwd: Path | None = None, stop: int = signal.SIGTER
     end, which must end it cleanly (exit 0, 'stopped' printed)."""
     command = [sys.executable, "-m", "mlnseq_cli.main", "review", *map(str, args), "--port", str(port)]
     process = subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    printed = []
+    printed, reader = [], None
     try:
         line = process.stdout.readline()
         printed.append(line)
@@ -59,7 +60,8 @@ def served(*args: str | Path, cwd: Path | None = None, stop: int = signal.SIGTER
         if process.poll() is None:
             process.send_signal(stop)
         process.wait(timeout=20)
-        reader.join(timeout=5)
+        if reader is not None:
+            reader.join(timeout=5)
         err = process.stderr.read()
     assert process.returncode == 0, f"review ended with {process.returncode}: {err}"
     assert printed[-1].startswith(f"review: stopped ({signal.Signals(stop).name})"), printed
@@ -105,3 +107,43 @@ def opened(page, url: str, timeout: float = 10.0) -> float:
     page.goto(url)
     until(page, "window.review && window.review.drawnMs !== null", timeout)
     return time.monotonic() - started
+
+
+def request(url: str, method: str, path: str, headers: dict[str, str], body: bytes = b"") -> tuple[int, str]:
+    """One raw request (the path sent as written, never normalised); (status, body)."""
+    host, port = url.split("//")[1].strip("/").split(":")
+    connection = http.client.HTTPConnection(host, int(port), timeout=10)
+    connection.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+    for name, value in {"Host": f"{host}:{port}", **headers}.items():
+        connection.putheader(name, value)
+    connection.endheaders(body or None)
+    reply = connection.getresponse()
+    return reply.status, reply.read().decode()
+
+
+def test_requests_from_elsewhere_outside_the_page_or_too_large_are_refused(trials, tmp_path):
+    saved = tmp_path / "labels.csv"
+    save = json.dumps({"index": 0, "segments": [[0, 106, "approach"]]}).encode()
+    as_json = {"Content-Type": "application/json", "Content-Length": str(len(save))}
+    with served(trials["model"], "--source", trials["csv"], "--save", saved) as (url, _):
+        own = url.rstrip("/")
+        assert request(url, "GET", "/", {})[0] == 200
+        assert request(url, "GET", "/api/recordings", {"Origin": own})[0] == 200
+        assert request(url, "GET", "/api/recordings", {"Origin": "http://evil.example"})[0] == 403
+        assert request(url, "GET", "/", {"Host": "evil.example:80"})[0] == 403  # a rebound DNS name
+        assert request(url, "POST", "/api/save", {**as_json, "Origin": "http://evil.example"}, save)[0] == 403
+        for outside in ("/../pyproject.toml", "/%2e%2e/%2e%2e/pyproject.toml", "/review.js/../../review.py",
+                        "/stages/review.py", "/mln.mlnseq", "//etc/passwd", "/api/../../etc/passwd"):
+            status, body = request(url, "GET", outside, {})
+            assert status == 404 and "[tool" not in body and "root:" not in body, outside
+        status, body = request(url, "POST", "/api/save", {"Content-Type": "application/json",
+                                                          "Content-Length": str(8 << 20)})
+        assert status == 413 and "at most" in body  # refused before a byte of it is read
+        assert request(url, "POST", "/api/save", {**as_json, "Content-Type": "text/plain"}, save)[0] == 415
+        bad = json.dumps({"index": 0, "segments": [[0, 50, "approach"]]}).encode()
+        status, body = request(url, "POST", "/api/save", {**as_json, "Content-Length": str(len(bad))}, bad)
+        assert status == 400 and "cover" in body
+        assert request(url, "GET", "/api/explain?index=7&frame=1", {})[0] == 400
+        assert not saved.exists()
+        assert request(url, "POST", "/api/save", as_json, save)[0] == 200
+    assert pl.read_csv(saved).rows() == [(TRIALS[0], 0, 106, "approach", "frames")]

@@ -110,14 +110,40 @@ def test_where_every_recording_is_clicked_the_clicked_ones_are_ranked_to_label_o
     frames = artifacts.read_table(tmp_path / "clicked" / artifacts.FRAMES, "frames")[0]
     phases = pl.read_csv(tmp_path / "clicked" / artifacts.UNLABELLED_INTERVALS)
     assert (phases["end"] - phases["start"] + 1).sum() == frames.height  # each one's predicted phases, to correct
-    first = ranked["episode"][0]  # labelled on every frame instead (its proposal as it is), the others clicked
-    clicked = [f"{e},,,{f},{c}" for e, f, c in pl.read_csv(tmp_path / "clicks.csv").iter_rows() if e != first]
-    own = phases.filter(pl.col("episode") == first).drop("unit")
-    labelled = [f"{e},{s},{t},,{c}" for e, s, t, c in own.iter_rows()]
-    (tmp_path / "mixed.csv").write_text("\n".join(["episode,start,end,frame,label", *clicked, *labelled]) + "\n")
+    first = ranked["episode"][0]  # labelled on every frame in `mlnseq review -w` (its proposal saved as it is)
+    truth = np.asarray(arm_bags.PHASES)[arm_bags.episode_signals(arm_bags.ROBOTS["panda"], seeds[first])["phase"]]
+    saved = reviewed_and_saved(tmp_path, "clicked", first)
+    table = pl.read_csv(saved)  # the fit's clicks carried, and the saved recording's intervals, each with its unit
+    assert set(table.filter(pl.col("frame").is_not_null())["episode"]) == set(seeds) - {first}
+    assert table.filter(pl.col("episode") == first)["unit"].unique().to_list() == ["seconds"]  # a bag's unit
     done = CliRunner().invoke(app, ["fit", "--env", "rosbag", "--source", str(bags / "labelled"), "--labels",
-                                    str(tmp_path / "mixed.csv"), "--labels-unit", "frames", "--spec",
-                                    str(bags / "hand.toml"), "--epochs", "3", "-w", str(tmp_path / "one-labelled")])
+                                    str(saved), "--spec", str(bags / "hand.toml"), "--epochs", "3",
+                                    "-w", str(tmp_path / "clicked")])  # the same workdir, no --labels-unit
     assert done.exit_code == 0, done.output
-    assert "aligned in time to the 1 training recording labelled on every frame" in " ".join(done.output.split())
-    assert not (tmp_path / "one-labelled" / artifacts.LABEL_NEXT).exists()  # nothing left to rank
+    said = " ".join(done.output.split())
+    assert "aligned in time to the 1 training recording labelled on every frame" in said
+    assert not (tmp_path / "clicked" / artifacts.LABEL_NEXT).exists()  # nothing left to rank, nothing stale
+    assert "cannot be trusted" not in said and "fit estimated (" in said  # the clicked ones' fill still estimated
+    frames, meta = artifacts.read_table(tmp_path / "clicked" / artifacts.FRAMES, "frames")
+    mine = frames.filter(pl.col("episode") == meta["episode_names"].index(first))["label"].to_numpy()
+    assert np.mean(np.asarray(meta["classes"])[mine] == truth) > 0.9  # the clicks' fill, as saved in the page
+
+
+def reviewed_and_saved(root: Path, workdir: str, episode: str) -> Path:
+    """`mlnseq review MODEL -w WORKDIR` served, ``episode`` saved with the band the page starts it with (fit's
+    proposal), as a user who accepts it presses Ctrl+S; the labels file it saved (WORKDIR.labels.csv)."""
+    import json
+
+    from review_browser import request, served
+
+    with served(root / workdir / "model.mlnseq", "-w", workdir, cwd=root) as (url, printed):
+        rows = json.loads(request(url, "GET", "/api/recordings", {})[1])["recordings"]
+        index = next(r["index"] for r in rows if r["id"] == episode)
+        view = json.loads(request(url, "GET", f"/api/recording?index={index}", {})[1])
+        assert rows[0]["id"] == episode and rows[0]["origin"] == "estimated between your clicks"
+        body = json.dumps({"index": index, "segments": [[a, b, view["classes"][k]] for a, b, k in view["proposal"]]})
+        status, answer = request(url, "POST", "/api/save", {"Content-Type": "application/json",
+                                                            "Content-Length": str(len(body))}, body.encode())
+        assert status == 200, answer
+    assert any(line.startswith(f"review: saved {episode} ") for line in printed)
+    return root / f"{workdir}.labels.csv"

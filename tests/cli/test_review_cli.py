@@ -7,7 +7,6 @@ are refused; bad input is one line."""
 
 from __future__ import annotations
 
-import http.client
 import json
 import os
 import signal
@@ -22,7 +21,7 @@ import pytest
 
 import review_browser
 from mlnseq.catalog import artifacts
-from review_browser import browser, opened, served, until
+from review_browser import browser, opened, request, served, until
 
 pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[2]
@@ -179,46 +178,6 @@ def test_a_click_shows_the_terms_explain_json_prints_for_that_frame(trials, tmp_
     assert held == len(holding) > 0  # the formulas that hold there, highlighted
 
 
-def request(url: str, method: str, path: str, headers: dict[str, str], body: bytes = b"") -> tuple[int, str]:
-    """One raw request (the path sent as written, never normalised); (status, body)."""
-    host, port = url.split("//")[1].strip("/").split(":")
-    connection = http.client.HTTPConnection(host, int(port), timeout=10)
-    connection.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
-    for name, value in {"Host": f"{host}:{port}", **headers}.items():
-        connection.putheader(name, value)
-    connection.endheaders(body or None)
-    reply = connection.getresponse()
-    return reply.status, reply.read().decode()
-
-
-def test_requests_from_elsewhere_outside_the_page_or_too_large_are_refused(trials, tmp_path):
-    saved = tmp_path / "labels.csv"
-    save = json.dumps({"index": 0, "segments": [[0, 106, "approach"]]}).encode()
-    as_json = {"Content-Type": "application/json", "Content-Length": str(len(save))}
-    with served(trials["model"], "--source", trials["csv"], "--save", saved) as (url, _):
-        own = url.rstrip("/")
-        assert request(url, "GET", "/", {})[0] == 200
-        assert request(url, "GET", "/api/recordings", {"Origin": own})[0] == 200
-        assert request(url, "GET", "/api/recordings", {"Origin": "http://evil.example"})[0] == 403
-        assert request(url, "GET", "/", {"Host": "evil.example:80"})[0] == 403  # a rebound DNS name
-        assert request(url, "POST", "/api/save", {**as_json, "Origin": "http://evil.example"}, save)[0] == 403
-        for outside in ("/../pyproject.toml", "/%2e%2e/%2e%2e/pyproject.toml", "/review.js/../../review.py",
-                        "/stages/review.py", "/mln.mlnseq", "//etc/passwd", "/api/../../etc/passwd"):
-            status, body = request(url, "GET", outside, {})
-            assert status == 404 and "[tool" not in body and "root:" not in body, outside
-        status, body = request(url, "POST", "/api/save", {"Content-Type": "application/json",
-                                                          "Content-Length": str(8 << 20)})
-        assert status == 413 and "at most" in body  # refused before a byte of it is read
-        assert request(url, "POST", "/api/save", {**as_json, "Content-Type": "text/plain"}, save)[0] == 415
-        bad = json.dumps({"index": 0, "segments": [[0, 50, "approach"]]}).encode()
-        status, body = request(url, "POST", "/api/save", {**as_json, "Content-Length": str(len(bad))}, bad)
-        assert status == 400 and "cover" in body
-        assert request(url, "GET", "/api/explain?index=7&frame=1", {})[0] == 400
-        assert not saved.exists()
-        assert request(url, "POST", "/api/save", as_json, save)[0] == 200
-    assert pl.read_csv(saved).rows() == [(TRIALS[0], 0, 106, "approach", "frames")]
-
-
 def refused(*args: str | Path) -> str:
     """`mlnseq review ARGS`'s one line on stderr (it must end with exit 2, before serving)."""
     done = mlnseq("review", *args)
@@ -248,16 +207,26 @@ def test_bad_input_is_one_line(trials, tmp_path):
 
 def test_a_fits_workdir_is_reviewed_in_the_order_its_label_next_csv_ranks(trials, tmp_path):
     workdir = tmp_path / "work"
+    given = tmp_path / "given.csv"  # trial 9 from a labels file, the others by their own phase column
+    given.write_text("\n".join(["episode,start,end,label", *(f"9,{a},{b},{CLASSES[k]}" for a, b, k in phase_runs(
+        trials["csv"], 9))]) + "\n")
     done = mlnseq("collect", "--env", "table", "--source", trials["csv"], "--episode-column", "trial",
-                  "--time-column", "t", "--label-column", "phase", "-w", workdir)
+                  "--time-column", "t", "--label-column", "phase", "--labels", given, "-w", workdir)
     assert done.returncode == 0, done.stderr
     (workdir / "label_next.csv").write_text("episode,rank,reason\n11,1,the glitch\n9,2,unsure at the grasp\n")
+    last = phase_runs(trials["csv"], 11)[-1][1]
+    (workdir / "unlabelled.intervals.csv").write_text(f"episode,start,end,label,unit\n11,0,9,grasp,frames\n"
+                                                      f"11,10,{last},lift,frames\n")
     with served(trials["model"], "-w", workdir, cwd=tmp_path) as (url, printed):
         assert f"saves go to {tmp_path / 'work.labels.csv'}" in printed[0]
         status, body = request(url, "GET", "/api/recordings", {})
+        view = json.loads(request(url, "GET", "/api/recording?index=2", {})[1])
     rows = json.loads(body)["recordings"]
     assert status == 200 and [(r["id"], r["rank"]) for r in rows] == [("11", 1), ("9", 2), ("10", 3)]
     assert rows[0]["reason"] == "the glitch" and rows[2]["labelled"]
+    assert [r["origin"] for r in rows] == ["its own", "the labels file's", "its own"]  # as fit would train on them
+    assert view["id"] == "11" and view["proposal"] == [[0, 9, 1], [10, last, 2]]  # the band's start, to correct
+    assert view["labels"] == phase_runs(trials["csv"], 11)
 
 
 def click_band(page, frame: int) -> None:

@@ -117,6 +117,8 @@ def test_one_labelled_recording_the_first_ranked_corrected_in_the_page_then_fit_
     assert "5 recordings without labels labelled by aligning each to the 1 labelled training recording" in said
     assert "the folds score against" in said and "by alignment) beside those you gave" in said
     before = held_out(tmp_path / "work" / "model.mlnseq", tmp_path, "before")
+    said = mlnseq("predict", tmp_path / "work" / "model.mlnseq", "--source", "bags", "-o", "mixed.parquet", cwd=tmp_path)
+    assert "1 labelled recording of 6: segment recognised" in said  # fit's own mixed folder, read as fit read it
     ranked = pl.read_csv(tmp_path / "work" / artifacts.LABEL_NEXT)["episode"].to_list()
     top = ranked[0]
     truth = truth_runs(SEED + int(top.split("_")[1]) - 1)

@@ -112,3 +112,22 @@ def test_the_hosts_a_server_answers_to():
     assert split_host("[::1]:80") == ("::1", 80)
     assert split_host("evil.example") == ("evil.example", None)
     assert split_host("a:b") == ("a", -1)
+
+
+def test_a_fits_labels_file_is_carried_into_the_saves_clicks_and_intervals_each_with_its_unit(tmp_path):
+    """review -w of a fit given --labels: the saved file starts with that file's rows (clicks too), so that `fit
+    --labels SAVED` has every label the fit had, plus the saves; each row says its unit."""
+    given = tmp_path / "given.csv"
+    given.write_text("episode,start,end,frame,label\na,,,3,reach\na,,,12,grasp\nb,0,4,,reach\nb,5,9,,lift\n")
+    carried = intervals.read(given)
+    labels = corrections.LabelsFile(tmp_path / "saved.csv", "frames", carried)
+    assert labels.episodes == set() and labels.saved("a", np.arange(20), CLASSES) is None  # nothing saved yet
+    labels.put("c", np.arange(10) * 0.1, ["reach"] * 4 + ["lift"] * 6)
+    labels.write()
+    back = intervals.read(tmp_path / "saved.csv")
+    assert list(back) == ["a", "b", "c"] and [i.click for i in back["a"]] == [True, True]
+    assert [(i.start, i.end, i.label, i.unit) for i in back["b"]] == [(0, 4, "reach", "frames"), (5, 9, "lift", "frames")]
+    assert [(i.start, i.end, i.label) for i in back["c"]] == [(0, 3, "reach"), (4, 9, "lift")]
+    assert {i.unit for found in back.values() for i in found} == {"frames"}
+    again = corrections.LabelsFile(tmp_path / "saved.csv", "frames", carried)  # the file exists: read, not carried
+    assert again.episodes == {"b", "c"} and again.saved("a", np.arange(20), CLASSES) is None  # clicks: not whole
