@@ -57,7 +57,7 @@ class Workdir:
         names labels itself."""
         if self.labels_file is None or "labels" in given or "annotations" in given:
             return given
-        return {**given, "labels": self.labels_file, "labels_unit": self.labels_unit}  # fit's, None too: not the model's
+        return {**given, "labels": self.labels_file, "labels_unit": self.labels_unit}  # fit's (None too)
 
     def proposal(self, episode: str, frames: int, classes: list[str]) -> np.ndarray | None:
         """The phases fit proposes for ``episode`` to correct, as class indices per frame; None without any."""

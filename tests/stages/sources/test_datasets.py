@@ -59,6 +59,12 @@ def with_ids(labels: Path, ids: list[str], tmp_path: Path) -> Path:
     return path
 
 
+def named(labels: Path) -> TableColumns:
+    """--classes naming the file's classes (sorted, as read without): S6 labels one episode alone, a phase of its own,
+    which a labels file names in --classes (else it is refused as a typo)."""
+    return TableColumns(classes=tuple(sorted(set(pl.read_csv(labels)["label"]))))
+
+
 def expected(desk, tmp_path, names: list[str], values) -> pl.DataFrame:
     """The same frames through the table reader: a CSV with a label column."""
     table = pl.concat([pl.DataFrame({"episode": [index] * len(part), "t": np.arange(len(part)) / FPS,
@@ -118,7 +124,7 @@ def write_lerobot(root: Path, desk: np.ndarray, version: str) -> Path:
 @pytest.mark.parametrize("version", ["v2.0", "v2.1", "v3.0"])
 def test_a_lerobot_dataset_gives_the_frames_of_the_same_csv(desk, labels, tmp_path, version):
     root = write_lerobot(tmp_path / "dataset", desk, version)
-    found, meta = collect_frames(sources.read("lerobot", root, TableColumns(), SourceOptions(
+    found, meta = collect_frames(sources.read("lerobot", root, named(labels), SourceOptions(
         labels=with_ids(labels, ["0", "1"], tmp_path))))
     names = [f"observation.state/{n}" for n in LEFT] + [f"action/{k}" for k in range(7)]
     assert meta["features"] == names
@@ -150,7 +156,7 @@ def write_robomimic(path: Path, desk: np.ndarray) -> Path:
 def test_an_hdf5_file_gives_the_frames_of_the_same_csv(desk, labels, tmp_path):
     pytest.importorskip("h5py", reason="the [recordings] extra is not installed")
     source = write_robomimic(tmp_path / "demos.hdf5", desk)
-    found, meta = collect_frames(sources.read("hdf5", source, TableColumns(), SourceOptions(
+    found, meta = collect_frames(sources.read("hdf5", source, named(labels), SourceOptions(
         labels=with_ids(labels, ["demo_0", "demo_1"], tmp_path))))
     names = ["obs/eef_pos/0", "obs/eef_pos/1", "obs/eef_pos/2", "obs/gripper", *(f"actions/{k}" for k in range(7))]
     assert meta["features"] == names  # the image left out
