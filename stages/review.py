@@ -83,8 +83,8 @@ def _as_fit_trained(workdir: fitted.Workdir, name: str, labels: np.ndarray,
     """A recording's labels as its fit trained on them, and where they came from (as read where the workdir's frames
     of it are not these: the recordings changed since)."""
     given = workdir.labels.get(name)
-    if given is None or len(given.names) != len(labels):
-        return np.full(len(labels), -1, dtype=np.int64) if given is None else labels, None
+    if given is None or len(given.names) != len(labels):  # none fit trained on, or not these frames: as read
+        return labels, None
     return np.array([-1 if k is None else classes.index(k) for k in given.names], dtype=np.int64), given.origin.value
 
 
