@@ -30,12 +30,12 @@ class Alert:
     reason: Reason
 
     def record(self, profile: Profile) -> dict[str, Any]:
-        """The alert as a JSON object: the reason in words, its phase, kind, severity, since which frame, and why
-        (its measure against its check's allowance)."""
+        """The alert as a JSON object: the reason in words, its phase, kind, severity, since which frame of the
+        recording, and why (its measure against its check's allowance)."""
         reason = self.reason
         check = reason.kind.check
         unit = {Check.ORDER: "flicker lengths", Check.DURATION: "spreads", Check.RULE: "s", Check.CHAIN: "s"}[check]
-        return {"alert": reason.text, "frame": self.frame, "phase": profile.classes[reason.phase],
+        return {"alert": reason.text, "phase": profile.classes[reason.phase],
                 "kind": reason.kind.value, "severity": round(reason.severity, 3), "since": reason.start,
                 "why": {"check": check.value, "measure": round(reason.measure, 4),
                         "allowance": round(scoring.allowance(profile, check), 4), "unit": unit}}
@@ -279,3 +279,37 @@ class Monitored:
             if alert is not None:
                 self.pending.append(alert)
             self.previous = label
+
+
+def monitored(recognizer: Any, where: Any) -> Monitored:
+    """``recognizer`` watched by the audit profile its model file holds; a model without one is one line."""
+    from mlnseq.catalog.errors import BadInput
+
+    if recognizer.audit is None:
+        raise BadInput(f"{where} holds no audit profile (exported before `mlnseq audit`): export it again with "
+                       "`mlnseq export` (or `mlnseq fit`) to monitor with it")
+    profile = Profile.read(recognizer.audit, where)
+    if not profile.matches(recognizer.classes, getattr(recognizer, "columns", [])):
+        raise BadInput(f"{where}: its audit profile describes other classes or predicates than its model: export it "
+                       "again with `mlnseq export`")
+    return Monitored(recognizer, profile)
+
+
+def alert_line(alert: Alert, profile: Profile, where: dict[str, Any]) -> str:
+    """An alert as the JSON line live commands write: the reason in words, then ``where`` (the episode, frame and
+    time of the frame answered with it: when it was raised), then the rest of the alert."""
+    import json
+
+    record = alert.record(profile)
+    return json.dumps({"alert": record.pop("alert"), **where, **record})
+
+
+def alert_lines(model: Any, frames: list[Any]) -> list[str]:
+    """A watched model's alerts as JSON lines, each with the episode, time and stamp of the last of the live frames
+    (recognition/live.py's) published with it."""
+    raised = model.alerts()
+    if not raised:
+        return []
+    where = {} if not frames else {k: v for k, v in frames[-1].record(model.classes).items()
+                                   if k in ("episode", "frame", "time", "stamp")}
+    return [alert_line(alert, model.profile, where) for alert in raised]

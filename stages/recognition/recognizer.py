@@ -82,6 +82,7 @@ class Recognizer:
         self.network_weight = 1.0 if weight is None else float(weight)
         self._feature_index = {name: i for i, name in enumerate(self.features)}
         self.network = model.network
+        self.audit = model.audit  # the audit profile's JSON, or None (a model exported before `mlnseq audit`)
         self.prior = None if self.manifest.network is None else self.manifest.network.prior  # PriorLayer's input
         self.spec: PredicateSpec | None = None
         self.weights: pl.DataFrame | None = None

@@ -192,7 +192,7 @@ def test_a_missing_member_is_refused(exported, tmp_path, member, needle):
 
 def test_extra_members_are_refused(exported, tmp_path):
     entries = members(exported["combined"])
-    refused(write(tmp_path / "five.mlnseq", entries | {"notes.txt": b"hello"}), "declares 5 members; a model file holds at most 4")
+    refused(write(tmp_path / "six.mlnseq", entries | {"notes.txt": b"hello"}), "declares 6 members; a model file holds at most 5")
     lstm = members(exported["lstm"])
     refused(write(tmp_path / "unknown.mlnseq", lstm | {"evil.py": b"import os"}), "'evil.py', which is not a model file's member")
     refused(write(tmp_path / "undeclared.mlnseq", lstm | {WEIGHTS: entries[WEIGHTS]}),
