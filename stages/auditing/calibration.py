@@ -17,7 +17,7 @@ import numpy as np
 from mlnseq.auditing import chains, scoring
 from mlnseq.auditing.profile import Calibration, Profile, calibrated_as, learn
 from mlnseq.auditing.scoring import Check
-from mlnseq.catalog.methods import needs_mln, network_of
+from mlnseq.catalog.methods import Method, needs_mln, network_of
 from mlnseq.catalog.parts import Part
 from mlnseq.choosing.latency import rate_of
 from mlnseq.choosing.workdir_inputs import WorkdirInputs, read_workdir
@@ -37,8 +37,8 @@ def predicate_columns(recognizer: Any) -> list[tuple[str, str]]:
 
 def calibrated(workdir: Path, recognizer: Any) -> Profile:
     """The audit profile of the model ``recognizer`` (a Recognizer) exported from ``workdir``."""
-    network = network_of(recognizer.method)
-    inputs = read_workdir(Path(workdir), [str(network)] if network is not None else [])
+    network = network_of(recognizer.method) or Method.NETWORK  # the MLN alone: the folds come with the networks'
+    inputs = read_workdir(Path(workdir), [str(network)])
     data = inputs.data
     train = (data.splits == Part.TRAIN) & (data.labels >= 0)
     evidence = None

@@ -267,7 +267,7 @@ def rule_reasons(profile: Profile, segments: list[Segment], path: np.ndarray, ev
             start, length = longest_run(own & (evidence[inner, rule.column] != rule.holds))
             severity = length / profile.rate
             predicate = profile.columns[rule.column][0]
-            if severity < SHOWN * Check.RULE.least or (predicate in worst and worst[predicate].severity >= severity):
+            if severity < SHOWN * Check.RULE.least or (predicate in worst and worst[predicate].measure >= severity):
                 continue
             at = inner.start + start
             worst[predicate] = Reason(Kind.RULE, segment.phase, at, at + length, severity,
