@@ -72,7 +72,7 @@ class AuditOptions:
 
 
 @dataclass(frozen=True)
-class Audited:
+class Verdicts:
     path: Path
     table: pl.DataFrame
     profile: Profile
@@ -101,7 +101,7 @@ def audit(model: Recognizer, profile: Profile, frames: Frames, explain: int = 0)
     return verdicts.table(profile, recordings, terms)
 
 
-def run(options: AuditOptions) -> Audited:
+def run(options: AuditOptions) -> Verdicts:
     """Read the model and the recordings, audit them, write the verdicts (and the LeRobot copy): each to a temporary
     file or folder beside it, renamed at the end, or none."""
     options.validate()
@@ -125,7 +125,7 @@ def run(options: AuditOptions) -> Audited:
 
             folder = staged.enter_context(folders.atomic_folder(Path(options.write_lerobot)))
             lerobot_episodes.write(folder, Path(options.source), lerobot_columns(table))
-    return Audited(path, table, profile, tuple(notes), options.write_lerobot)
+    return Verdicts(path, table, profile, tuple(notes), options.write_lerobot)
 
 
 def lerobot_columns(table: pl.DataFrame) -> dict[str, dict[int, Any]]:

@@ -16,8 +16,9 @@ And two clean ones that are slower than any labelled recording (``slow``: every 
 ``hesitant``: a stop of 0.4 to 1 s before each move), which a curator keeps. The labels are the phases a person
 would mark (the /phase topic): a repeated grasp is grasp again, an aborted transport ends in a place.
 
-Run as a script: ``python tests/arm_failures.py FOLDER [ROBOT] [SEED] [PER_KIND]`` writes PER_KIND bags of each kind
-(default 2) into FOLDER, without /phase, named KIND_N.
+Run as a script: ``python tests/arm_failures.py FOLDER [ROBOT] [SEED] [PER_KIND]`` writes PER_KIND bags of each failed
+kind and as many clean ones (default 1; seeds SEED*1000+500 on, after arm_bags' own) into FOLDER, without /phase,
+named KIND_SEED.
 """
 
 from __future__ import annotations
@@ -285,5 +286,5 @@ if __name__ == "__main__":
     out = Path(sys.argv[1])
     arm = sys.argv[2] if len(sys.argv) > 2 else "panda"
     first = int(sys.argv[3]) if len(sys.argv) > 3 else 0
-    per_kind = int(sys.argv[4]) if len(sys.argv) > 4 else 2
-    write_bags(out, arm, FAILED, [first * 1000 + 500 + k for k in range(per_kind)])
+    per_kind = int(sys.argv[4]) if len(sys.argv) > 4 else 1
+    write_bags(out, arm, ("clean", *FAILED), [first * 1000 + 500 + k for k in range(per_kind)])
