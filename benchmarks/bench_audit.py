@@ -1,7 +1,7 @@
 """`mlnseq audit` measured: which recordings went wrong, found among clean ones, against the signals a user has today,
 side by side on the same recordings: the episode's length (its distance from the labelled recordings' median, and
 "overly short"), the model's mean confidence (1 - its mean top probability, as predict decodes), and the phase-order
-rule (predict's phases, runs of one class, differ from the labelled order). Per dataset: AUROC (failed against
+rule (predict's phases, runs of one class of at least 0.5 s, differ from the labelled orders). Per dataset: AUROC (failed against
 clean), the share of failed recordings among the top k (k = the number failed), clean recordings suspect, slow and
 hesitant clean ones suspect, each failed one's first reason in the phase where it went wrong, and `stream
 --monitor` alerting on each failed one before it ends and on no clean one.
@@ -43,6 +43,7 @@ DEV_KINDS = ("drop", "miss", "pause")
 HELD_KINDS = ("regrasp", "abort", "open", "repeat", "reach")
 ARMS = {"dev": ("panda", 0), "panda": ("panda", 101), "iiwa": ("iiwa", 103), "xarm7": ("xarm7", 107)}
 METHODS = ("audit", "length", "short", "confidence", "order")
+ORDER_RUN_S = 0.5  # the phase-order rule leaves out runs shorter than this (the decoder's flicker)
 TARGETS = {"auroc": 0.97, "top_k": 0.90, "clean": 1 / 30}
 
 
@@ -127,27 +128,38 @@ def signals(model: Path, data: Recordings, root: Path) -> tuple[dict[str, dict[s
     mlnseq("predict", model, *data.reading, "-o", root / "predictions.parquet", "--force")
     predicted = pl.read_parquet(root / "predictions.parquet")
     probabilities = [c for c in predicted.columns if c.startswith("p_")]
-    orders = labelled_orders(model)
+    orders, rate = labelled_orders(model)
     scores = {m: {} for m in METHODS}
     for (name,), part in predicted.group_by("episode", maintain_order=True):
         name = str(name)
-        classes = part["class"].to_list()
-        runs = [c for k, c in enumerate(classes) if k == 0 or c != classes[k - 1]]
+        runs = phases(part["class"].to_list(), int(ORDER_RUN_S * rate))
         scores["audit"][name] = audit[name]["score"]
         scores["length"][name] = abs(part.height - data.median)
         scores["short"][name] = -part.height
         scores["confidence"][name] = 1 - float(np.mean(part.select(probabilities).to_numpy().max(axis=1)))
-        scores["order"][name] = float(tuple(runs) not in orders)
+        scores["order"][name] = float(runs not in orders)
     return scores, audit
 
 
-def labelled_orders(model: Path) -> set[tuple[str, ...]]:
-    """The labelled recordings' orders of phases, as the model's audit profile holds them."""
+def labelled_orders(model: Path) -> tuple[set[tuple[str, ...]], float]:
+    """The labelled recordings' orders of phases, as the model's audit profile holds them, and their rate."""
     from mlnseq.auditing.profile import Profile
     from mlnseq.model import model_file
 
     profile = Profile.read(model_file.read_model(model)["audit.json"], model)
-    return {tuple(profile.classes[k] for k in order) for order in profile.orders}
+    return {tuple(profile.classes[k] for k in order) for order in profile.orders}, profile.rate
+
+
+def phases(classes: list[str], shortest: int) -> tuple[str, ...]:
+    """The phase-order rule's phases: runs of one class, those shorter than ``shortest`` frames left out."""
+    runs: list[list] = []
+    for name in classes:
+        if runs and runs[-1][0] == name:
+            runs[-1][1] += 1
+        else:
+            runs.append([name, 1])
+    kept = [name for name, frames in runs if frames >= shortest]
+    return tuple(name for k, name in enumerate(kept) if k == 0 or name != kept[k - 1])
 
 
 def live(model: Path, data: Recordings, root: Path) -> dict[str, bool | None]:
