@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mlnseq.auditing import chains, scoring
-from mlnseq.auditing.profile import Calibration, Profile, calibrated_as, learn
+from mlnseq.auditing.profile import Calibration, Profile, boundary_error, calibrated_as, learn
 from mlnseq.auditing.scoring import Check
 from mlnseq.catalog.methods import Method, needs_mln, network_of
 from mlnseq.catalog.parts import Part
@@ -51,6 +51,7 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
     path, factors = found if found is not None else in_sample(recognizer, data.features, data.episodes)
     parts = [(span, path[span], None if factors is None else factors.get(span.start)) for span in episodes]
     lows = [None if f is None else _lowest(rate or 1.0, chains.step_likelihood(f, p)) for _, p, f in parts]
+    errors = [boundary_error(data.labels[span], own) for span, own, _ in parts]
     measures = []
     for k, (span, own, chained) in enumerate(parts):
         others = np.zeros(len(data.labels), dtype=bool)
@@ -60,14 +61,20 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
             continue
         held = learn(data.labels[others], data.episodes[others], None if evidence is None else evidence[others],
                      recognizer.classes, columns, rate)
-        held = calibrated_as(held, {}, _floor([low for j, low in enumerate(lows) if j != k]), Calibration())
+        held = calibrated_as(held, {}, _floor([low for j, low in enumerate(lows) if j != k]), Calibration(),
+                             _rms([e for j, own in enumerate(errors) if j != k for e in own], rate))
         measures.append(_measured(held, own, None if evidence is None else evidence[span], chained))
     profile = learn(data.labels[train], data.episodes[train], None if evidence is None else evidence[train],
                     recognizer.classes, columns, rate)
     highest = {check.value: max((m.get(check.value, 0.0) for m in measures), default=0.0) for check in Check}
     flagged = sum(_flagged(m, [o for o in measures if o is not m]) for m in measures)
-    return calibrated_as(profile, _allowances(measures), _floor(lows),
-                         Calibration(len(measures), flagged, highest, how))
+    return calibrated_as(profile, _allowances(measures), _floor(lows), Calibration(len(measures), flagged, highest, how),
+                         _rms([e for own in errors for e in own], rate))
+
+
+def _rms(frames: list[float], rate: float | None) -> float:
+    """The root mean square of boundary errors (frames), in seconds (frames where the rate is unknown)."""
+    return float(np.sqrt(np.mean(np.square(frames)))) / (rate or 1.0) if frames else 0.0
 
 
 def _measured(profile: Profile, path: np.ndarray, evidence: np.ndarray | None,

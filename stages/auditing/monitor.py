@@ -19,7 +19,7 @@ from mlnseq.auditing.profile import EDGE, Profile, tempo
 from mlnseq.auditing.scoring import Check, Kind, Reason, Segment
 
 UNKNOWN_PACE = math.log(2.0)  # until two phases are done, a recording may be this much slower than labelled ones
-LAG_S = 1.0  # seconds the monitor's own decoder waits before it decides a frame (lagged Viterbi)
+LAG_S = 0.5  # seconds the monitor's own decoder waits before it decides a frame (lagged Viterbi)
 
 
 @dataclass(frozen=True)
@@ -134,9 +134,8 @@ class Monitor:
         self.run_settled = True
         if self.segments:
             previous = self.segments[-1]
-            self.segments[-1] = Segment(previous.phase, previous.start, self.run_start)
-            if len(self.segments) > 1:
-                reasons += _short(profile, self.segments[-1], pace)
+            ended = self.segments[-1] = Segment(previous.phase, previous.start, self.run_start)
+            reasons += self._ended(ended, Segment(phase, self.run_start, self.t + 1), pace)
         start = self.run_start if self.segments else 0
         self.segments.append(Segment(phase, start, self.t + 1))
         self.out_of_order = None
@@ -148,6 +147,21 @@ class Monitor:
                         if r.kind is Kind.MISSING]
         self.seen.update(s.phase for s in self.segments[:-1])
         return reasons
+
+    def _ended(self, ended: Segment, after: Segment, pace: float) -> list[Reason]:
+        """A segment that just ended, judged whole: longer than labelled ones at the pace of the phases done (itself
+        among them), or too short (not the first; one of flicker's length only where it goes on in a labelled
+        order)."""
+        done = [(s.phase, s.frames / self.profile.rate) for s in self.segments]
+        whole = tempo(done, self.profile.log_seconds)
+        whole = whole if len(done) >= 2 else max(whole, UNKNOWN_PACE)
+        spreads, at = scoring.duration_spreads(self.profile, ended.phase, ended.frames, whole)
+        if spreads > 0:
+            return [scoring.duration_reason(self.profile, ended, spreads, at)]
+        if len(self.segments) > 1 and spreads < 0 and scoring.judged_short(self.profile, ended, after, pace):
+            spreads, at = scoring.duration_spreads(self.profile, ended.phase, ended.frames, pace)
+            return [scoring.duration_reason(self.profile, ended, spreads, at)] if spreads < 0 else []
+        return []
 
     def _current(self, phase: int, evidence: np.ndarray | None) -> list[Reason]:
         """The current segment so far: out of order for long enough, longer than labelled ones, a rule broken."""
@@ -191,14 +205,6 @@ class Monitor:
         return [Reason(Kind.CHAIN, phase, start, self.t + 1, self.unlikely / self.profile.rate,
                        f"{self.profile.classes[phase]}: a stretch the chain finds unlikely (below "
                        f"{self.profile.chain:.2f} nats a frame over {self.profile.said(self.width)})")]
-
-
-def _short(profile: Profile, segment: Segment, pace: float) -> list[Reason]:
-    """A segment that just ended, judged too short (one of flicker's length is not)."""
-    spreads, at = scoring.duration_spreads(profile, segment.phase, segment.frames, pace)
-    if spreads >= 0 or segment.frames < scoring.brief(profile, pace):
-        return []
-    return [scoring.duration_reason(profile, segment, spreads, at)]
 
 
 class Monitored:

@@ -60,6 +60,7 @@ class Profile:
     calibration: Calibration = field(default_factory=Calibration)
     format: int = PROFILE_FORMAT
     timed: bool = True  # the rate is the recordings' own
+    boundary: float = 0.0  # seconds: the RMS error of a decoded phase boundary on held-out labelled recordings
 
     def said(self, frames: float) -> str:
         """A duration in words: seconds, or frames where the rate is unknown."""
@@ -111,7 +112,8 @@ class Profile:
                    tuple(Rule(int(p), int(c), bool(h)) for p, c, h in values["rules"]),
                    None if values["chain"] is None else float(values["chain"]),
                    {str(k): float(v) for k, v in values["allowances"].items()},
-                   Calibration(**values["calibration"]), timed=bool(values["timed"]))
+                   Calibration(**values["calibration"]), timed=bool(values["timed"]),
+                   boundary=float(values["boundary"]))
 
     def check(self) -> None:
         """Its fields against each other: classes, columns and rules in range, numbers finite."""
@@ -122,7 +124,7 @@ class Profile:
             raise ValueError("per-class fields of another length than the classes")
         if not self.orders or any(not o or min(o) < 0 or max(o) >= n for o in self.orders):
             raise ValueError("an order of unknown classes")
-        numbers = [self.rate, *self.allowances.values(), *self.spread, *(v for v in self.log_seconds if v is not None),
+        numbers = [self.rate, self.boundary, *self.allowances.values(), *self.spread, *(v for v in self.log_seconds if v is not None),
                    *(v for v in self.shortest if v is not None), *([self.chain] if self.chain is not None else [])]
         if not all(math.isfinite(v) for v in numbers) or self.rate <= 0 or min(self.spread) <= 0:
             raise ValueError("a rate, spread or allowance that is not a finite positive number")
@@ -214,6 +216,19 @@ def _rules(inner: list[list[tuple[int, int, int]]], evidence: np.ndarray, n: int
     return rules
 
 
-def calibrated_as(profile: Profile, allowances: dict[str, float], chain: float | None,
-                  calibration: Calibration) -> Profile:
-    return replace(profile, allowances=dict(allowances), chain=chain, calibration=calibration)
+def calibrated_as(profile: Profile, allowances: dict[str, float], chain: float | None, calibration: Calibration,
+                  boundary: float = 0.0) -> Profile:
+    return replace(profile, allowances=dict(allowances), chain=chain, calibration=calibration, boundary=boundary)
+
+
+def boundary_error(labels: np.ndarray, path: np.ndarray) -> list[float]:
+    """Frames between each labelled segment's ends and those of the decoded segment of its phase that overlaps it
+    most (a phase the decoder missed: its ends against nothing, left out)."""
+    decoded = segments_of(path)
+    errors = []
+    for phase, start, stop in segments_of(labels):
+        overlaps = [(min(stop, b) - max(start, a), a, b) for c, a, b in decoded if c == phase and b > start and a < stop]
+        if overlaps:
+            _, a, b = max(overlaps)
+            errors += [abs(a - start), abs(b - stop)]
+    return errors

@@ -5,7 +5,8 @@ segment before them), then four checks:
 - order: a phase missing, phases in an order no labelled recording has, a phase repeated, a recording that ends or
   starts mid-task (a phase out of order measured by its length over flicker's);
 - duration: a phase far longer or shorter than in the labelled recordings at the recording's own pace (a recording
-  slower throughout is not a failure: its pace is taken out), in spreads of log-duration;
+  slower throughout is not a failure: its pace is taken out), in spreads of log-duration (the labelled spread, and
+  the decoder's error at both ends of the phase, as cross-validation measured it);
 - rule: a predicate value that holds throughout a phase in every labelled recording broken for a stretch (seconds);
 - chain: a stretch whose steps the chain finds less likely than any of the labelled recordings' (seconds).
 
@@ -210,20 +211,26 @@ def duration_spreads(profile: Profile, phase: int, frames: float, pace: float) -
         return 0.0, 0.0
     deviation = math.log(frames / profile.rate) - mean
     at = max(pace, 0.0) if deviation > 0 else min(pace, 0.0)
-    return (deviation - at) / profile.spread[phase], at
+    misplaced = profile.boundary * profile.rate / frames  # a decoded boundary's error, relative to the phase's length
+    return (deviation - at) / math.sqrt(profile.spread[phase] ** 2 + 2 * misplaced ** 2), at
 
 
 def duration_reasons(profile: Profile, segments: list[Segment], pace: float) -> list[Reason]:
     """Segments far longer or shorter than their phase's labelled ones at the recording's pace ``pace``. The first
-    and last segments are not judged short (where a recording starts and ends may cut them), nor one shorter than
-    flicker's length (kept for the order it goes on in: its length is the decoder's)."""
-    reasons, shortest = [], brief(profile, pace)
+    and last segments are not judged short (where a recording starts and ends may cut them)."""
+    reasons = []
     for k, segment in enumerate(segments):
         severity, at = duration_spreads(profile, segment.phase, segment.frames, pace)
-        judged = severity > 0 or (0 < k < len(segments) - 1 and segment.frames >= shortest)
+        judged = severity > 0 or (0 < k < len(segments) - 1 and judged_short(profile, segment, segments[k + 1], pace))
         if abs(severity) >= SHOWN * Check.DURATION.least and judged:
             reasons.append(duration_reason(profile, segment, severity, at))
     return reasons
+
+
+def judged_short(profile: Profile, segment: Segment, after: Segment, pace: float) -> bool:
+    """Whether a segment may be judged too short: one shorter than flicker's length only where it goes on in a
+    labelled order (one followed by disorder is the decoder's, counted with it)."""
+    return segment.frames >= brief(profile, pace) or (segment.phase, after.phase) in profile.transitions
 
 
 def duration_reason(profile: Profile, segment: Segment, severity: float, pace: float) -> Reason:
