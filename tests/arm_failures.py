@@ -11,6 +11,9 @@ demonstration goes wrong. Each kind names the phase where it goes wrong (``Failu
 - ``open``: the gripper never closes: transport and place with open fingers and no load.
 - ``repeat``: after letting go at the place, the arm grasps the object again, lifts it and places it a second time.
 - ``reach``: the arm turns back home halfway to the object, without grasping (a reach abandoned).
+- ``slip``: the object slips out as the arm lowers it to the place (the load gone, the fingers shut on nothing).
+- ``bump``: the arm hits something mid-transport: it stops, backs off a little, then carries on.
+- ``early``: the fingers open before the arm is at the place, dropping the object from the carry's end.
 
 And two clean ones that are slower than any labelled recording (``slow``: every move 1.5 to 1.8 times slower;
 ``hesitant``: a stop of 0.4 to 1 s before each move), which a curator keeps. The labels are the phases a person
@@ -34,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import arm_bags  # noqa: E402
 from arm_bags import ROBOTS, Episode, Robot, minimum_jerk, still  # noqa: E402
 
-FAILED = ("drop", "miss", "pause", "regrasp", "abort", "open", "repeat", "reach")
+FAILED = ("drop", "miss", "pause", "regrasp", "abort", "open", "repeat", "reach", "slip", "bump", "early")
 CLEAN = ("clean", "slow", "hesitant")
 EMPTY = 0.002  # m: the fingers' opening closed on nothing
 # The segments arm_bags.trajectory adds, in order.
@@ -195,6 +198,39 @@ def reach(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[li
     return [parts[HOME], before, back, parts[REST]], "reach"
 
 
+def slip(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    before, after = split(parts[LOWER], rng.uniform(0.2, 0.6))
+    width = parts[HELD].width[-1]
+    positions, closing = moving_gripper(after.positions, gripper(robot, width, EMPTY))
+    slipping = Part(positions, closing, np.zeros(len(positions)), "place")
+    return parts[:LOWER] + [before, slipping] + emptied(parts[SETTLE:OPEN + 1], robot) + parts[RETREAT:], "place"
+
+
+def bump(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    before, after = split(parts[CARRY], rng.uniform(0.3, 0.7))
+    at, width, held = before.positions[-1], before.width[-1], before.held[-1]
+    back = at - (at - before.positions[0]) * rng.uniform(0.1, 0.25)
+    frames = arm_bags.move_frames(robot, at, back, 0.5)
+    stopped = int(round(rng.uniform(0.5, 1.0) * robot.rate))
+    recoil = [Part(hold(at, stopped), np.full(stopped, width), np.full(stopped, held), "transport"),
+              Part(minimum_jerk(at, back, frames), np.full(frames, width), np.full(frames, held), "transport"),
+              Part(minimum_jerk(back, at, 2 * frames), np.full(2 * frames, width), np.full(2 * frames, held),
+                   "transport")]
+    return parts[:CARRY] + [before] + recoil + [after] + parts[LOWER:], "transport"
+
+
+def early(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    before, after = split(parts[CARRY], rng.uniform(0.6, 0.85))
+    width = parts[HELD].width[-1]
+    positions, opening = moving_gripper(after.positions, gripper(robot, width, robot.gripper_open))
+    let_go = Part(positions, opening, np.zeros(len(positions)), "transport")
+    rest = []
+    for part in parts[LOWER:OPEN + 1]:
+        n = len(part.positions)
+        rest.append(Part(part.positions, np.full(n, robot.gripper_open), np.zeros(n), part.phase))
+    return parts[:CARRY] + [before, let_go] + rest + parts[RETREAT:], "transport"
+
+
 def slow(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], None]:
     factor = rng.uniform(1.5, 1.8)
     out = []
@@ -224,7 +260,8 @@ def clean(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[li
 
 
 KINDS = {"drop": drop, "miss": miss, "pause": pause, "regrasp": regrasp, "abort": abort, "open": opened,
-         "repeat": repeat, "reach": reach, "clean": clean, "slow": slow, "hesitant": hesitant}
+         "repeat": repeat, "reach": reach, "clean": clean, "slow": slow, "hesitant": hesitant, "slip": slip,
+         "bump": bump, "early": early}
 
 
 def failure(robot: Robot, kind: str, seed: int) -> Failure:
