@@ -1,9 +1,9 @@
 """`mlnseq audit` measured: which recordings went wrong, found among clean ones, against the signals a user has today,
 side by side on the same recordings: the episode's length (its distance from the labelled recordings' median, and
 "overly short"), the model's mean confidence (1 - its mean top probability, as predict decodes), and the phase-order
-rule (predict's phases, runs of one class of at least 0.5 s, differ from the labelled orders). Per dataset: AUROC (failed against
-clean), the share of failed recordings among the top k (k = the number failed), clean recordings suspect, slow and
-hesitant clean ones suspect, each failed one's first reason in the phase where it went wrong, and `stream
+rule (predict's phases, runs of one class of at least 0.5 s, differ from the labelled orders). Per dataset: AUROC
+(failed against clean), the share of failed recordings among the top k (k = the number failed), clean recordings
+suspect, slow and hesitant clean ones suspect, each failed one's first reason in the phase where it went wrong, and `stream
 --monitor` alerting on each failed one before it ends and on no clean one.
 
 Datasets:
