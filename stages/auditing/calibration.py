@@ -68,7 +68,8 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
                     recognizer.classes, columns, rate)
     highest = {check.value: max((m.get(check.value, 0.0) for m in measures), default=0.0) for check in Check}
     flagged = sum(_flagged(m, [o for o in measures if o is not m]) for m in measures)
-    return calibrated_as(profile, _allowances(measures), _floor(lows), Calibration(len(measures), flagged, highest, how),
+    calibration = Calibration(len(measures), flagged, highest, how)
+    return calibrated_as(profile, _allowances(measures), _floor(lows), calibration,
                          _rms([e for own in errors for e in own], rate))
 
 

@@ -124,9 +124,10 @@ class Profile:
             raise ValueError("per-class fields of another length than the classes")
         if not self.orders or any(not o or min(o) < 0 or max(o) >= n for o in self.orders):
             raise ValueError("an order of unknown classes")
-        numbers = [self.rate, self.boundary, *self.allowances.values(), *self.spread, *(v for v in self.log_seconds if v is not None),
+        numbers = [self.rate, self.boundary, *self.allowances.values(), *self.spread,
+                   *(v for v in self.log_seconds if v is not None),
                    *(v for v in self.shortest if v is not None), *([self.chain] if self.chain is not None else [])]
-        if not all(math.isfinite(v) for v in numbers) or self.rate <= 0 or min(self.spread) <= 0:
+        if not all(math.isfinite(v) for v in numbers) or self.rate <= 0 or min(self.spread) <= 0 or self.boundary < 0:
             raise ValueError("a rate, spread or allowance that is not a finite positive number")
         if any(v <= 0 for v in self.allowances.values()):
             raise ValueError("an allowance that is not positive")
@@ -227,7 +228,8 @@ def boundary_error(labels: np.ndarray, path: np.ndarray) -> list[float]:
     decoded = segments_of(path)
     errors = []
     for phase, start, stop in segments_of(labels):
-        overlaps = [(min(stop, b) - max(start, a), a, b) for c, a, b in decoded if c == phase and b > start and a < stop]
+        overlaps = [(min(stop, b) - max(start, a), a, b) for c, a, b in decoded
+                    if c == phase and b > start and a < stop]
         if overlaps:
             _, a, b = max(overlaps)
             errors += [abs(a - start), abs(b - stop)]
