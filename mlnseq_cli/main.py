@@ -49,6 +49,7 @@ COMMANDS = {
     "info": Command("info", "info", "Print what a model file holds."),
     "predict": Command("predict", "predict", "Recognise new recordings with a model file: per-frame classes."),
     "explain": Command("explain", "explain", "Why a model decided what it did at a frame: its margin, term by term."),
+    "audit": Command("audit", "audit", "Which recordings went wrong: each one's verdict, score and reasons, ranked."),
     "review": Command("review", "review", "See a model's phases over the recordings in the browser, explain any "
                       "moment, save corrections as labels."),
     "stream": Command("stream", "stream", "Recognise live frames from stdin, one JSON line out per frame."),

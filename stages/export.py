@@ -111,9 +111,25 @@ def run(workdir: Path, options: ExportOptions) -> Exported:
         notes += [n.text for n in said]
     floor = paper_floor(workdir, frames_meta)  # as conflate floors the MLN's sums
     manifest = _manifest(options, frames_meta, floor, choice, picked, checkpoint, columns, inputs, notes)
-    entries = model_file.model_entries(manifest, spec_text, weights, None if checkpoint is None else checkpoint.network)
-    recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
+    network = None if checkpoint is None else checkpoint.network
+    entries = model_file.model_entries(manifest, spec_text, weights, network)
+    made = recognizer.Recognizer(entries, str(workdir))  # a model that cannot be loaded is not written
+    audit, said = audit_profile(workdir, made)
+    manifest = replace(manifest, notes=manifest.notes + said)
+    entries = model_file.model_entries(manifest, spec_text, weights, network, audit)
+    recognizer.Recognizer(entries, str(workdir))
     return Exported(model_file.write_model(options.output_path(workdir, picked.decoding.name), entries), manifest)
+
+
+def audit_profile(workdir: Path, made: recognizer.Recognizer) -> tuple[bytes | None, list[str]]:
+    """What `mlnseq audit` needs, learned from the workdir's labelled training recordings (stages/auditing/), or
+    the note saying why the model holds none."""
+    from mlnseq.auditing.calibration import calibrated
+
+    try:
+        return calibrated(workdir, made).to_json(), []
+    except BadInput as error:
+        return None, [f"no audit profile: {error}"]
 
 
 def _mln(workdir: Path, inputs: list[Path]) -> tuple[str, Any, list[str]]:

@@ -60,6 +60,8 @@ def describe(manifest: Manifest, entries: dict[str, bytes], path: Path) -> list[
         columns = len(manifest.predicates)
         rows.append(("MLN", f"{columns} predicate column{'' if columns == 1 else 's'}, mln-mode {manifest.mln_mode}, "
                             f"paper floor {manifest.paper_floor}"))
+    if model_file.AUDIT in entries:
+        rows.append(("audit", audit_text(entries[model_file.AUDIT], path)))
     limits = model_file.member_limits(manifest, path)
     rows.append(("members", ", ".join(f"{name} {len(data):,} bytes (limit {limits[name]:,})"
                                       for name, data in entries.items())))
@@ -107,3 +109,16 @@ def _decoder_row(manifest: Manifest) -> str:
         rate = "" if manifest.rate_hz else " (frame rate unknown)"
         text = f"{decode}, lag {lag or 0} frame(s){seconds}{rate if lag else ''}"
     return text + (", start distribution fitted" if manifest.start is not None else "")
+
+
+def audit_text(data: bytes, path: Path) -> str:
+    """What `mlnseq audit` learned: the labelled orders, rules and allowances, and how they were chosen."""
+    from mlnseq.auditing.profile import Profile
+
+    profile = Profile.read(data, path)
+    calibration = profile.calibration
+    allowances = ", ".join(f"{check} {value:.3g}" for check, value in sorted(profile.allowances.items()))
+    order = " > ".join(profile.classes[k] for k in profile.phases)
+    return (f"{len(profile.orders)} labelled recordings ({order}), {len(profile.rules)} rules; allowances "
+            f"{allowances or 'the least'} ({calibration.how}, {calibration.flagged} of {calibration.recordings} "
+            "flagged by allowances set without them)")

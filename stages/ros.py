@@ -6,9 +6,10 @@ model's clock as collect put the bags on it, runs the same `Recognizer` as predi
 (stages/recognition/live.py, which the ROS 2 node runs as well), and publishes per tick the class name
 (std_msgs/String on ``activity_topic``) and the frame as stream writes it, with its time, stamp and every class's
 probability, and with ``explain`` its why (a JSON std_msgs/String on ``activity_topic``/frame); ``decode`` decodes
-with another decoder than the model's. A message the model cannot use is one line on stderr and the node goes on;
-a publisher of a type without the model's fields on its topic is one note naming it, and is not read; only
-start-up errors stop it (BadInput, exit 2).
+with another decoder than the model's; with ``monitor``, an alert (a JSON std_msgs/String on ``activity_topic``/alert)
+the moment a recording turns suspect, after the frames published with it. A message the model cannot use is one line
+on stderr and the node goes on; a publisher of a type without the model's fields on its topic is one note naming it,
+and is not read; only start-up errors stop it (BadInput, exit 2).
 
 The callbacks only queue the messages (`MessageFeed.offer`: bounded, the oldest dropped first and counted); the
 main thread recognises and publishes them. SIGINT or SIGTERM drains the queue and decides every frame held before
@@ -36,6 +37,7 @@ from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields
 
 ACTIVITY_TOPIC = "/mlnseq/activity"
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's
+ALERT_SUFFIX = "/alert"  # with --monitor: the alerts' topic, below the activity's
 PUBLISHER_QUEUE = 1000  # messages a publisher holds for a slow subscriber before dropping the oldest
 FLUSH_S = 0.5  # after the last frames are published, before the node's connections close
 MASTER_POLL_S = 1.0  # how often the node asks whether its master is still the one it registered with
@@ -65,6 +67,7 @@ class RosOptions:
     queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
     decode: str | None = None  # a decoder, as predict's --decode; default: the model's
     explain: int = 0  # N > 0: each frame's JSON carries "why", its N largest terms (docs/explain.md)
+    monitor: bool = False  # TOPIC/alert gets a JSON line the moment a recording turns suspect (docs/audit.md)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ros", member(RosVersion, self.ros))
@@ -229,6 +232,10 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
         return run_dds(options, warn, stop)
     rospy, roslib_message, String = rospy_modules()
     model = prepared(options.model, warn, options.decode, options.explain)
+    if options.monitor:
+        from mlnseq.auditing import monitor
+
+        model = monitor.monitored(model, options.model)
     decode = RawMessages(model, roslib_message.get_message_class, warn)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size, decode)
     decode.error = feed.error
@@ -239,11 +246,15 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
     rospy.init_node(options.node_name, disable_signals=True)
     activity = rospy.Publisher(options.activity_topic, String, queue_size=PUBLISHER_QUEUE)
     framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String, queue_size=PUBLISHER_QUEUE)
+    alerting = rospy.Publisher(options.activity_topic.rstrip("/") + ALERT_SUFFIX, String,
+                               queue_size=PUBLISHER_QUEUE) if options.monitor else None
 
     def publish(frames: list[LiveFrame]) -> None:
         for frame in frames:
             activity.publish(String(data=frame.prediction.name))
             framed.publish(String(data=frame.json(model.classes)))
+        for line in monitor.alert_lines(model, frames) if alerting is not None else ():
+            alerting.publish(String(data=line))
 
     for topic in feed.topics:
         rospy.Subscriber(topic, rospy.AnyMsg, lambda raw, t: feed.offer(t, raw, rospy.get_rostime().to_nsec()),
@@ -269,6 +280,6 @@ def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Ev
     require()
     node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
                                     options.distro or types.default_distro(), options.qos, options.max_hold,
-                                    options.queue_size, options.decode, options.explain)
+                                    options.queue_size, options.decode, options.explain, options.monitor)
     with stopped_by_signals(stop) as stop:
         return RosSummary(*node.run(node_options, warn, stop))

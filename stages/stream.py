@@ -61,6 +61,7 @@ class StreamOptions:
     max_hold: float | None = None  # `rostopic echo -p`: seconds a tick holds the feed's last row; default: the model's
     explain: int = 0  # N > 0: each line carries "why", its frame's N largest terms (docs/explain.md)
     decode: str | None = None  # a decoder, as predict's --decode; default: the model's
+    monitor: bool = False  # an alert line the moment a recording turns suspect (the model's audit profile)
 
     def validate(self) -> None:
         if self.explain < 0:
@@ -250,6 +251,10 @@ def run(options: StreamOptions, source: BinaryIO, emit: Callable[[str], None],
     bad lines through ``warn``. SIGINT or SIGTERM: the frames read are answered, then `Stopped` is raised."""
     options.validate()
     model = ros_live.prepared(options.model, warn, options.decode, options.explain)
+    if options.monitor:
+        from mlnseq.auditing.monitor import monitored
+
+        model = monitored(model, options.model)
     notes = model.manifest.notes  # said in full by export, which made them, and shown by info; here one line
     if len(notes) == 1:
         warn(f"note: {notes[0]}")
@@ -278,10 +283,15 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
     episode: Any = None
     times: dict[int, Any] = {}  # the input time of each frame not answered yet (at most lag + 1)
 
-    def answer(predictions: Iterable[Any], episode: Any) -> None:
+    def answer(predictions: Iterable[Any], episode: Any, ended: bool = False) -> None:
+        where = None
         for prediction in predictions:
-            emit(encoded(answer_line(model, prediction, episode, times.pop(prediction.frame, None))))
+            when = times.pop(prediction.frame, None)
+            emit(encoded(answer_line(model, prediction, episode, when)))
             summary.frames += 1
+            where = {"frame": prediction.frame, **(when or {})}
+        if where is not None or ended:  # --monitor: the alerts raised since, after the frames answered with them
+            alert(model, emit, {EPISODE: 0 if episode is None else episode, **(where or {})})
 
     with answering_held(before_wait, lambda: answer(model.decide(), episode)):
         try:
@@ -297,7 +307,7 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
                              f"{', '.join(sorted(unused))}")
                     if not summary.episodes or frame.get(EPISODE) != episode:
                         if summary.episodes:
-                            answer(model.finish(), episode)  # the episode's pending frames, decided at once
+                            answer(model.finish(), episode, ended=True)  # its pending frames, decided at once
                             times.clear()
                             model.reset()
                         episode = frame.get(EPISODE)
@@ -311,10 +321,19 @@ def _serve(options: StreamOptions, model: Recognizer, lines: Iterable[str | Inpu
                     continue
                 answer(prediction.final, episode)
         except Stopped:  # SIGINT or SIGTERM: every frame read is decided and answered, then the signal's exit
-            answer(model.finish(), episode)
+            answer(model.finish(), episode, ended=True)
             raise
-        answer(model.finish(), episode)  # the end of the input: the pending frames, decided at once
+        answer(model.finish(), episode, ended=True)  # the end of the input: the pending frames, decided at once
     return summary
+
+
+def alert(model: Any, emit: Callable[[str], None], where: dict[str, Any]) -> None:
+    """A monitored model's alerts (`--monitor`), each a JSON line after the frames answered with it."""
+    if hasattr(model, "alerts"):
+        from mlnseq.auditing.monitor import alert_line
+
+        for raised in model.alerts():
+            emit(alert_line(raised, model.profile, where))
 
 
 @contextlib.contextmanager
@@ -343,6 +362,8 @@ def _echo(options: StreamOptions, model: Recognizer, header: str, lines: Iterabl
             else:
                 emit(answer.json(model.classes))
                 summary.frames += 1
+                alert(model, emit, {EPISODE: answer.episode, "frame": answer.prediction.frame,
+                                    "time": (answer.time - answer.start) / 1e9, STAMP: answer.time / 1e9})
     except Stopped:  # SIGINT or SIGTERM: the ticks up to the last message read, and the frames held, answered
         for frame in live.finish():
             emit(frame.json(model.classes))

@@ -149,6 +149,11 @@ def episode_signals(robot: Robot, seed: int) -> dict[str, np.ndarray]:
     """One episode's channels: positions, velocities, efforts [T, 7], width [T], phase [T] (index into PHASES)."""
     rng = np.random.default_rng(seed)
     episode, _ = trajectory(robot, rng)
+    return signals_of(robot, episode, rng)
+
+
+def signals_of(robot: Robot, episode: Episode, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The channels of ``episode`` as the robot's sensors measure them (noise drawn from ``rng``)."""
     positions = np.concatenate(episode.positions)
     true_velocity = np.gradient(positions, 1 / robot.rate, axis=0)
     held = np.concatenate(episode.held)
@@ -161,13 +166,14 @@ def episode_signals(robot: Robot, seed: int) -> dict[str, np.ndarray]:
             "phase": np.concatenate(episode.phases)}
 
 
-def write_bag(path: Path, robot: Robot, seed: int, phases: bool = True) -> Path:
-    """One ROS 2 bag (MCAP storage) of one episode of ``robot`` drawn with ``seed``; without /phase when not
-    ``phases`` (a recording nobody labelled)."""
+def write_bag(path: Path, robot: Robot, seed: int, phases: bool = True,
+              signals: dict[str, np.ndarray] | None = None) -> Path:
+    """One ROS 2 bag (MCAP storage) of one episode of ``robot`` drawn with ``seed`` (or of ``signals``, as
+    ``episode_signals`` makes them); without /phase when not ``phases`` (a recording nobody labelled)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    signals = episode_signals(robot, seed)
+    signals = episode_signals(robot, seed) if signals is None else signals
     store = get_typestore(Stores.ROS2_HUMBLE)
     JointState, Header, Time, String, Float64 = (store.types[n] for n in (
         "sensor_msgs/msg/JointState", "std_msgs/msg/Header", "builtin_interfaces/msg/Time", "std_msgs/msg/String",

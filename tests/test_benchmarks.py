@@ -13,6 +13,7 @@ import pytest
 SMALL = {"BENCH_QUICK": "1", "BENCH_FETCH_EPISODES": "5", "BENCH_BAG_MINUTES": "1", "BENCH_SCALE_FRAMES": "20000",
          "BENCH_STARTUP_ROUNDS": "1"}
 LAST_FIGURE = {  # benchmark: the start of the line it prints last
+    "audit": "audit: 1 row(s) measured",
     "collect": "desk import: 22,329 frames",
     "decode": "decode: the 25 lagged, posterior and legal decodings",
     "first_day": "first day: 1 dataset(s) measured",

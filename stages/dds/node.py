@@ -23,11 +23,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from mlnseq.auditing.monitor import alert_lines, monitored
 from mlnseq.dds import domain, require
 from mlnseq.dds.types import STRING, MessageTypes
 from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields, prepared
 
 FRAME_SUFFIX = "/frame"  # the JSON frame's topic, below the activity's (as the ROS 1 node)
+ALERT_SUFFIX = "/alert"  # with monitor: the alerts' topic, below the activity's (as the ROS 1 node)
 WAIT_S = 0.1  # the longest the node waits for a sample before looking at discovery and the stop flag again
 ACKS_S = 2.0  # at shutdown: the longest the writers wait for their readers to acknowledge the last frames
 
@@ -45,10 +47,15 @@ class NodeOptions:
     queue_size: int = QUEUE  # messages waiting for the recogniser; the oldest dropped beyond
     decode: str | None = None  # default: the model's
     explain: int = 0  # N > 0: each frame's JSON carries "why", its N largest terms
+    monitor: bool = False  # alerts on TOPIC/alert the moment a recording turns suspect (stages/auditing/monitor.py)
 
     @property
     def frame_topic(self) -> str:
         return self.activity_topic.rstrip("/") + FRAME_SUFFIX
+
+    @property
+    def alert_topic(self) -> str:
+        return self.activity_topic.rstrip("/") + ALERT_SUFFIX
 
 
 def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event) -> tuple[int, int, int]:
@@ -56,12 +63,15 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
     dropped."""
     require()
     model = prepared(options.model, warn, options.decode, options.explain)
+    if options.monitor:
+        model = monitored(model, options.model)
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size)
     types = MessageTypes(options.distro)
     String = types.get(STRING)
     participant = domain.Participant(options.distro, options.node_name)
     activity = participant.writer(options.activity_topic, String)
     framed = participant.writer(options.frame_topic, String)
+    alerting = participant.writer(options.alert_topic, String) if options.monitor else None
     subscriptions = domain.Subscriptions(participant, types, feed.topics, options.qos, feed.error,
                                          needed_fields(model), warn)
 
@@ -69,6 +79,8 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
         for frame in frames:
             activity.write(String(data=frame.prediction.name))
             framed.write(String(data=frame.json(feed.classes)))
+        for line in alert_lines(model, frames) if alerting is not None else ():
+            alerting.write(String(data=line))
 
     def take(seconds: float) -> None:
         for made in subscriptions.discover():
@@ -93,5 +105,5 @@ def run(options: NodeOptions, warn: Callable[[str], None], stop: threading.Event
     thread.join()
     take(0)
     publish(feed.drain())
-    participant.acknowledged((activity, framed), ACKS_S)
+    participant.acknowledged((activity, framed) + ((alerting,) if alerting is not None else ()), ACKS_S)
     return feed.frames, feed.bad, feed.dropped

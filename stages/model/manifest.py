@@ -17,6 +17,7 @@ from mlnseq.timeline.sequences import MODES
 
 MODEL_FORMAT = 3  # 3: the paper floor of the MLN's sums; 2: members' sizes and digests, the number of formulas
 MANIFEST, SPEC, WEIGHTS, NETWORK = "manifest.json", "binarize.toml", "weights.parquet", "network.npz"
+AUDIT = "audit.json"  # what `mlnseq audit` learned from the labelled recordings (stages/auditing/profile.py)
 AGAIN = "export the model again with `mlnseq export`"
 NETWORK_SIZE_LIMIT, RECEPTIVE_FIELD_LIMIT = 4096, 2**16  # bound a network's arrays and its streaming state
 MAX_LEVELS = 16  # a TCN's dilated levels: 2**16 frames of dilation at most
@@ -313,8 +314,8 @@ class Manifest:
             read.names("notes", empty=True, unique=False), read.count("formulas"),
             read.mapping("members", _member, "an object of member name -> {bytes, sha256}"), read.count("format"),
             **_timing_fields(values, where))
-        read.check("members", set(manifest.members) <= {SPEC, WEIGHTS, NETWORK},
-                   f"an object of member name ({SPEC}, {WEIGHTS}, {NETWORK}) -> {{bytes, sha256}}")
+        read.check("members", set(manifest.members) <= {SPEC, WEIGHTS, NETWORK, AUDIT},
+                   f"an object of member name ({SPEC}, {WEIGHTS}, {NETWORK}, {AUDIT}) -> {{bytes, sha256}}")
         manifest.check(where)
         return manifest
 

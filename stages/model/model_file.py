@@ -21,17 +21,17 @@ import polars as pl
 from mlnseq.catalog import artifacts
 from mlnseq import networks
 from mlnseq.catalog.errors import BadInput
-from mlnseq.model.manifest import AGAIN, MANIFEST, MODEL_FORMAT, NETWORK, SPEC, WEIGHTS, Manifest
+from mlnseq.model.manifest import AGAIN, AUDIT, MANIFEST, MODEL_FORMAT, NETWORK, SPEC, WEIGHTS, Manifest
 from mlnseq.networks.network import Network
 
 if TYPE_CHECKING:
     from mlnseq.predicates.spec import PredicateSpec
 
 MODEL_SUFFIX = ".mlnseq"
-MEMBERS = (MANIFEST, SPEC, WEIGHTS, NETWORK)
+MEMBERS = (MANIFEST, SPEC, WEIGHTS, NETWORK, AUDIT)
 
 KIB, MIB = 1024, 1024 * 1024
-MANIFEST_LIMIT = SPEC_LIMIT = 1 * MIB  # a DESK model's manifest and spec are 2 KB each
+MANIFEST_LIMIT = SPEC_LIMIT = AUDIT_LIMIT = 1 * MIB  # a DESK model's manifest and spec are 2 KB each
 MEMBER_CEILING = 64 * MIB  # no member may be larger, whatever the manifest declares
 TABLE_OVERHEAD = 64 * KIB  # weights.parquet's footer, schema and metadata
 FORMULA_BYTES = 1 * KIB  # one formula's row of weights.parquet (DESK's: 27 bytes on disk, formulas <= 49 chars)
@@ -57,9 +57,9 @@ def _foreign(where: Any, reason: Any) -> BadInput:
 
 
 def model_entries(manifest: Manifest, spec_text: str | None, weights: pl.DataFrame | None,
-                  network: Network | None) -> dict[str, bytes]:
+                  network: Network | None, audit: bytes | None = None) -> dict[str, bytes]:
     """The files of a model file, by name: the manifest, the predicate spec, the MLN weights, the network's
-    arrays (its state dict's names, and its standardisation ``mean`` and ``std``)."""
+    arrays (its state dict's names, and its standardisation ``mean`` and ``std``), and the audit profile (JSON)."""
     members = {}
     if spec_text is not None:
         members[SPEC] = spec_text.encode()
@@ -71,6 +71,8 @@ def model_entries(manifest: Manifest, spec_text: str | None, weights: pl.DataFra
         buffer = io.BytesIO()
         np.savez(buffer, mean=network.mean, std=network.std, **network.weights)
         members[NETWORK] = buffer.getvalue()
+    if audit is not None:
+        members[AUDIT] = audit
     return seal(replace(manifest, formulas=0 if weights is None else weights.height).to_dict(), members)
 
 
@@ -117,7 +119,8 @@ def member_limits(manifest: Manifest | dict[str, Any], where: Any) -> dict[str, 
     more than MEMBER_CEILING is refused."""
     if isinstance(manifest, dict):
         manifest = Manifest.read(manifest, where)
-    limits = {MANIFEST: MANIFEST_LIMIT, SPEC: SPEC_LIMIT, WEIGHTS: TABLE_OVERHEAD + FORMULA_BYTES * manifest.formulas}
+    limits = {MANIFEST: MANIFEST_LIMIT, SPEC: SPEC_LIMIT, WEIGHTS: TABLE_OVERHEAD + FORMULA_BYTES * manifest.formulas,
+              AUDIT: AUDIT_LIMIT}
     if manifest.network is not None:
         shapes = network_shapes(manifest.network.model)
         limits[NETWORK] = sum(ARRAY_OVERHEAD + ITEM_BYTES * math.prod(shape) for shape in shapes.values())
@@ -221,6 +224,7 @@ class ModelFile:
     spec: PredicateSpec | None
     weights: pl.DataFrame | None
     network: Network | None
+    audit: bytes | None = None  # the audit profile's JSON (stages/auditing/profile.py reads it)
 
 
 def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
@@ -242,7 +246,7 @@ def parse_model(entries: dict[str, bytes], where: str) -> ModelFile:
         weights = read_weights(entries[WEIGHTS], manifest, where)
     if NETWORK in entries:
         network = read_network(entries[NETWORK], manifest.network.model, where)
-    return ModelFile(manifest, spec, weights, network)
+    return ModelFile(manifest, spec, weights, network, entries.get(AUDIT))
 
 
 def read_spec(data: bytes, manifest: Manifest, where: str) -> PredicateSpec:

@@ -82,6 +82,7 @@ class Recognizer:
         self.network_weight = 1.0 if weight is None else float(weight)
         self._feature_index = {name: i for i, name in enumerate(self.features)}
         self.network = model.network
+        self.audit = model.audit  # the audit profile's JSON, or None (a model exported before `mlnseq audit`)
         self.prior = None if self.manifest.network is None else self.manifest.network.prior  # PriorLayer's input
         self.spec: PredicateSpec | None = None
         self.weights: pl.DataFrame | None = None
@@ -100,6 +101,7 @@ class Recognizer:
         self._mln_row = lru_cache(maxsize=4096)(self._mln_of)
         self.restarts: list[tuple[Any, int]] = []  # where the last ``predict`` restarted its chain: (episode, frame)
         self._explaining = None  # explain_steps: a LiveExplainer
+        self.stepped: tuple = (None, None, None)  # the last frame stepped: its predicate values, chain factor, pairwise
         self.reset()
 
     @classmethod
@@ -179,6 +181,7 @@ class Recognizer:
             p_mln, prior, unary = self._mln_row(evidence.tobytes())
         log_p_network = None if self._network is None else self._network.step(x, prior)
         explaining = self._explaining
+        self.stepped = (evidence, None, None)
         if self._filter is None:
             probabilities = fuse(self.method, None if log_p_network is None else np.exp(log_p_network), p_mln)
             if explaining is not None:
@@ -188,6 +191,7 @@ class Recognizer:
             if self._evidence is None and self.start is not None:  # an episode's first frame: the start distribution
                 factor = factor + self.start
             pairwise = None if self._evidence is None else self.mln.pairwise(self._evidence[None], evidence[None])[0]
+            self.stepped = (evidence, factor, pairwise)
             if explaining is not None:
                 explaining.record(self._frame, evidence, log_p_network, factor, pairwise)
             if self._online is not None:

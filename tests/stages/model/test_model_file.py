@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from mlnseq_cli.main import app
 from mlnseq import export, train
 from mlnseq.model import model_file
-from mlnseq.model.model_file import MANIFEST, NETWORK, SPEC, WEIGHTS
+from mlnseq.model.model_file import AUDIT, MANIFEST, NETWORK, SPEC, WEIGHTS
 from mlnseq.recognition.recognizer import Recognizer
 
 runner = CliRunner()
@@ -138,7 +138,7 @@ def test_the_real_model_loads_and_its_members_are_within_their_bounds(exported):
         assert len(data) <= limits[name], name
         if name != MANIFEST:
             assert manifest["members"][name]["bytes"] == len(data)
-    assert set(manifest["members"]) == {SPEC, WEIGHTS, NETWORK} and manifest["formulas"] > 0
+    assert set(manifest["members"]) == {SPEC, WEIGHTS, NETWORK, AUDIT} and manifest["formulas"] > 0
     model = Recognizer.load(exported["combined"])
     assert model.weights.height == manifest["formulas"] and model.network.weights["prior.weight"].shape == (7, 14)
     shown = runner.invoke(app, ["info", str(exported["combined"])])
@@ -192,7 +192,7 @@ def test_a_missing_member_is_refused(exported, tmp_path, member, needle):
 
 def test_extra_members_are_refused(exported, tmp_path):
     entries = members(exported["combined"])
-    refused(write(tmp_path / "five.mlnseq", entries | {"notes.txt": b"hello"}), "declares 5 members; a model file holds at most 4")
+    refused(write(tmp_path / "six.mlnseq", entries | {"notes.txt": b"hello"}), "declares 6 members; a model file holds at most 5")
     lstm = members(exported["lstm"])
     refused(write(tmp_path / "unknown.mlnseq", lstm | {"evil.py": b"import os"}), "'evil.py', which is not a model file's member")
     refused(write(tmp_path / "undeclared.mlnseq", lstm | {WEIGHTS: entries[WEIGHTS]}),

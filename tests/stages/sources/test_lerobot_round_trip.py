@@ -266,3 +266,54 @@ def test_only_v3_datasets_are_written_back(tmp_path):
                                        r"ones: convert it with LeRobot's convert_dataset_v21_to_v30 first"):
         lerobot_writer.write(tmp_path / "out", tmp_path / "v21", lerobot_writer.Predicted(
             np.zeros(1), np.array(["a"]), None, ("a",)))
+
+
+LEROBOT_FILTER = """
+import json, sys
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+ds = LeRobotDataset("local/audited", root=sys.argv[1], episode_filter=lambda ep: ep["mlnseq_verdict"] == "ok")
+print(json.dumps({"kept": sorted({int(ds[i]["episode_index"]) for i in range(len(ds))}), "frames": len(ds)}))
+"""
+
+
+def gripper_open(source: Path, out: Path, episode: int) -> Path:
+    """A copy of ``source`` whose ``episode`` never closes its gripper (state and action held open: 1.0)."""
+    shutil.copytree(source, out)
+    table = pq.read_table(out / DATA_FILE)
+    rows = table.column("episode_index").to_numpy() == episode
+    for name in ("observation.state", "action"):
+        column = table.column(name).combine_chunks()
+        values = column.values.to_numpy(zero_copy_only=False).reshape(len(table), -1).copy()
+        values[rows, JOINTS.index("gripper")] = 1.0
+        held = pa.FixedSizeListArray.from_arrays(pa.array(values.ravel(), type=column.type.value_type), values.shape[1])
+        table = table.set_column(table.schema.get_field_index(name), table.schema.field(name), held)
+    pq.write_table(table, out / DATA_FILE, compression="snappy")
+    return out
+
+
+def test_audit_writes_the_verdicts_where_lerobot_filters_episodes(model, lerobot_data, tmp_path):
+    """An episode whose gripper never closes is suspect, the other ok; the copy's episodes metadata holds each one's
+    verdict, score and reasons, the rest of it is the source's; with MLNSEQ_LEROBOT_PYTHON (a Python with LeRobot
+    0.6.1 installed: too heavy for the suite), LeRobot's own episode_filter on the verdict keeps exactly the ok ones."""
+    import os
+    import subprocess
+
+    failed = gripper_open(lerobot_data / "pick-place-heldout", tmp_path / "failed", episode=1)
+    before = digests(failed)
+    done = CliRunner().invoke(app, ["audit", str(model), "--source", str(failed), "-o", str(tmp_path / "a.csv"),
+                                    "--write-lerobot", str(tmp_path / "out")])
+    assert done.exit_code == 0, done.output
+    verdicts = dict(pl.read_csv(tmp_path / "a.csv").select("episode", "verdict").iter_rows())
+    assert verdicts == {0: "ok", 1: "suspect"} and digests(failed) == before
+    episodes = pq.read_table(tmp_path / "out" / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert {row["episode_index"]: row["mlnseq_verdict"] for row in episodes} == verdicts
+    assert episodes[1]["mlnseq_score"] >= 1 and episodes[1]["mlnseq_reasons"][0].startswith(episodes[1]["mlnseq_reason"])
+    copied = digests(tmp_path / "out")
+    assert {k: v for k, v in copied.items() if "meta/episodes" not in k} == {
+        k: v for k, v in before.items() if "meta/episodes" not in k}
+    python = os.environ.get("MLNSEQ_LEROBOT_PYTHON")
+    if python:
+        run = subprocess.run([python, "-c", LEROBOT_FILTER, str(tmp_path / "out")], capture_output=True, text=True,
+                             timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert json.loads(run.stdout.splitlines()[-1]) == {"kept": [0], "frames": 177}
