@@ -263,19 +263,10 @@ def live_bags(model: Path, folder: Path, data: Recordings) -> dict:
 
 def bag_frames(model: Path, bag: Path):
     """A bag's frames by the model's feature names, read as predict reads them."""
-    from types import SimpleNamespace
+    from mlnseq.recognition import reading
 
-    import polars as pl
-
-    from mlnseq import sources
-    from mlnseq.recognition.reading import reading_of
-    from mlnseq.recognition.recognizer import Recognizer
-
-    recognizer = Recognizer.load(model)
-    given = SimpleNamespace(env=None, label_column=None, episode_column=None, time_column=None, overrides={})
-    env, columns, options, label = reading_of(recognizer, given)
-    recordings = sources.read(env, bag, columns, options, label=label)
-    return pl.concat([r.features for r in recordings]).select(recognizer.features)
+    read = reading.read(model, bag, reading.ReadOptions())
+    return read.frames.select(read.model.features)
 
 
 def alerted(model: Path, lines: str, data: Recordings) -> dict[str, bool | None]:

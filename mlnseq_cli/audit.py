@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.table import Table
@@ -14,6 +14,16 @@ from mlnseq_cli.console import console, counted, reported_errors
 SHOWN = 10  # rows printed
 
 
+def reads_recordings_undecoded(command):
+    """``command`` with the reading flags predict takes, less --decode (audit decodes by the model's chain)."""
+    command = read_as.reads_recordings(command)
+    signature = command.__signature__
+    command.__signature__ = signature.replace(parameters=[p for p in signature.parameters.values()
+                                                         if p.name != "decode"])
+    return command
+
+
+@reads_recordings_undecoded
 def audit(
     model: Annotated[Path, typer.Argument(help="A model file written by `mlnseq export` or `mlnseq fit`.", dir_okay=False)],
     source: Annotated[Optional[Path], typer.Option(help="The recordings to audit, in the form the model's were read (a CSV/Parquet file or folder, a bag or a folder of them, a LeRobot dataset...).")] = None,
@@ -22,24 +32,13 @@ def audit(
     force: Annotated[bool, typer.Option("--force", help="Overwrite the output if it exists.")] = False,
     explain: Annotated[int, typer.Option(help="Add each reason's N largest terms (as `mlnseq explain` gives them for the decision at its first frame) to the reasons column.")] = 0,
     write_lerobot: Annotated[Optional[Path], typer.Option(help="lerobot (v3.0): also write a copy of the dataset to this new folder with each episode's verdict, score and reasons as columns of meta/episodes (mlnseq_verdict, mlnseq_score, mlnseq_reason, mlnseq_reasons), for LeRobot's episode_filter.")] = None,
-    env: read_as.Env = None,
-    label_column: read_as.LabelColumn = None,
-    episode_column: read_as.EpisodeColumn = None,
-    time_column: read_as.TimeColumn = None,
-    labels: read_as.LabelsFile = None,
-    labels_unit: read_as.LabelsUnit = None,
-    topics: read_as.Topics = None,
-    rate: read_as.Rate = None,
-    label_topic: read_as.LabelTopic = None,
-    max_hold: read_as.MaxHold = None,
+    **reading: Any,
 ) -> None:
     """Read MODEL and the recordings at SOURCE (read as predict reads them), or those of a fit's WORKDIR; decode each whole recording with the model's chain and score it against what the model learned of its labelled recordings: the orders of its phases, how long each lasts at the recording's own pace, the rules that hold throughout a phase, and how likely the chain found them, each within an allowance cross-validation chose on the training recordings. Write one row per recording, the most suspect first: episode, rank, verdict (ok or suspect), score (suspect from 1), reason (the first, in words), phase, where (seconds and frames), reasons (all, as JSON), frames; print the top ones. An existing output is kept unless --force."""
     from mlnseq import audit as stage
 
-    options = stage.AuditOptions(
-        model=model, source=source, workdir=workdir, output=output, force=force, env=env, label_column=label_column,
-        episode_column=episode_column, time_column=time_column, explain=explain, write_lerobot=write_lerobot,
-        overrides=read_as.overrides(labels, labels_unit, topics, rate, label_topic, max_hold))
+    options = stage.AuditOptions(model=model, source=source, workdir=workdir, output=output, force=force,
+                                 explain=explain, write_lerobot=write_lerobot, reading=read_as.read_options(**reading))
     with reported_errors():
         result = stage.run(options)
     for note in result.notes:

@@ -15,15 +15,13 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from mlnseq import sources
 from mlnseq.auditing import verdicts
-from mlnseq.auditing.profile import Profile
+from mlnseq.auditing.profile import Profile, model_profile
 from mlnseq.catalog import artifacts, folders
-from mlnseq.catalog.errors import BadInput, check_choice
-from mlnseq.recognition.reading import reading_of
+from mlnseq.catalog.errors import BadInput
+from mlnseq.recognition import reading
+from mlnseq.recognition.reading import ReadOptions
 from mlnseq.recognition.recognizer import Recognizer
-from mlnseq.sources import RECORDING_ENVS
-from mlnseq.sources.table import prediction_frames
 
 SUFFIXES = (".csv", ".parquet")
 
@@ -37,11 +35,7 @@ class AuditOptions:
     workdir: Path | None = None  # a fit's workdir: its recordings (without a source), the profile of an older model
     output: Path | None = None  # CSV or Parquet; default: the source's (or workdir's) name + .audit.csv, here
     force: bool = False
-    env: str | None = None
-    label_column: str | None = None
-    episode_column: str | None = None
-    time_column: str | None = None
-    overrides: dict[str, Any] = field(default_factory=dict)  # SourceOptions fields given; the rest: the model's
+    reading: ReadOptions = field(default_factory=ReadOptions)  # how --source is read (None: as the model's were)
     explain: int = 0  # N > 0: each reason's N largest terms in the reasons column
     write_lerobot: Path | None = None  # a copy of the LeRobot source with the verdicts as per-episode columns
 
@@ -50,8 +44,10 @@ class AuditOptions:
             raise BadInput("give the recordings to audit: --source DATASET, or -w WORKDIR for a fit's recordings")
         if self.explain < 0:
             raise BadInput(f"--explain {self.explain}: give how many terms each reason shows (0: none)")
-        if self.env is not None:
-            check_choice("env", self.env, RECORDING_ENVS)
+        if self.reading.decode is not None:
+            raise BadInput(f"--decode {self.reading.decode}: audit decodes each whole recording by the model's chain "
+                           "(Viterbi); leave --decode out")
+        self.reading.validate()
         path = self.output_path()
         if path.suffix not in SUFFIXES:
             raise BadInput(f"-o {path}: write the verdicts to a .csv or a .parquet file")
@@ -95,8 +91,7 @@ class Frames:
 
 def audit(model: Recognizer, profile: Profile, frames: Frames, explain: int = 0) -> pl.DataFrame:
     """The verdict rows of ``frames``, ranked (stages/auditing/verdicts.py)."""
-    scores = model.scored(frames.features, frames.episodes, verdicts.decode_of(model))
-    recordings = verdicts.audit_all(profile, scores, frames.episodes, frames.names, frames.times)
+    scores, recordings = verdicts.audited(model, profile, frames.features, frames.episodes, frames.names, frames.times)
     terms = verdicts.explained(model, scores, recordings, explain) if explain else None
     return verdicts.table(profile, recordings, terms)
 
@@ -105,9 +100,14 @@ def run(options: AuditOptions) -> Verdicts:
     """Read the model and the recordings, audit them, write the verdicts (and the LeRobot copy): each to a temporary
     file or folder beside it, renamed at the end, or none."""
     options.validate()
-    model = Recognizer.load(options.model)
-    profile, notes = profile_of(model, options)
-    frames = read_source(model, options) if options.source is not None else read_workdir(model, Path(options.workdir))
+    if options.source is not None:
+        read = reading.read(options.model, Path(options.source), options.reading)
+        model, frames = read.model, frames_of(read)
+        profile, notes = profile_of(model, options)
+    else:
+        model = Recognizer.load(options.model)
+        profile, notes = profile_of(model, options)  # an old model's profile, from the workdir: refused first
+        frames = read_workdir(model, Path(options.workdir))
     _check_outputs(options, [Path(options.model), *frames.inputs])
     if options.write_lerobot is not None and frames.env != "lerobot":
         raise BadInput(f"--write-lerobot writes LeRobot datasets, but --source {options.source} is read as "
@@ -143,11 +143,8 @@ def lerobot_columns(table: pl.DataFrame) -> dict[str, dict[int, Any]]:
 def profile_of(model: Recognizer, options: AuditOptions) -> tuple[Profile, list[str]]:
     """The model's audit profile; a model exported before audit existed: learned from its workdir now (``-w``, or
     the folder the model file is in where that is the workdir it was exported from), with a note."""
-    if model.audit is not None:
-        profile = Profile.read(model.audit, options.model)
-        if not profile.matches(model.classes, getattr(model, "columns", [])):
-            raise BadInput(f"{options.model}: its audit profile describes other classes or predicates than its model: "
-                           "export it again with `mlnseq export`")
+    profile = model_profile(model, options.model)
+    if profile is not None:
         return profile, []
     workdir = own_workdir(model, options)
     from mlnseq.auditing.calibration import calibrated
@@ -180,16 +177,11 @@ def again(model: Recognizer, options: AuditOptions, workdir: Path) -> str:
             f"-o {options.model} --force")
 
 
-def read_source(model: Recognizer, options: AuditOptions) -> Frames:
-    """The recordings at --source, read as predict reads them."""
-    env, columns, source_options, label = reading_of(model, options)
-    recordings = sources.read(env, Path(options.source), columns, source_options, label=label)
-    frames, meta, times = prediction_frames(recordings, columns.classes)
-    inputs = [Path(p) for p in meta["source_files"]]
-    if source_options.labels is not None:
-        inputs.append(Path(source_options.labels))
-    return Frames(frames.select(model.features).to_numpy(), frames["episode"].to_numpy(), list(meta["episode_names"]),
-                  np.asarray(times, dtype=np.float64), inputs, env)
+def frames_of(read: reading.Reading) -> Frames:
+    """The recordings read as predict reads them (recognition/reading.py), as audit takes them."""
+    model = read.model
+    return Frames(read.frames.select(model.features).to_numpy(), read.frames["episode"].to_numpy(), list(read.names),
+                  np.asarray(read.times, dtype=np.float64), read.inputs(), read.env)
 
 
 def read_workdir(model: Recognizer, workdir: Path) -> Frames:

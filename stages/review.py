@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mlnseq.auditing import verdicts
+from mlnseq.auditing.profile import model_profile
 from mlnseq.catalog.errors import BadInput
 from mlnseq.explaining.explainer import Keys
 from mlnseq.recognition import reading
@@ -57,9 +59,26 @@ class ReviewOptions:
         return Path(f"{Path(self.source).stem}.labels.csv")
 
 
-def decide(read: reading.Reading, workdir: fitted.Workdir | None) -> list[Reviewed]:
+def audited(read: reading.Reading, where: Path) -> dict[str, dict] | None:
+    """Each recording's audit, as `mlnseq audit` gives it (its verdict, score, rank and reasons with their frames),
+    by episode id; None where the model file holds no audit profile."""
+    import json
+
+    profile = model_profile(read.model, where)
+    if profile is None:
+        return None
+    features = read.frames.select(read.model.features).to_numpy()
+    _, recordings = verdicts.audited(read.model, profile, features, read.frames["episode"].to_numpy(), read.names,
+                                     np.asarray(read.times, dtype=np.float64))
+    return {row["episode"]: {"verdict": row["verdict"], "score": row["score"], "rank": row["rank"],
+                             "reasons": json.loads(row["reasons"])}
+            for row in verdicts.table(profile, recordings).iter_rows(named=True)}
+
+
+def decide(read: reading.Reading, workdir: fitted.Workdir | None, audits: dict[str, dict] | None = None
+           ) -> list[Reviewed]:
     """Each recording decided on its own, as `explain` decides it; its labels as read, or, from a fit's workdir, as
-    fit trained on them (and where they came from) with the phases fit proposes to correct."""
+    fit trained on them (and where they came from) with the phases fit proposes to correct; its audit, given."""
     found = []
     model, frames, classes = read.model, read.frames, list(read.model.classes)
     for index, name in enumerate(read.names):
@@ -73,7 +92,7 @@ def decide(read: reading.Reading, workdir: fitted.Workdir | None) -> list[Review
             proposal = workdir.proposal(str(name), len(rows), classes)
         decided = views.Decided(str(name), keys.time, features, np.asarray(scores.path, dtype=np.int64),
                                 np.asarray(scores.probabilities), labels if (labels >= 0).any() else None, origin,
-                                proposal)
+                                proposal, None if audits is None else audits.get(str(name)))
         found.append(Reviewed(decided, keys, scores))
     return found
 
@@ -120,7 +139,7 @@ def prepare(options: ReviewOptions, said: Callable[[str], None] = lambda line: N
     if workdir is not None and workdir.labels_file is not None and given == workdir.labels_file:
         carried = intervals.read(workdir.labels_file, workdir.labels_unit)  # the fit's labels, kept in each save
     labels = corrections.LabelsFile(save, read.source.unit(read.env), carried)
-    decided = decide(read, workdir)
+    decided = decide(read, workdir, audited(read, Path(options.model)))
     for recording in decided:  # a labels file that does not fit the recordings is refused now, not at a click
         labels.saved(recording.decided.id, recording.decided.time, list(read.model.classes))
     lerobot = None if options.save_lerobot is None else (source, Path(options.save_lerobot))

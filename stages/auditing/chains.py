@@ -38,9 +38,10 @@ def step_likelihood(factors: ChainFactors, path: np.ndarray) -> np.ndarray:
     rows[steps] += factors.pairwise[factors.link[steps], path[steps - 1]]
     top = rows.max(axis=1, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
-    total = np.log(np.exp(rows - top).sum(axis=1)) + top[:, 0]
-    picked = rows[np.arange(len(path)), path]
-    return np.where(np.isfinite(picked), picked - total, IMPOSSIBLE)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a frame every class is forbidden at: IMPOSSIBLE
+        total = np.log(np.exp(rows - top).sum(axis=1)) + top[:, 0]
+        picked = rows[np.arange(len(path)), path]
+        return np.where(np.isfinite(picked) & np.isfinite(total), picked - total, IMPOSSIBLE)
 
 
 def decoded_path(factors: ChainFactors) -> np.ndarray:

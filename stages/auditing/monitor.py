@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mlnseq.auditing import scoring
-from mlnseq.auditing.profile import EDGE, Profile, tempo
+from mlnseq.auditing.profile import EDGE, Profile, model_profile, tempo
 from mlnseq.auditing.scoring import Check, Kind, Reason, Segment
 
 UNKNOWN_PACE = math.log(2.0)  # until two phases are done, a recording may be this much slower than labelled ones
@@ -291,13 +291,10 @@ def monitored(recognizer: Any, where: Any) -> Monitored:
     """``recognizer`` watched by the audit profile its model file holds; a model without one is one line."""
     from mlnseq.catalog.errors import BadInput
 
-    if recognizer.audit is None:
+    profile = model_profile(recognizer, where)
+    if profile is None:
         raise BadInput(f"{where} holds no audit profile (exported before `mlnseq audit`): export it again with "
                        "`mlnseq export` (or `mlnseq fit`) to monitor with it")
-    profile = Profile.read(recognizer.audit, where)
-    if not profile.matches(recognizer.classes, getattr(recognizer, "columns", [])):
-        raise BadInput(f"{where}: its audit profile describes other classes or predicates than its model: export it "
-                       "again with `mlnseq export`")
     return Monitored(recognizer, profile)
 
 

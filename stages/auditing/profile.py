@@ -139,6 +139,18 @@ class Profile:
         return list(self.classes) == list(classes) and [f"{p}_{v}" for p, v in self.columns] == list(columns)
 
 
+def model_profile(recognizer: Any, where: Any) -> Profile | None:
+    """The audit profile a model file holds (a Recognizer's), checked against its classes and predicate columns;
+    None where it holds none (exported before `mlnseq audit`)."""
+    if recognizer.audit is None:
+        return None
+    profile = Profile.read(recognizer.audit, where)
+    if not profile.matches(recognizer.classes, getattr(recognizer, "columns", [])):
+        raise BadInput(f"{where}: its audit profile describes other classes or predicates than its model: export it "
+                       "again with `mlnseq export`")
+    return profile
+
+
 def segments_of(labels: np.ndarray) -> list[tuple[int, int, int]]:
     """(class, first frame, end frame) of each run of one class."""
     return [(int(labels[s.start]), s.start, s.stop) for s in sequences.runs(labels)]

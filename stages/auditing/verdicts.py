@@ -54,6 +54,14 @@ def audit_all(profile: Profile, scores: Any, episodes: np.ndarray, names: list[A
     return out
 
 
+def audited(recognizer: Any, profile: Profile, features: np.ndarray, episodes: np.ndarray, names: list[Any],
+            times: np.ndarray | None = None) -> tuple[Any, list[Recording]]:
+    """A Recognizer's scores of ``features`` (grouped by ``episodes``, decoded by ``decode_of``) and every recording
+    judged against ``profile``."""
+    scores = recognizer.scored(features, episodes, decode_of(recognizer))
+    return scores, audit_all(profile, scores, episodes, names, times)
+
+
 def explained(recognizer: Any, scores: Any, recordings: list[Recording], count: int) -> dict[tuple[int, int], list]:
     """The ``count`` largest terms behind each reason, as `explain` gives them for the decision at its first frame:
     (recording, reason) -> terms as JSON-ready dicts."""

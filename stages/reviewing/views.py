@@ -24,6 +24,7 @@ class Decided:
     labels: np.ndarray | None  # [T] the true labels' class indices (-1: none), if the recording has labels
     origin: str | None = None  # where those labels came from (a fit's workdir says: its own, estimated, ...)
     proposal: np.ndarray | None = None  # [T] the phases a fit proposes to correct (-1: none), if it proposes any
+    audit: dict | None = None  # its audit (verdict, score, rank, reasons with start and stop frames), if the model can
 
     @property
     def confidence(self) -> float:
@@ -62,11 +63,11 @@ def runs(classes: np.ndarray) -> list[list[int]]:
 
 
 def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: set[str]) -> list[dict]:
-    """The recordings' rows: id, frames, seconds, confidence, rank to label (1 first) and why, labelled (and where
-    its labels came from), saved.
+    """The recordings' rows: id, frames, seconds, confidence, rank (1 first) and why, labelled (and where its labels
+    came from), saved, and the audit's verdict, score and first reason where the model audits.
     ``ranks``: the workdir's label_next.csv (episode: rank, reason), whose recordings come first in its order; the
-    others after them, the least sure first."""
-    others = sorted((i for i, r in enumerate(recordings) if r.id not in ranks), key=lambda i: recordings[i].confidence)
+    others after them, the most suspect first where the model audits (else the least sure first)."""
+    others = sorted((i for i, r in enumerate(recordings) if r.id not in ranks), key=lambda i: _suspicion(recordings[i]))
     after = max((rank for rank, _ in ranks.values()), default=0)
     rows = []
     for index, recording in enumerate(recordings):
@@ -74,14 +75,24 @@ def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: s
             rank, reason = ranks[recording.id]
         else:
             rank = after + others.index(index) + 1
-            reason = "ranked by how sure the model is (the least sure first)"
-        time = recording.time
+            reason = ("ranked by the audit (the most suspect first)" if recording.audit is not None else
+                      "ranked by how sure the model is (the least sure first)")
+        time, audit = recording.time, recording.audit
+        first = audit["reasons"][0] if audit and audit["reasons"] else None
         rows.append({"index": index, "id": recording.id, "frames": int(len(time)),
                      "seconds": float(time[-1] - time[0]) if len(time) else 0.0,
                      "confidence": round(recording.confidence, 4), "rank": int(rank), "reason": reason,
                      "labelled": recording.labels is not None and bool((recording.labels >= 0).any()),
-                     "origin": recording.origin, "saved": recording.id in saved})
+                     "origin": recording.origin, "saved": recording.id in saved,
+                     "verdict": audit["verdict"] if audit else None, "score": audit["score"] if audit else None,
+                     "why": f"{first['reason']} ({first['where']})" if first else None})
     return sorted(rows, key=lambda row: (row["rank"], row["index"]))
+
+
+def _suspicion(recording: Decided) -> tuple[float, float]:
+    """The order of recordings no ranking names: the audit's rank (the most suspect first), else how sure the model
+    is (the least sure first)."""
+    return (recording.audit["rank"], 0.0) if recording.audit is not None else (0, recording.confidence)
 
 
 def _rounded(values: np.ndarray) -> list:
@@ -105,5 +116,5 @@ def view(recording: Decided, features: list[str], classes: list[str], saved: np.
             "channels": channels, "phases": runs(recording.path),
             "labels": None if labels is None else runs(labels), "origin": recording.origin,
             "proposal": None if recording.proposal is None else runs(recording.proposal),
-            "saved": None if saved is None else runs(saved),
+            "saved": None if saved is None else runs(saved), "audit": recording.audit,
             "probability": {"rows": at.tolist(), "values": _rounded(chosen[at])}}

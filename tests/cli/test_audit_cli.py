@@ -8,6 +8,7 @@ from its workdir or says what to rerun; bad input is one line. Figures at full s
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -140,3 +141,78 @@ def test_bad_input_is_one_line_and_writes_nothing(fitted, tmp_path):
     refused_in(tmp_path, "audit", model, "--source", fitted["new"], "-o", tmp_path / "kept.csv", needles=("--force",))
     refused_in(tmp_path, "audit", model, "--source", fitted["new"], "-o", out, "--write-lerobot", tmp_path / "copy",
                needles=("--write-lerobot", "rosbag"))
+
+
+def test_a_folder_partly_labelled_is_audited_as_predict_reads_it(fitted, tmp_path):
+    """The folder a fit read, a labelled bag beside unlabelled ones: every recording audited, frame for frame the
+    ones predict reads (the labelled one's /phase read where it has it, never a refusal)."""
+    folder = tmp_path / "mixed"
+    shutil.copytree(fitted["root"] / "bags" / "episode_1", folder / "episode_1")
+    for name in (f"clean_{SEED + 100}", f"miss_{SEED + 100}"):
+        shutil.copytree(fitted["new"] / name, folder / name)
+    table = audited(fitted["model"], "--source", folder, "-o", tmp_path / "mixed.csv")
+    done = runner.invoke(app, ["predict", str(fitted["model"]), "--source", str(folder), "-o",
+                               str(tmp_path / "mixed.parquet")])
+    assert done.exit_code == 0, done.output
+    predicted = pl.read_parquet(tmp_path / "mixed.parquet").group_by("episode").len()
+    assert dict(zip(table["episode"], table["frames"])) == dict(zip(predicted["episode"], predicted["len"]))
+    verdicts = dict(zip(table["episode"], table["verdict"]))
+    assert verdicts == {"episode_1": "ok", f"clean_{SEED + 100}": "ok", f"miss_{SEED + 100}": "suspect"}
+    refused("audit", fitted["model"], "--source", folder, "--decode", "viterbi", "-o", tmp_path / "x.csv",
+            needles=("--decode",))
+
+
+@pytest.fixture
+def needs_browser() -> None:
+    import review_browser
+
+    why = review_browser.missing()
+    if why is not None:
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(why)
+        pytest.skip(why)
+
+
+AUDIT_ROW = 71  # the bands' audit row, in CSS pixels from the canvas's top (review.js's ROWS.audit)
+PIXEL = """(frame) => { const c = document.getElementById('bands');
+    return Array.from(c.getContext('2d').getImageData(Math.round((xOf(frame) + 1) * devicePixelRatio),
+                                                       Math.round(%d * devicePixelRatio), 1, 1).data); }""" % AUDIT_ROW
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("needs_browser")
+def test_review_orders_recordings_by_suspicion_and_marks_each_reasons_stretch(fitted, tmp_path):
+    """`mlnseq review` of the new bags with the model that audits them, in chromium: the table in the audit's order
+    (the failed ones first), each row's verdict and score; the most suspect recording opens first with its reasons
+    in words and the audit row of the bands red over each suspect reason's frames and blank where none is."""
+    from review_browser import browser, opened, served, until
+
+    table = audited(fitted["model"], "--source", fitted["new"], "-o", tmp_path / "audit.csv")
+    with served(fitted["model"], "--source", fitted["new"], "--save", tmp_path / "labels.csv") as (url, _):
+        with browser() as page:
+            opened(page, url)
+            rows = page.eval_on_selector_all("#recordings tbody tr", "rows => rows.map(r => [...r.cells].map("
+                                             "c => c.textContent))")
+            assert [r[1] for r in rows] == table["episode"].to_list()  # the audit's ranking
+            assert [r[6] for r in rows] == [("\u2691 " if v == "suspect" else "") + f"{s:.2f}"
+                                            for v, s in zip(table["verdict"], table["score"])]  # flagged: suspect
+            for row in table.head(2).iter_rows(named=True):
+                page.click(f"#recordings tr:has(td:text-is('{row['episode']}'))")
+                until(page, f"window.review.data.id === '{row['episode']}' && window.review.drawnMs")
+                reasons = json.loads(row["reasons"])
+                assert page.evaluate("window.review.data.audit.reasons") == reasons
+                text = page.inner_text("#audit")
+                assert text.startswith(f"audit: suspect, score {row['score']:.2f}") and reasons[0]["reason"] in text
+                covered = set()
+                for reason in reasons:
+                    covered |= set(range(reason["start"], reason["stop"]))
+                    if reason["severity"] >= 1:
+                        middle = (reason["start"] + reason["stop"]) // 2
+                        assert page.evaluate(f"({PIXEL})({middle})") == [176, 0, 32, 255], reason
+                blank = [t for t in range(0, row["frames"], 5) if not covered & set(range(t - 3, t + 4))]
+                assert blank and all(page.evaluate(f"({PIXEL})({t})")[3] == 0 for t in blank[:20])
+            clean = table.filter(pl.col("verdict") == "ok")["episode"][0]
+            page.click(f"#recordings tr:has(td:text-is('{clean}'))")
+            until(page, f"window.review.data.id === '{clean}' && window.review.drawnMs")
+            assert page.inner_text("#audit").startswith("audit: ok, score")
+            assert page.errors == []

@@ -48,6 +48,20 @@ def test_runs_and_ranks():
     rows = views.table(recordings, {"d": (1, "new"), "a": (2, "rare")}, {"a"})
     assert [(r["id"], r["rank"], r["saved"]) for r in rows] == [("d", 1, False), ("a", 2, True), ("b", 3, False),
                                                                  ("c", 4, False)]
+    # a model that audits: the recordings no ranking names, the most suspect first (the audit's rank), each row
+    # with its verdict, score and first reason; label_next.csv's ranking still comes first
+    audits = {"a": (1, "suspect", 2.5), "b": (3, "ok", 0.0), "c": (4, "ok", 0.0), "d": (2, "ok", 0.7)}
+    reason = {"reason": "grasp again after transport", "where": "1.00-2.00 s (frames 10-20)"}
+    audited = [views.Decided(r.id, r.time, r.features, r.path, r.probabilities, None, audit={
+        "rank": audits[r.id][0], "verdict": audits[r.id][1], "score": audits[r.id][2],
+        "reasons": [reason] if r.id == "a" else []}) for r in recordings]
+    rows = views.table(audited, {}, set())
+    assert [(r["id"], r["rank"], r["verdict"]) for r in rows] == [("a", 1, "suspect"), ("d", 2, "ok"), ("b", 3, "ok"),
+                                                                  ("c", 4, "ok")]
+    assert rows[0]["why"] == "grasp again after transport (1.00-2.00 s (frames 10-20))" and rows[1]["why"] is None
+    assert rows[0]["reason"] == "ranked by the audit (the most suspect first)"
+    rows = views.table(audited, {"c": (1, "new")}, set())
+    assert [r["id"] for r in rows] == ["c", "a", "d", "b"]
 
 
 @pytest.mark.parametrize(("segments", "says"), [

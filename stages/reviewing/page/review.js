@@ -4,7 +4,7 @@
 
 const COLORS = ["#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#76b7b2", "#edc948", "#b07aa1", "#ff9da7", "#9c755f",
   "#bab0ac"];
-const ROWS = { model: [2, 20], differ: [24, 32], labels: [36, 62] };  // the bands' rows, in CSS pixels
+const ROWS = { model: [2, 20], differ: [24, 32], labels: [36, 62], audit: [66, 76] };  // the bands' rows, in CSS px
 const state = { meta: null, index: null, data: null, plots: [], edit: [], undo: [], boundary: null, segment: null,
   frame: null, drag: null, drawnMs: null, explained: null, saved: null, shown: null, syncing: false };
 window.review = state;  // what the page holds, for a reader of the page (and its tests)
@@ -43,10 +43,11 @@ function table() {
   for (const r of state.meta.recordings) {
     const row = document.createElement("tr");
     row.dataset.index = r.index;
-    row.title = r.reason;
+    row.title = r.reason + (r.verdict ? ` · audit: ${r.verdict}${r.why ? `, ${r.why}` : ""}` : "");
     row.classList.toggle("current", r.index === state.index);
+    row.classList.toggle("suspect", r.verdict === "suspect");
     for (const text of [r.rank, r.id, r.frames, r.seconds.toFixed(1), `${(100 * r.confidence).toFixed(0)}%`,
-      labelsCell(r)]) cell(row, text);
+      labelsCell(r), auditCell(r)]) cell(row, text);
     row.addEventListener("click", () => open(r.index));
     body.append(row);
   }
@@ -60,6 +61,29 @@ function labelsCell(r) {  // what the table says of a recording's labels
   if (r.saved) return "saved";
   if (!r.labelled) return "–";
   return ORIGINS[r.origin] || "yes";
+}
+
+function reasons() {  // the audit's verdict and reasons in words, each where it happens (marked on the audit row)
+  const box = document.getElementById("audit"), audit = state.data.audit;
+  box.textContent = "";
+  if (!audit) { box.textContent = "audit: none (the model file holds no audit profile)"; return; }
+  const head = document.createElement("span");
+  head.className = audit.verdict;
+  head.textContent = `audit: ${audit.verdict}, score ${audit.score.toFixed(2)} (suspect from 1)`;
+  box.append(head);
+  const list = document.createElement("ol");
+  for (const r of audit.reasons) {
+    const item = document.createElement("li");
+    item.className = r.severity >= 1 ? "suspect" : "ok";
+    item.textContent = `${r.reason} · ${r.phase}, ${r.where} · severity ${r.severity.toFixed(2)}`;
+    list.append(item);
+  }
+  box.append(list);
+}
+
+function auditCell(r) {  // the audit's score, flagged where suspect (suspect from 1)
+  if (!r.verdict) return "–";
+  return (r.verdict === "suspect" ? "\u2691 " : "") + r.score.toFixed(2);
 }
 
 function niceStep(span) {  // 1, 2 or 5 times a power of ten, about a third of ``span``
@@ -104,6 +128,7 @@ async function open(index) {
   document.getElementById("labels-from").textContent = `the labels band starts from ${from}` +
     (data.origin ? ` · the labels fit trained on: ${data.origin}` : "");
   table();
+  reasons();
   choices();
   draw();
   await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
@@ -212,6 +237,10 @@ function bands() {
   const n = state.data.time.length, model = expand(state.data.phases, n), labels = expand(state.edit, n);
   paint(ctx, state.data.phases, ROWS.model);
   paint(ctx, state.edit, ROWS.labels);
+  for (const r of (state.data.audit ? state.data.audit.reasons : [])) {  // each reason's stretch, from its start
+    ctx.fillStyle = r.severity >= 1 ? "#b00020" : "#e6a3ad";
+    ctx.fillRect(xOf(r.start), ROWS.audit[0], Math.max(2, xOf(r.stop) - xOf(r.start)), ROWS.audit[1] - ROWS.audit[0]);
+  }
   ctx.fillStyle = "#d62728";
   for (let t = 0; t < n; t++) {
     if (labels[t] >= 0 && labels[t] !== model[t]) ctx.fillRect(xOf(t), ROWS.differ[0], Math.max(1, xOf(t + 1) - xOf(t)), 8);
@@ -235,6 +264,7 @@ function bands() {
   ctx.font = "11px system-ui";
   ctx.fillText("model", 4, 15);
   ctx.fillText("labels", 4, 53);
+  if (state.data.audit) ctx.fillText("audit", 4, 75);
 }
 
 function change(edit) {  // every edit goes through here: undo keeps what was
