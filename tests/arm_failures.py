@@ -14,6 +14,9 @@ demonstration goes wrong. Each kind names the phase where it goes wrong (``Failu
 - ``slip``: the object slips out as the arm lowers it to the place (the load gone, the fingers shut on nothing).
 - ``bump``: the arm hits something mid-transport: it stops, backs off a little, then carries on.
 - ``early``: the fingers open before the arm is at the place, dropping the object from the carry's end.
+- ``hold``: the fingers never open at the place: the arm goes home still holding the object.
+- ``fumble``: the fingers close on the object, open halfway and close again before the lift.
+- ``drag``: the object is never lifted: the arm drags it along the table to the place and lets go there.
 
 And two clean ones that are slower than any labelled recording (``slow``: every move 1.5 to 1.8 times slower;
 ``hesitant``: a stop of 0.4 to 1 s before each move), which a curator keeps. The labels are the phases a person
@@ -37,7 +40,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import arm_bags  # noqa: E402
 from arm_bags import ROBOTS, Episode, Robot, minimum_jerk, still  # noqa: E402
 
-FAILED = ("drop", "miss", "pause", "regrasp", "abort", "open", "repeat", "reach", "slip", "bump", "early")
+FAILED = ("drop", "miss", "pause", "regrasp", "abort", "open", "repeat", "reach", "slip", "bump", "early", "hold",
+          "fumble", "drag")
 CLEAN = ("clean", "slow", "hesitant")
 EMPTY = 0.002  # m: the fingers' opening closed on nothing
 # The segments arm_bags.trajectory adds, in order.
@@ -231,6 +235,40 @@ def early(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[li
     return parts[:CARRY] + [before, let_go] + rest + parts[RETREAT:], "transport"
 
 
+def hold_on(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    width, mass = parts[HELD].width[-1], float(parts[LIFT].held[0])
+    out = parts[:OPEN]
+    for part in parts[OPEN:]:
+        n = len(part.positions)
+        out.append(Part(part.positions, np.full(n, width), np.full(n, mass), part.phase))
+    return out, "place"
+
+
+def fumble(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    at, width = parts[CLOSE].positions[-1], parts[HELD].width[-1]
+    halfway = width + (robot.gripper_open - width) * rng.uniform(0.4, 0.6)
+    again = []
+    for start, end in ((width, halfway), (halfway, width)):
+        moving = gripper(robot, start, end)
+        again.append(Part(hold(at, len(moving)), moving, np.zeros(len(moving)), "grasp"))
+    return parts[:HELD] + again + parts[HELD:], "grasp"
+
+
+def drag(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    grasped, lifted = parts[LIFT].positions[0], parts[LIFT].positions[-1]
+    end = parts[CARRY].positions[-1] - (lifted - grasped)  # the carry's end at the table's height
+    carry, mass = parts[CARRY], float(parts[LIFT].held[0])
+    n = len(carry.positions)
+    dragged = Part(minimum_jerk(grasped, end, n), carry.width, np.full(n, mass), "transport")
+    out = parts[:LIFT] + [dragged]
+    for part in parts[LOWER:OPEN + 1]:  # set down where it was dragged to: no lowering
+        out.append(Part(hold(end, len(part.positions)), part.width, part.held, part.phase))
+    home = parts[RETREAT].positions[-1]
+    m = len(parts[RETREAT].positions)
+    out.append(Part(minimum_jerk(end, home, m), parts[RETREAT].width, parts[RETREAT].held, "retreat"))
+    return out + parts[REST:], "transport"
+
+
 def slow(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], None]:
     factor = rng.uniform(1.5, 1.8)
     out = []
@@ -261,7 +299,7 @@ def clean(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[li
 
 KINDS = {"drop": drop, "miss": miss, "pause": pause, "regrasp": regrasp, "abort": abort, "open": opened,
          "repeat": repeat, "reach": reach, "clean": clean, "slow": slow, "hesitant": hesitant, "slip": slip,
-         "bump": bump, "early": early}
+         "bump": bump, "early": early, "hold": hold_on, "fumble": fumble, "drag": drag}
 
 
 def failure(robot: Robot, kind: str, seed: int) -> Failure:
