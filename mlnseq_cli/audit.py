@@ -48,6 +48,8 @@ def audit(
     console.print(f"[green]audit[/]: wrote {result.path} ({counted(result.table.height, 'recording')}, "
                   f"{suspect} suspect)", highlight=False)
     console.print(calibration_line(result.profile), highlight=False)
+    if not result.profile.calibration.trusted:
+        console.print(f"[yellow]note[/]: {untrusted(result.profile)}", highlight=False)
     if result.lerobot is not None:
         console.print(f"[green]audit[/]: wrote {result.lerobot}: the dataset with mlnseq_verdict, mlnseq_score, "
                       "mlnseq_reason and mlnseq_reasons per episode (LeRobot: episode_filter=lambda ep: "
@@ -76,3 +78,13 @@ def calibration_line(profile) -> str:
     recordings = counted(calibration.recordings, "labelled training recording")
     return (f"suspect from score 1: allowances chosen by {how} on {recordings}; {calibration.flagged} of "
             f"{calibration.recordings} flagged by allowances set without them")
+
+
+def untrusted(profile) -> str:
+    """Why an audit whose decoding is unsure of the phases is not to be trusted."""
+    from mlnseq.auditing.profile import TRUSTED
+
+    calibration = profile.calibration
+    return (f"the model's decoding gets {calibration.accuracy:.0%} of the training recordings' frames right "
+            f"({calibration.how}); below {TRUSTED:.0%} the phases the audit reads off it are too often wrong for its "
+            "verdicts to be trusted: label more recordings, or check the model (docs/audit.md, when not to trust it)")

@@ -119,6 +119,8 @@ def audit_text(data: bytes, path: Path) -> str:
     calibration = profile.calibration
     allowances = ", ".join(f"{check} {value:.3g}" for check, value in sorted(profile.allowances.items()))
     order = " > ".join(profile.classes[k] for k in profile.phases)
+    accuracy = "" if calibration.accuracy is None else f"; its decoding {calibration.accuracy:.1%} right on them"
+    accuracy += "" if calibration.trusted else ", not to be trusted"
     return (f"{len(profile.orders)} labelled recordings ({order}), {len(profile.rules)} rules; allowances "
             f"{allowances or 'the least'} ({calibration.how}, {calibration.flagged} of {calibration.recordings} "
-            "flagged by allowances set without them)")
+            f"flagged by allowances set without them{accuracy})")

@@ -25,6 +25,7 @@ from mlnseq.mln.chain_factors import ChainFactors
 from mlnseq.timeline import sequences
 
 MARGIN = 1.25  # a check's allowance: this many times the highest measure of a held-out training recording
+ROBUST = 5  # from this many held-out training recordings on, the highest measure is left out of the allowances
 CHAIN_MARGIN = 0.1  # nats a frame below the least windowed chain log-likelihood of a held-out recording
 
 
@@ -68,7 +69,9 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
                     recognizer.classes, columns, rate)
     highest = {check.value: max((m.get(check.value, 0.0) for m in measures), default=0.0) for check in Check}
     flagged = sum(_flagged(m, [o for o in measures if o is not m]) for m in measures)
-    calibration = Calibration(len(measures), flagged, highest, how)
+    rows = np.concatenate([np.arange(span.start, span.stop) for span in episodes]) if episodes else np.zeros(0, int)
+    accuracy = float(np.mean(path[rows] == data.labels[rows])) if len(rows) else None
+    calibration = Calibration(len(measures), flagged, highest, how, accuracy)
     return calibrated_as(profile, _allowances(measures), _floor(lows), calibration,
                          _rms([e for own in errors for e in own], rate))
 
@@ -91,8 +94,15 @@ def _measured(profile: Profile, path: np.ndarray, evidence: np.ndarray | None,
 
 
 def _allowances(measures: list[dict[str, float]]) -> dict[str, float]:
-    return {check.value: max(check.least, MARGIN * max((m.get(check.value, 0.0) for m in measures), default=0.0))
-            for check in Check}
+    """Each check's allowance: MARGIN times the highest measure of the held-out recordings, from ROBUST recordings
+    on the highest but one (a fold whose network decoded its recording badly does not blind the audit), at least
+    the check's least."""
+    out = {}
+    for check in Check:
+        values = sorted((m.get(check.value, 0.0) for m in measures), reverse=True)
+        kept = values[1:] if len(values) >= ROBUST else values
+        out[check.value] = max(check.least, MARGIN * max(kept, default=0.0))
+    return out
 
 
 def _flagged(measure: dict[str, float], others: list[dict[str, float]]) -> bool:
@@ -111,8 +121,11 @@ def _lowest(rate: float, likelihood: np.ndarray) -> float | None:
 
 
 def _floor(lows: list[float | None]) -> float | None:
-    known = [low for low in lows if low is not None]
-    return min(known) - CHAIN_MARGIN if known else None
+    """CHAIN_MARGIN below the least windowed chain log-likelihood of the held-out recordings (from ROBUST on: the
+    least but one)."""
+    known = sorted(low for low in lows if low is not None)
+    kept = known[1:] if len(known) >= ROBUST else known
+    return kept[0] - CHAIN_MARGIN if kept else None
 
 
 def out_of_fold(inputs: WorkdirInputs, recognizer: Any) -> tuple[np.ndarray, dict[int, ChainFactors] | None] | None:

@@ -86,8 +86,7 @@ class Monitor:
         return self._alert(scoring.ending_reasons(self.profile, self.segments, said))
 
     def _alert(self, reasons: list[Reason]) -> Alert | None:
-        judged = [replace(r, severity=r.measure / scoring.allowance(self.profile, r.kind.check)) for r in reasons]
-        suspect = [r for r in judged if r.severity >= 1.0]
+        suspect = [r for r in (scoring.weighed(self.profile, r) for r in reasons) if r.severity >= 1.0]
         if not suspect:
             return None
         self.alerted = True

@@ -21,6 +21,7 @@ INFORMATIVE = 0.05  # a "never" rule only for a predicate value at least this co
 EDGE = 0.1  # the share of a phase at each end left out of its rules (labels and predicates change near boundaries)
 SPREAD_FLOOR = 0.15  # the least spread of log-durations assumed (few recordings understate it)
 SHRINK = 4  # a phase's spread is shrunk towards the pooled one as if this many more segments had it
+TRUSTED = 0.9  # below this frame accuracy of its decoding on the training recordings, out of fold, an audit is unsure
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,12 @@ class Calibration:
     flagged: int = 0
     highest: dict[str, float] = field(default_factory=dict)
     how: str = "cross-validation"  # or "in-sample" where the workdir has no folds
+    accuracy: float | None = None  # the share of the training recordings' frames its decoding gets right (as how)
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the audit's decoding is sure enough of the phases for its verdicts (unknown: trusted)."""
+        return self.accuracy is None or self.accuracy >= TRUSTED
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ FLICKER = 0.5  # a run shorter than this share of the shortest labelled segment 
 CHAIN_S = 0.5  # seconds the chain's log-likelihood is averaged over
 SHOWN = 0.5  # reasons of at least this severity are listed
 MISSING = 2.0  # a phase missing measures as a phase twice flicker's length out of order
+CHAIN_ALONE = SHOWN  # the most a stretch the chain finds unlikely weighs: it is listed and ranks, never decides
 
 
 class Check(Enum):
@@ -70,7 +71,7 @@ class Reason:
     stop: int  # the frame after its last
     measure: float  # in its check's unit
     text: str  # in words, without where
-    severity: float = 0.0  # the measure over the check's allowance (set by ``judged``)
+    severity: float = 0.0  # the measure over the check's allowance (set by ``weighed``)
 
 
 @dataclass(frozen=True)
@@ -303,6 +304,12 @@ def windowed(values: np.ndarray, width: int) -> np.ndarray:
     return (sums[ends] - sums[begins]) / (ends - begins)
 
 
+def first_unlikely(steps: np.ndarray, floor: float) -> int:
+    """Where an unlikely window's unlikely stretch starts: its first step below ``floor`` (else its least likely)."""
+    below = np.flatnonzero(steps < floor)
+    return int(below[0]) if len(below) else int(np.argmin(steps))
+
+
 def chain_reasons(profile: Profile, segments: list[Segment], likelihood: np.ndarray) -> list[Reason]:
     """The longest stretch whose windowed chain log-likelihood is below the least the labelled recordings showed."""
     if profile.chain is None or not len(likelihood) or not segments:
@@ -313,10 +320,10 @@ def chain_reasons(profile: Profile, segments: list[Segment], likelihood: np.ndar
     severity = length / profile.rate
     if severity < SHOWN * Check.CHAIN.least:
         return []
-    first = start  # the window ending at frame start + width - 1 begins at start
+    first = start + first_unlikely(likelihood[start:start + width], profile.chain)  # its window's first such step
     phase = next(s.phase for s in segments if s.stop > first)
     low = float(means[start:start + length].min())
-    return [Reason(Kind.CHAIN, phase, first, first + length + width - 1, severity,
+    return [Reason(Kind.CHAIN, phase, first, start + length + width - 1, severity,
                    f"{profile.classes[phase]}: a stretch the chain finds unlikely ({low:.2f} nats a frame over "
                    f"{profile.said(width)}, at least {profile.chain:.2f} in the labelled recordings)")]
 
@@ -338,13 +345,22 @@ def allowance(profile: Profile, check: Check) -> float:
     return profile.allowances.get(check.value, check.least)
 
 
+def weighed(profile: Profile, reason: Reason) -> Reason:
+    """A reason's severity: its measure over its check's allowance; a stretch the chain finds unlikely ranks a
+    recording but never makes it suspect (CHAIN_ALONE): how unlikely a clean new recording's stretch can be is more
+    than the training recordings' out-of-fold decodings show."""
+    severity = reason.measure / allowance(profile, reason.kind.check)
+    return replace(reason, severity=min(severity, CHAIN_ALONE) if reason.kind is Kind.CHAIN else severity)
+
+
 def verdict(profile: Profile, reasons: list[Reason], pace: float) -> Audited:
-    """Each reason judged (its measure over its check's allowance), the score (the largest severity), the verdict
-    (suspect from 1) and the reasons in their order: the suspect ones by time (and kind, at one frame), then the
-    others of at least SHOWN by severity."""
-    judged = [replace(r, severity=r.measure / allowance(profile, r.kind.check)) for r in reasons]
-    score = max((r.severity for r in judged), default=0.0)
+    """Each reason weighed (``weighed``), the score (the largest severity), the verdict (suspect from 1) and the
+    reasons in their order: the suspect ones by time (and kind, at one frame), then the others of at least SHOWN by
+    severity."""
+    weighed_ = [weighed(profile, r) for r in reasons]
+    score = max((r.severity for r in weighed_), default=0.0)
     kinds = list(Kind)
-    above = sorted((r for r in judged if r.severity >= 1.0), key=lambda r: (r.start, kinds.index(r.kind), -r.severity))
-    below = sorted((r for r in judged if SHOWN <= r.severity < 1.0), key=lambda r: -r.severity)
+    above = sorted((r for r in weighed_ if r.severity >= 1.0),
+                   key=lambda r: (r.start, kinds.index(r.kind), -r.severity))
+    below = sorted((r for r in weighed_ if SHOWN <= r.severity < 1.0), key=lambda r: -r.severity)
     return Audited(score, score >= 1.0, tuple(above + below), pace)

@@ -216,3 +216,22 @@ def test_review_orders_recordings_by_suspicion_and_marks_each_reasons_stretch(fi
             until(page, f"window.review.data.id === '{clean}' && window.review.drawnMs")
             assert page.inner_text("#audit").startswith("audit: ok, score")
             assert page.errors == []
+
+
+def test_a_model_whose_decoding_is_often_wrong_says_its_audit_is_not_to_be_trusted(fitted, tmp_path):
+    """The model file's audit profile keeps how often its decoding was right on the training recordings (out of
+    fold); below 90 % audit and info say the verdicts are not to be trusted."""
+    entries = model_file.read_model(fitted["model"])
+    profile = json.loads(entries[AUDIT])
+    assert 0 < profile["calibration"]["accuracy"] <= 1  # measured at export
+    profile["calibration"]["accuracy"] = 0.74
+    manifest = json.loads(entries.pop(MANIFEST))
+    entries[AUDIT] = json.dumps(profile).encode()
+    manifest = {k: v for k, v in manifest.items() if k not in ("format", "members")}
+    unsure = model_file.write_model(tmp_path / "unsure.mlnseq", model_file.seal(manifest, entries))
+    done = runner.invoke(app, ["audit", str(unsure), "--source", str(fitted["new"]), "-o", str(tmp_path / "u.csv")])
+    said = " ".join(done.output.split())
+    assert done.exit_code == 0 and "gets 74% of the training recordings' frames right" in said
+    assert "too often wrong for its verdicts to be trusted" in said and "docs/audit.md" in said
+    info = runner.invoke(app, ["info", str(unsure)])
+    assert info.exit_code == 0 and "74.0% right on them, not to be trusted" in " ".join(info.output.split())

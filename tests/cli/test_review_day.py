@@ -130,6 +130,7 @@ def test_one_labelled_recording_the_first_ranked_corrected_in_the_page_then_fit_
                                              "c => c.textContent))")
             assert [r[1] for r in rows] == [*ranked, "episode_1"]  # label_next.csv's order, then the labelled one
             assert [r[5] for r in rows] == ["aligned"] * 5 + ["own"]  # fit's labels: estimated, or the bag's own
+            assert all(float(r[6].lstrip("\u2691 ")) >= 0 for r in rows)  # audited, yet label_next.csv's order wins
             view = page.evaluate("window.review.data")
             assert view["id"] == top and view["origin"] == "estimated by alignment"
             assert page.evaluate("window.review.edit") == view["proposal"]  # the band starts from fit's proposal

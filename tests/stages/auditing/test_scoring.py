@@ -103,3 +103,31 @@ def test_a_malformed_profile_is_one_line(profile):
         Profile.read(profile.to_json().replace(b'"rate": 10.0', b'"rate": -1'), "m.mlnseq")
     with pytest.raises(BadInput, match="not one this mlnseq reads"):
         Profile.read(b"[1, 2", "m.mlnseq")
+
+
+def test_a_stretch_the_chain_finds_unlikely_is_listed_from_its_first_unlikely_step_but_never_decides(profile):
+    from dataclasses import replace
+
+    chained = replace(profile, chain=-1.0)
+    labels, evidence = recording([(REACH, 50), (CARRY, 30), (PLACE, 80)], np.random.default_rng(1))
+    likelihood = np.full(len(labels), -0.01)
+    likelihood[95:115] = -3.0  # 2 s of unlikely steps within place, long past the chain's least allowance
+    result = scoring.audit(chained, Decoded(labels, evidence, likelihood))
+    (reason,) = result.reasons
+    assert reason.kind is Kind.CHAIN and reason.phase == PLACE and reason.start == 95
+    assert reason.measure / scoring.allowance(chained, scoring.Check.CHAIN) > 1  # measured far past its allowance
+    assert reason.severity == scoring.SHOWN and result.score == scoring.SHOWN and not result.suspect
+
+
+def test_allowances_leave_out_one_held_out_recording_decoded_badly():
+    from mlnseq.auditing import calibration
+    from mlnseq.auditing.profile import Calibration
+
+    few = [{"order": 0.0, "duration": 2.0}, {"order": 6.5, "duration": 3.4}, {"duration": 1.0}]
+    assert calibration._allowances(few)["order"] == pytest.approx(1.25 * 6.5)  # four or fewer: the highest counts
+    many = few + [{"duration": 1.6}, {"duration": 0.4}, {"order": 0.5}]
+    allowed = calibration._allowances(many)
+    assert allowed["order"] == pytest.approx(1.0) and allowed["duration"] == pytest.approx(3.0)  # the least
+    assert calibration._floor([-0.1, -0.3, -0.12, -0.11, -0.13]) == pytest.approx(-0.13 - calibration.CHAIN_MARGIN)
+    assert Calibration(accuracy=0.74).trusted is False and Calibration(accuracy=0.97).trusted
+    assert Calibration().trusted  # a profile from before audit measured its decoding: nothing said
