@@ -42,7 +42,7 @@ SUGGESTED_SPEC = "learned.binarize.toml"  # in the workdir: the predicates fit l
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
 MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
-SETTLED = {"optimizer": "adam", "members": 3, "updates": 3000}  # how fit trains its networks (docs/reproduce.md)
+SETTLED = {"optimizer": "averaged", "members": 3, "updates": 1000}  # how fit trains its networks (docs/reproduce.md)
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ class FitOptions:
 
     def train_options(self, folds: int | None) -> TrainOptions:
         """train's: an LSTM in stream mode (whole episodes, as live frames come) with ``folds`` fold networks, trained
-        to settle (``SETTLED``: Adam, stopped by the folds, the mean of several networks)."""
+        to settle (``SETTLED``: averaged SGD, stopped by the folds, the mean of 3 networks)."""
         from mlnseq.train import TrainOptions
 
         return TrainOptions(mode="stream", folds=folds, epochs=self.epochs, seed=self.seed, **SETTLED)
