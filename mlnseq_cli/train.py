@@ -43,8 +43,8 @@ HELP = {
              "K` wrote them, else 0 (none).",
     "smoothing": "tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.",
     "optimizer": "sgd: plain SGD at a fixed rate for --epochs, the last kept (the authors', the reproduction's); "
-                 "averaged (what `mlnseq fit` trains) or adam: the same SGD steps, or Adam's, over a budget of updates, "
-                 "the weights' moving average kept; with folds the fold networks train first, and the network stops "
+                 "averaged (what `mlnseq fit` trains) or adam: the same SGD steps, or Adam's, over a budget of "
+                 "updates, the weights' moving average kept; with folds the fold networks train first, and the network stops "
                  "at the epoch where their out-of-fold predictions score best.",
     "members": "Networks fitted side by side per seed and averaged into the one kept (one network of their type, "
                "wider: the same predictions as their mean); fit trains 3.",

@@ -104,8 +104,8 @@ def merged(models: list[SequenceClassifier]) -> SequenceClassifier:
         c = first.config.n_classes
         h2c = [s["prior.weight"][:, :c] @ w for s, w in zip(states, h2c)]
         bias = [s["prior.weight"][:, :c] @ b for s, b in zip(states, bias)]
-        weights["prior.weight"] = torch.cat([torch.eye(c, dtype=dtype), sum(s["prior.weight"][:, c:] for s in states) / g],
-                                            1)
+        from_mln = sum(s["prior.weight"][:, c:] for s in states) / g
+        weights["prior.weight"] = torch.cat([torch.eye(c, dtype=dtype), from_mln], 1)
         weights["prior.bias"] = sum(s["prior.bias"] for s in states) / g
     weights["h2c.weight"], weights["h2c.bias"] = torch.cat(h2c, 1), sum(bias)
     model = SequenceClassifier(config).to(dtype)
