@@ -42,7 +42,7 @@ SUGGESTED_SPEC = "learned.binarize.toml"  # in the workdir: the predicates fit l
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
 MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
-SETTLED = {"optimizer": "averaged", "members": 3, "updates": 1000}  # how fit trains its networks (docs/reproduce.md)
+SETTLED = {"optimizer": "averaged", "members": 3, "updates": 3000}  # how fit trains its networks (docs/reproduce.md)
 
 
 @dataclass(frozen=True)
