@@ -18,8 +18,10 @@ Datasets (each built here, or read from ../shared/data):
   scored on its test split (the held-out recordings: no stage reads them); hand spec: the paper's Fetch predicates.
 
 ``BENCH_FIRST_DAY`` names the datasets to run (comma-separated; default all); ``BENCH_EPOCHS`` fit's epochs (100);
-``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only ``arm-panda-dev``, 4 bags and 1 held out, at 3
-epochs. Prints one row per dataset, then the targets of issue 45.
+``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each figure the mean over them, with its range;
+fetch's seed also draws its episodes); ``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only
+``arm-panda-dev``, 4 bags and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets of issue
+45 (on the means).
 """
 
 from __future__ import annotations
@@ -214,10 +216,12 @@ def paired(ours: dict[str, float], other: dict[str, float]) -> tuple[float, floa
     return float(difference.mean()), float(spread)
 
 
-def measure(data: Dataset, root: Path, epochs: str) -> dict:
-    """fit without a spec, the network alone of that workdir, fit with the hand spec: held-out frame accuracy."""
-    work = root / f"{data.name}-learned"
-    _, seconds = run(["fit", *data.fit, "-w", str(work), "--epochs", epochs])
+def measure(data: Dataset, root: Path, epochs: str, seed: int) -> dict:
+    """fit without a spec, the network alone of that workdir, fit with the hand spec: held-out frame accuracy, the
+    networks seeded with ``seed``."""
+    work = root / f"{data.name}-learned-{seed}"
+    seeded = ["--epochs", epochs, "--seed", str(seed)]
+    _, seconds = run(["fit", *data.fit, "-w", str(work), *seeded])
     run(["export", "--method", "network", "-w", str(work), "-o", str(work / "network.mlnseq"), "--force"])
     frames = json.loads(subprocess.run([sys.executable, "-c", "import json,sys; from mlnseq.catalog import artifacts; "
                                         "import polars as pl; f=pl.read_parquet(sys.argv[1]); "
@@ -233,8 +237,8 @@ def measure(data: Dataset, root: Path, epochs: str) -> dict:
     if data.hand is not None:
         spec = root / f"{data.name}.hand.binarize.toml"
         spec.write_text(data.hand)
-        hand = root / f"{data.name}-hand"
-        run(["fit", *data.fit, "-w", str(hand), "--epochs", epochs, "--spec", str(spec)])
+        hand = root / f"{data.name}-hand-{seed}"
+        run(["fit", *data.fit, "-w", str(hand), *seeded, "--spec", str(spec)])
         row["hand"], hand_episodes = score(data, hand, hand / "model.mlnseq")
         row["hand_chosen"], row["against_hand"] = method_of(hand / "model.mlnseq"), paired(learned_episodes,
                                                                                             hand_episodes)
@@ -242,7 +246,7 @@ def measure(data: Dataset, root: Path, epochs: str) -> dict:
 
 
 def targets(row: dict) -> list[str]:
-    """Which of issue 45's targets the row misses (an empty list: all met)."""
+    """Which of issue 45's targets the row (its means over seeds) misses (an empty list: all met)."""
     missed = []
     if row.get("hand") is not None and row["learned"] < row["hand"] - 1:
         missed.append("within 1 point of the hand spec" + per_episode(row["against_hand"]))
@@ -255,6 +259,33 @@ def targets(row: dict) -> list[str]:
     return missed
 
 
+def over_seeds(rows: list[dict]) -> dict:
+    """The rows of one dataset's seeds as one: each figure's mean, and ``spread``: each figure's (lowest, highest);
+    the paired differences pooled over the seeds' episodes."""
+    import numpy as np
+
+    row = {key: rows[0][key] for key in ("dataset", "note", "frames")}
+    row["chosen"] = ", ".join(dict.fromkeys(r["chosen"] for r in rows))
+    if rows[0].get("hand") is not None:
+        row["hand_chosen"] = ", ".join(dict.fromkeys(r["hand_chosen"] for r in rows))
+    row["spread"] = {}
+    for key in ("fit_s", "learned", "network", "hand", "training_min"):
+        if rows[0].get(key) is not None:
+            values = [r[key] for r in rows]
+            row[key], row["spread"][key] = float(np.mean(values)), (min(values), max(values))
+    for key in ("against_network", "against_hand"):
+        if key in rows[0]:
+            means = [r[key][0] for r in rows]
+            row[key] = (float(np.mean(means)), float(np.sqrt(sum(r[key][1] ** 2 for r in rows)) / len(rows)))
+    return row
+
+
+def figure(row: dict, key: str) -> str:
+    """A figure as its mean over seeds, with its range where there are several."""
+    low, high = row["spread"][key]
+    return f"{row[key]:.1f}" + ("" if low == high else f" ({low:.1f}-{high:.1f})")
+
+
 def per_episode(difference: tuple[float, float]) -> str:
     mean, spread = difference
     return f" (per held-out episode {mean:+.1f} ± {spread:.1f})" if spread == spread else ""
@@ -264,24 +295,25 @@ def main() -> None:
     quick = os.environ.get("BENCH_QUICK") == "1"
     names = ["arm-panda-dev"] if quick else os.environ.get("BENCH_FIRST_DAY", ",".join(BUILDERS)).split(",")
     epochs = "3" if quick else os.environ.get("BENCH_EPOCHS", "100")
+    seeds = [0] if quick else [int(s) for s in os.environ.get("BENCH_SEEDS", "0,1,2").split(",")]
     unknown = [n for n in names if n not in BUILDERS]
     if unknown:
         raise SystemExit(f"BENCH_FIRST_DAY: no dataset {', '.join(unknown)}; choose from {', '.join(BUILDERS)}")
-    print(f"first day: `mlnseq fit` without a spec, {epochs} epochs; frame accuracy (%) on held-out recordings "
-          "(fetch: its test split)")
+    print(f"first day: `mlnseq fit` without a spec, {epochs} epochs at most, seeds {', '.join(map(str, seeds))}; frame "
+          "accuracy (%) on held-out recordings (fetch: its test split), the mean over the seeds (lowest-highest)")
     print("| dataset | frames (train) x channels | fit (s) | chosen | learned | network alone | hand spec (chosen) "
           "| lowest training episode | targets |")
     print("|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as folder:
         for name in names:
             data = BUILDERS[name](Path(folder))
-            row = measure(data, Path(folder), epochs)
-            hand = "-" if row.get("hand") is None else f"{row['hand']:.1f} ({row['hand_chosen']})"
+            row = over_seeds([measure(data, Path(folder), epochs, seed) for seed in seeds])
+            hand = "-" if row.get("hand") is None else f"{figure(row, 'hand')} ({row['hand_chosen']})"
             total, train, channels = row["frames"]
             missed = targets(row)
             print(f"| {name} ({row['note']}) | {total:,} ({train:,}) x {channels} | {row['fit_s']:.0f} | "
-                  f"{row['chosen']} | {row['learned']:.1f} | {row['network']:.1f} | {hand} | "
-                  f"{row['training_min']:.1f} | {'met' if not missed else 'missed: ' + '; '.join(missed)} |",
+                  f"{row['chosen']} | {figure(row, 'learned')} | {figure(row, 'network')} | {hand} | "
+                  f"{figure(row, 'training_min')} | {'met' if not missed else 'missed: ' + '; '.join(missed)} |",
                   flush=True)
     print(f"first day: {len(names)} dataset(s) measured")
 

@@ -15,8 +15,9 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
   frame (the other 5 still clicked, as ``1 + clicks``), against the mean of labelling each of the 6 so.
 
 ``BENCH_LABELS_ARMS``: robot:seed pairs (default panda:83,iiwa:89,xarm7:97: seeds never used while developing);
-``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
-recordings, 1 held out, 2 epochs, 1 labelled only (seconds, for tests/test_benchmarks.py).
+``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each cell
+the mean over them, with its range); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
+recordings, 1 held out, 2 epochs, 1 labelled only, seed 0 (seconds, for tests/test_benchmarks.py).
 """
 
 from __future__ import annotations
@@ -41,7 +42,19 @@ def settings() -> dict:
     arms = os.environ.get("BENCH_LABELS_ARMS", "panda:0" if quick else "panda:83,iiwa:89,xarm7:97")
     return {"arms": [(a.split(":")[0], int(a.split(":")[1])) for a in arms.split(",")], "quick": quick,
             "episodes": 3 if quick else 6, "heldout": 1 if quick else int(os.environ.get("BENCH_HELDOUT", "6")),
-            "epochs": "2" if quick else os.environ.get("BENCH_EPOCHS", "100"), "labelled": (1,) if quick else (1, 2, 3)}
+            "epochs": "2" if quick else os.environ.get("BENCH_EPOCHS", "100"), "labelled": (1,) if quick else (1, 2, 3),
+            "seeds": [0] if quick else [int(s) for s in os.environ.get("BENCH_SEEDS", "0,1,2").split(",")]}
+
+
+def seeded(config: dict, seed: int) -> dict:
+    """``config`` whose fits seed their networks with ``seed`` (fit's --epochs and --seed, as ``fit`` takes them)."""
+    return {**config, "epochs": f"{config['epochs']} --seed {seed}"}
+
+
+def spread(values: list[float]) -> str:
+    """The mean of ``values``, with their range where there are several."""
+    low, high = min(values), max(values)
+    return f"{np.mean(values):.1f}" + ("" if low == high else f" ({low:.1f}-{high:.1f})")
 
 
 def bags(root: Path, robot: str, seed: int, n: int, heldout: int) -> dict:
@@ -89,7 +102,8 @@ def source(data: dict, labelled: list[str], others: bool, name: str) -> Path:
 
 
 def fit(folder: Path, work: Path, epochs: str, *extra: str) -> Path:
-    run(["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase", "--epochs", epochs,
+    """``epochs``: fit's --epochs and --seed (``seeded``)."""
+    run(["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase", "--epochs", *epochs.split(),
          "-w", str(work), *extra])
     return work / "model.mlnseq"
 
@@ -148,19 +162,23 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
 
 def main() -> None:
     config = settings()
-    rows = {}
+    runs: dict[str, list[dict]] = {}  # per arm, a row per network seed
     with tempfile.TemporaryDirectory(prefix="bench-labels-") as tmp:
         for robot, seed in config["arms"]:
-            rows[f"{robot}:{seed}"] = measure(robot, seed, config, Path(tmp) / f"{robot}-{seed}")
-            print(f"{robot}:{seed}: {rows[f'{robot}:{seed}']}", flush=True)
+            for network_seed in config["seeds"]:
+                row = measure(robot, seed, seeded(config, network_seed), Path(tmp) / f"{robot}-{seed}-{network_seed}")
+                runs.setdefault(f"{robot}:{seed}", []).append(row)
+                print(f"{robot}:{seed}, networks' seed {network_seed}: {row}", flush=True)
     columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")],
                "clicks", "1 + clicks", "next", "any", "clicks next", "clicks any"]
+    rows = {name: {c: float(np.mean([r[c] for r in seeds])) for c in columns} for name, seeds in runs.items()}
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
-          f"{config['epochs']}, {config['episodes']} recordings to learn from")
+          f"{config['epochs']}, {config['episodes']} recordings to learn from; each the mean over the networks' seeds "
+          f"{', '.join(map(str, config['seeds']))} (lowest-highest)")
     print("| arm | " + " | ".join(columns) + " |")
     print("|---" * (len(columns) + 1) + "|")
-    for name, row in rows.items():
-        print(f"| {name} | " + " | ".join(f"{row[c]:.1f}" for c in columns) + " |")
+    for name, seeds in runs.items():
+        print(f"| {name} | " + " | ".join(spread([r[c] for r in seeds]) for c in columns) + " |")
     means = {c: float(np.mean([row[c] for row in rows.values()])) for c in columns}
     print("| mean | " + " | ".join(f"{means[c]:.1f}" for c in columns) + " |")
     said = []

@@ -63,7 +63,7 @@ def batched_epoch(data: train.FrameData, options: train.TrainOptions) -> float:
         log_probs = model(x_all[index, :longest])[0]
         y = y_all[index, :longest]
         loss = (fitting.frame_losses(log_probs, y).sum(1) / n_all[index]).mean()
-        fitting.descend(parameters, loss, options.learning_rate)
+        fitting.descend(parameters, loss, options.training.rate)
     return time.perf_counter() - started
 
 
@@ -138,11 +138,11 @@ def side_by_side(data: train.FrameData, epochs: int = 20) -> None:
             begun = time.perf_counter()
             for one in fittings:
                 for _ in range(epochs):
-                    one.epoch(options.batch_size, options.learning_rate)
+                    one.epoch(options.batch_size, options.training.rate)
             seconds["one after another"].append(time.perf_counter() - begun)
             fittings = started()
             begun = time.perf_counter()
-            fitting.fit_together(fittings, epochs, options.batch_size, options.learning_rate)
+            fitting.fit_together(fittings, epochs, options.batch_size, options.training.rate)
             seconds["side by side"].append(time.perf_counter() - begun)
         alone, together = (min(values) for values in seconds.values())
         print(f"desk: {cell} {mode} mode, {what}, {epochs} epochs (best of {REPEATS}): one after another "

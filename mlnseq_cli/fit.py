@@ -20,6 +20,9 @@ from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
 
 
+SEED_HELP = "Seed of the networks' initial weights and batch order (and fetch's resets and action noise)."
+
+
 def fit_options(
     spec: Annotated[Optional[Path], typer.Option(help="Your predicate spec \\[default: predicates learned from the training split, written to learned.binarize.toml in the workdir].", dir_okay=False)] = None,
     formulas: Annotated[Optional[Path], typer.Option(help="Your formulas (.mln) \\[default: the formulas learned with the predicates, learned.formulas.mln; with --spec, every predicate value => every class, plus learned transitions between classes].", dir_okay=False)] = None,
@@ -47,7 +50,7 @@ def fit(**flags: Any) -> None:
     workdir = own.pop("workdir")
     with reported_errors():
         source = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"})
-        fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own), Printed())
+        fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own, seed=source.seed), Printed())
     for line in fitted.said:
         say(line)
     say(f"[green]fit[/]: {fitted.wrote}")
@@ -82,7 +85,8 @@ class Printed(pipeline.Observer):
         say(f"[green]learn-weights[/]: {step.said}", tuple(step.learned.warnings))
 
     def training(self, epochs: int, folds: int) -> Any:
-        return epoch_progress("lstm (stream mode)" + (f", then {folds} fold networks" if folds else ""), epochs)
+        return epoch_progress("lstm (stream mode)" + (f", stopped where its {folds} networks without a fold score best "
+                                                      "on it (those first)" if folds else ""), epochs)
 
     def trained(self, step: pipeline.Training) -> None:
         say(f"[green]train[/]: {step.said}", tuple(step.result.trained.warnings))
@@ -94,6 +98,8 @@ class Printed(pipeline.Observer):
 def _joined() -> inspect.Signature:
     """collect's parameters (without its --workdir) then fit's own, for typer to read."""
     source = [p for n, p in inspect.signature(collect_cli.collect, eval_str=True).parameters.items() if n != "workdir"]
+    source = [p.replace(annotation=Annotated[int, typer.Option(help=SEED_HELP)]) if p.name == "seed" else p
+              for p in source]
     return inspect.Signature(source + list(inspect.signature(fit_options, eval_str=True).parameters.values()))
 
 

@@ -42,6 +42,14 @@ HELP = {
              "in stream mode with --select none, the K of the MLN's fold weights when `mlnseq learn-weights --folds "
              "K` wrote them, else 0 (none).",
     "smoothing": "tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.",
+    "optimizer": "sgd: plain SGD at a fixed rate for --epochs, the last kept (the authors', the reproduction's); "
+                 "averaged (what `mlnseq fit` trains) or adam: the same SGD steps, or Adam's, over a budget of "
+                 "updates, the weights' moving average kept; with folds the fold networks train first, and the network stops "
+                 "at the epoch where their out-of-fold predictions score best.",
+    "members": "Networks fitted side by side per seed and averaged into the one kept (one network of their type, "
+               "wider: the same predictions as their mean); fit trains 3.",
+    "updates": "adam: at most this many updates (--batch-size sequences each), however large the training split; 0: "
+               "--epochs alone decide.",
     "paper_floor": "How the authors' code made the MLN's per-class sums non-negative (PriorLayer's paper input, "
                    "conflate's mln-mode paper): clamp (negative sums to 0, their DESK code) or shift (by each frame's "
                    "minimum, their Fetch code). Default: shift for --env fetch recordings, else clamp. Recorded in the "
@@ -62,9 +70,12 @@ def train(
     device: Annotated[str, typer.Option(help="auto (cuda when present), cpu or cuda.")] = Defaults.device,
     train_fraction: Annotated[float, typer.Option(help="Train on the first F of the training sequences, "
                                                        "0 < F <= 1.")] = Defaults.train_fraction,
-    batch_size: Annotated[int, typer.Option(help="Sequences per SGD step.")] = Defaults.batch_size,
+    batch_size: Annotated[int, typer.Option(help="Sequences per update.")] = Defaults.batch_size,
     window: Annotated[int, typer.Option(help="stream mode: training window length in frames.")] = Defaults.window,
     smoothing: Annotated[float, typer.Option(help=HELP["smoothing"])] = Defaults.smoothing,
+    optimizer: Annotated[str, typer.Option(help=HELP["optimizer"])] = Defaults.optimizer.value,
+    members: Annotated[int, typer.Option(help=HELP["members"])] = Defaults.members,
+    updates: Annotated[int, typer.Option(help=HELP["updates"])] = Defaults.updates,
     paper_floor: Annotated[Optional[str], typer.Option(help=HELP["paper_floor"], show_default=False)] = None,
     workdir: Annotated[list[Path], typer.Option("--workdir", "-w", help=HELP["workdir"], file_okay=False)] = [DEFAULT],
 ) -> None:
@@ -74,7 +85,7 @@ def train(
     options = stage.TrainOptions(
         method=method, seed=seed[0], epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
         folds=folds, device=device, train_fraction=train_fraction, batch_size=batch_size, window=window,
-        smoothing=smoothing, paper_floor=paper_floor,
+        smoothing=smoothing, paper_floor=paper_floor, optimizer=optimizer, members=members, updates=updates,
     )
     with reported_errors():
         options.validate()
@@ -106,7 +117,11 @@ def _then_folds(workdir, options: stage.TrainOptions) -> str:
     path = workdir / artifacts.FOLD_WEIGHTS
     if k is None and options.mode == "stream" and options.select == "none" and path.exists():
         k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
-    return f", then {k} {FOLD_NETWORKS}" if k else ""
+    if not k:
+        return ""
+    if options.optimizer == "sgd":
+        return f", then {k} {FOLD_NETWORKS}"
+    return f", stopped where its {k} networks without a fold score best on it (those first)"
 
 
 def _folds_said(checkpoint, asked: Optional[int]) -> str:
@@ -130,8 +145,9 @@ def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
                    TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
         with Progress(*columns, console=console, transient=True) as bar:
             task = bar.add_task(what, total=epochs, scores="")
-            yield lambda done: bar.update(task, completed=done.epoch, refresh=True, scores=_scores(done) + (
-                "; now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else ""))
+            yield lambda done: bar.update(task, completed=done.epoch, total=done.epochs, refresh=True,
+                                          scores=_scores(done) + ("; now the fold networks" if done.epoch == done.epochs
+                                                                  and FOLD_NETWORKS in what else ""))
         return
     started, said = time.monotonic(), []
 

@@ -31,9 +31,11 @@ from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import ALIASES, NETWORKS, PRIORS, Method, PaperFloor, Prior, member
 from mlnseq.catalog.parts import Part
 from mlnseq.model.checkpoints import write_checkpoint
-from mlnseq.networks.fitting import Fitting, Together, fit_together, predict_log_probs, resolve_device, set_threads
-from mlnseq.choosing.training_rows import Rows, Select
+from mlnseq.networks.fitting import Fitting, Schedule, predict_log_probs, resolve_device, set_threads
+from mlnseq.networks.updates import Optimizer, Training, member_seeds
+from mlnseq.choosing.training_rows import Rows, Select, assign_parts
 from mlnseq.choosing import folds as folding
+from mlnseq.choosing import fold_networks as fold_networks_of
 from mlnseq.fusion.fuse import prior_input
 from mlnseq.choosing.workdir_inputs import FrameData, mln_class_scores
 from mlnseq.timeline import sequences
@@ -73,7 +75,10 @@ class TrainOptions:
     batch_size: int = 4
     window: int = 64  # stream mode: training window length in frames
     hidden_size: int = 32
-    learning_rate: float = 0.1
+    learning_rate: float | None = None  # None: the optimizer's own (sgd 0.1, adam 3e-3)
+    optimizer: Optimizer = Optimizer.SGD  # sgd: the authors' (the reproduction's); adam: settles (networks/updates.py)
+    updates: int = 0  # adam: at most this many updates (0: epochs alone decide)
+    members: int = 1  # networks fitted per seed, side by side, and averaged into the one kept (classifier.merged)
     val_fraction: float = 0.2
     smoothing: float = 0.0  # tcn: weight of MS-TCN's smoothing loss
     folds: int | None = None  # cross-validation folds (choosing/folds.py); None: stream mode's default, 0: none
@@ -81,14 +86,15 @@ class TrainOptions:
 
     def __post_init__(self) -> None:
         for name, kind, aliases in (("method", Method, ALIASES), ("prior", Prior, None), ("select", Select, None),
-                                    ("measure", Measure, None), ("paper_floor", PaperFloor, None)):
+                                    ("measure", Measure, None), ("paper_floor", PaperFloor, None),
+                                    ("optimizer", Optimizer, None)):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, member(kind, getattr(self, name), aliases))
 
     def validate(self) -> None:
         check_choice("method", self.method, (*ALIASES, *METHODS))
         choices = {"mode": sequences.MODES, "cell": networks.CELLS, "prior": PRIORS, "select": SELECTS,
-                   "device": DEVICES}
+                   "device": DEVICES, "optimizer": tuple(Optimizer)}
         for name, allowed in choices.items():
             check_choice(name, getattr(self, name), allowed)
         if self.paper_floor is not None:
@@ -109,15 +115,22 @@ class TrainOptions:
             raise BadInput(f"--train-fraction must be in (0, 1], got {self.train_fraction}")
         if not 0 < self.val_fraction < 1:
             raise BadInput(f"--val-fraction must be in (0, 1), got {self.val_fraction}")
-        for name in ("epochs", "batch_size", "window", "hidden_size"):
+        for name in ("epochs", "batch_size", "window", "hidden_size", "members"):
             if getattr(self, name) < 1:
                 raise BadInput(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.smoothing < 0:
             raise BadInput(f"--smoothing must be at least 0, got {self.smoothing}")
         if self.folds is not None and self.folds < 0:
             raise BadInput(f"--folds {self.folds}: use 0 (no folds) or at least 2 folds")
-        if not self.learning_rate > 0:
+        if self.learning_rate is not None and not self.learning_rate > 0:
             raise BadInput(f"--learning-rate must be positive, got {self.learning_rate}")
+        if self.updates < 0:
+            raise BadInput(f"--updates must be at least 0 (0: no cap), got {self.updates}")
+
+    @property
+    def training(self) -> Training:
+        """How the networks are fitted (networks/updates.py)."""
+        return Training(self.optimizer, self.epochs, self.batch_size, self.learning_rate, self.updates)
 
     @property
     def measured(self) -> Measure:
@@ -162,54 +175,47 @@ LOG_SCHEMA = {"epoch": pl.Int32, "split": pl.String, "accuracy": pl.Float64, "lo
 
 
 def fit(data: FrameData, config: Any, options: TrainOptions, device: torch.device, progress: Progress | None = None,
-        seeds: tuple[int, ...] | None = None) -> list[Trained]:
-    """Train a network on the training split of ``data`` per seed (``options.seed``, or each of ``seeds``, side by
-    side: fitting.Together); log train/val/test accuracy after every epoch (measure every-epoch) or the last; keep the
-    last epoch, or with ``select`` val_accuracy the one of best frame accuracy on the validation part. ``progress``
-    hears the first seed's."""
+        seeds: tuple[int, ...] | None = None, units: int | None = None, stop: list[int] | None = None) -> list[Trained]:
+    """Train a network on the training split of ``data`` per seed (``options.seed``, or each of ``seeds``; each the
+    mean of ``options.members`` networks; all side by side: fitting.Together); log train/val/test accuracy after every
+    epoch (measure every-epoch) or the last; keep the last epoch (``stop``: each seed's, as its fold networks chose),
+    or with ``select`` val_accuracy the one of best frame accuracy on the validation part. ``progress`` hears the first
+    seed's; ``units``: the fit units Adam's budget is of (None: this network's)."""
+    from mlnseq.networks.classifier import merged
+
     rows = Rows.of(data, options)
     seeds = seeds or (options.seed,)
-    fittings = [rows.start(data, config, replace(options, seed=seed), device) for seed in seeds]
-    together = Together(fittings)
+    members = [[rows.start(data, config, replace(options, seed=m), device) for m in member_seeds(seed, options.members)]
+               for seed in seeds]
+    schedule = Schedule([m for per_seed in members for m in per_seed], options.training, units or len(rows.fit_units))
+    last = stop or [schedule.epochs] * len(seeds)
     logs: list[list[dict[str, Any]]] = [[] for _ in seeds]
-    best = [(None, -1.0, options.epochs)] * len(seeds)  # (state, val accuracy, epoch) of each seed's kept epoch
+    best: list[tuple[Any, float, int]] = [(None, -1.0, end) for end in last]  # (model, val accuracy, epoch) kept
     every_epoch = options.measured == Measure.EVERY_EPOCH
-    for epoch in range(1, options.epochs + 1):
-        together.epoch(options.batch_size, options.learning_rate)
-        measuring = every_epoch or epoch == options.epochs
-        if measuring:
-            together.write_back()
-        for i, fitting in enumerate(fittings):
-            measured = rows.measure(fitting, data, options.mode) if measuring else {}
+    for epoch in range(1, max(last) + 1):
+        schedule.epoch()
+        if every_epoch or epoch in last:
+            schedule.write_back()
+        for i, per_seed in enumerate(members):
+            if epoch > last[i]:
+                continue
+            model = merged([m.model for m in per_seed]).to(device) if every_epoch or epoch == last[i] else None
+            measured = {} if model is None else rows.measure(Fitting(model, (), None, device), data, options.mode)
             logs[i] += [{"epoch": epoch, "split": str(name), "accuracy": accuracy, "loss": nll}
                         for name, (accuracy, nll) in measured.items()]
             if progress is not None and i == 0:
                 train, val = measured.get(Part.TRAIN, (None, None)), measured.get(Part.VAL)
-                progress(EpochDone(epoch, options.epochs, train[1], train[0], None if val is None else val[0]))
-            if options.select == Select.VAL_ACCURACY and measured[Part.VAL][0] > best[i][1]:
-                state = {k: v.detach().clone() for k, v in fitting.model.state_dict().items()}
-                best[i] = (state, measured[Part.VAL][0], epoch)
+                progress(EpochDone(epoch, last[0], train[1], train[0], None if val is None else val[0]))
+            if options.select != Select.VAL_ACCURACY:
+                best[i] = (model, -1.0, epoch) if epoch == last[i] else best[i]
+            elif measured[Part.VAL][0] > best[i][1]:
+                best[i] = (model, measured[Part.VAL][0], epoch)
     trained, warnings = [], rows.warnings(data)
     val_spans = [(u.start, u.stop) for u in rows.val_units]
-    for fitting, log, (state, _, kept_epoch) in zip(fittings, logs, best):
-        if state is not None:
-            fitting.model.load_state_dict(state)
-        trained.append(Trained(fitting.model.cpu(), rows.mean, rows.std, pl.DataFrame(log, schema=LOG_SCHEMA),
-                               kept_epoch, len(rows.fit_units), len(rows.val_units), list(val_spans), list(warnings)))
+    for (model, _, kept_epoch), log in zip(best, logs):
+        trained.append(Trained(model.cpu(), rows.mean, rows.std, pl.DataFrame(log, schema=LOG_SCHEMA), kept_epoch,
+                               len(rows.fit_units), len(rows.val_units), list(val_spans), list(warnings)))
     return trained
-
-
-def fit_folds(fold_data: list[FrameData], config: Any, options: TrainOptions, device: torch.device,
-              seeds: tuple[int, ...]) -> list[list[tuple[Fitting, Rows]]]:
-    """Each seed's fold networks, all side by side, each trained as :func:`fit` trains without a validation part, the
-    last epoch kept, nothing measured (their logs would not be kept)."""
-    options = replace(options, select=Select.NONE)
-    rows = [Rows.of(data, options) for data in fold_data]
-    fittings = [[part.start(data, config, replace(options, seed=seed), device) for part, data in zip(rows, fold_data)]
-                for seed in seeds]
-    fit_together([one for per_seed in fittings for one in per_seed], options.epochs, options.batch_size,
-                 options.learning_rate)
-    return [list(zip(per_seed, rows)) for per_seed in fittings]
 
 
 # --- the stage ----------------------------------------------------------------------------------------
@@ -262,17 +268,23 @@ def run_seeds(workdirs: list[Path], seeds: tuple[int, ...], options: TrainOption
                              data.labels, Path(workdir))
              for workdir in workdirs]  # before any epoch: --folds the training split cannot cut is refused at once
     device = resolve_device(options.device)
-    trained = fit(data, config, options, device, progress, seeds)
+    units = len(assign_parts(data, replace(options, select=Select.NONE))[1])  # Adam's budget: the training split's
     out_of_fold: list[OutOfFold | None] = [None] * len(workdirs)
+    stop = None
+    settled = options.optimizer != Optimizer.SGD  # Adam: the folds first, to say when the network stops
     if folds[0] is not None:
         for workdir, other in zip(workdirs[1:], folds[1:]):
             if other is None or other.record() != folds[0].record():
                 raise BadInput(f"{workdir}: its folds differ from {workdirs[0]}'s: train it in a run of its own")
-        out_of_fold = fold_networks(workdirs, data, config, options, folds[0], device, meta, seeds)
+        if settled:
+            out_of_fold, stop = fold_networks(workdirs, data, config, options, folds[0], device, meta, seeds, units)
+    trained = fit(data, config, options, device, progress, seeds, units, stop)
+    if folds[0] is not None and not settled:
+        out_of_fold, _ = fold_networks(workdirs, data, config, options, folds[0], device, meta, seeds, units)
     results = []
     for workdir, seed, one, oof in zip(workdirs, seeds, trained, out_of_fold):
         workdir, seeded = Path(workdir), replace(options, seed=seed)
-        checkpoint_config = _checkpoint_config(seeded, config, meta, one, inputs)
+        checkpoint_config = _checkpoint_config(seeded, one.model.config, meta, one, inputs)
         if oof is not None:
             checkpoint_config["folds"] = folds[0].record()
             one.warnings.extend(oof.warnings)
@@ -347,9 +359,10 @@ def _write(workdir: Path, options: TrainOptions, trained: Trained, checkpoint_co
 
 
 def fold_networks(workdirs: list[Path], data: FrameData, config: Any, options: TrainOptions, folds: folding.Folds,
-                  device: torch.device, meta: dict[str, Any], seeds: tuple[int, ...]) -> list[OutOfFold]:
+                  device: torch.device, meta: dict[str, Any], seeds: tuple[int, ...], units: int
+                  ) -> tuple[list[OutOfFold], list[int] | None]:
     """Train one network per fold and seed without the fold, and predict that fold's rows: each workdir's out-of-fold
-    predictions by the networks of its seed."""
+    predictions by the networks of its seed; and, with Adam, each seed's epoch chosen by them (fit_folds)."""
     classes = list(meta["classes"])
     fold_scores, inputs = None, [[] for _ in workdirs]
     if options.method == Method.PRIORLAYER:
@@ -361,19 +374,6 @@ def fold_networks(workdirs: list[Path], data: FrameData, config: Any, options: T
     warnings = folding.missing_classes(folds, data.labels, classes)
     fold_data = [replace(data, splits=folds.splits(k), prior=None if fold_scores is None else
                          prior_input(fold_scores[k], options.prior, options.paper_floor)) for k in range(folds.k)]
-    fitted = fit_folds(fold_data, config, options, device, seeds)
-    held_out = []  # each fold's held-out sequences and every frame standardised as its networks were (any seed's)
-    for k, (_, rows) in enumerate(fitted[0]):
-        parts = fold_data[k].splits
-        spans = [s for s in sequences.sequences(options.mode, data.episodes, parts, data.labels)
-                 if parts[s.start] == Part.HELDOUT]
-        held_out.append((spans, ((data.features - rows.mean) / rows.std).astype(np.float32)))
-    out_of_fold = []
-    for per_fold, read_inputs in zip(fitted, inputs):
-        out = np.zeros((len(data.labels), config.n_classes), dtype=np.float32)
-        for k, ((fitting, _), (spans, features)) in enumerate(zip(per_fold, held_out)):
-            log_probs = predict_log_probs(fitting.model.to(device), spans, features, fold_data[k].prior, device)
-            held = folds.fold == k
-            out[held] = log_probs[held]
-        out_of_fold.append(OutOfFold(out, list(warnings), read_inputs))
-    return out_of_fold
+    fitted, parts, stop = fold_networks_of.fit_folds(fold_data, config, options, device, seeds, units, folds)
+    return [OutOfFold(fold_networks_of.out_of_fold(per_seed, parts, device), list(warnings), read_inputs)
+            for per_seed, read_inputs in zip(fitted, inputs)], stop

@@ -50,7 +50,7 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
     found = out_of_fold(inputs, recognizer)
     how = "cross-validation" if found is not None else "in-sample"
     path, factors = found if found is not None else in_sample(recognizer, data.features, data.episodes)
-    parts = [(span, path[span], None if factors is None else factors.get(span.start)) for span in episodes]
+    parts = [(span, path[span], _whole(factors, span)) for span in episodes]
     lows = [None if f is None else _lowest(rate or 1.0, chains.step_likelihood(f, p)) for _, p, f in parts]
     errors = [boundary_error(data.labels[span], own) for span, own, _ in parts]
     measures = []
@@ -126,6 +126,12 @@ def _floor(lows: list[float | None]) -> float | None:
     known = sorted(low for low in lows if low is not None)
     kept = known[1:] if len(known) >= ROBUST else known
     return kept[0] - CHAIN_MARGIN if kept else None
+
+
+def _whole(factors: dict[int, ChainFactors] | None, span: slice) -> ChainFactors | None:
+    """The chain of the episode ``span`` where one fold holds it whole (a fold of blocks cuts a long episode)."""
+    piece = None if factors is None else factors.get(span.start)
+    return piece if piece is not None and len(piece.unary) == span.stop - span.start else None
 
 
 def out_of_fold(inputs: WorkdirInputs, recognizer: Any) -> tuple[np.ndarray, dict[int, ChainFactors] | None] | None:

@@ -52,7 +52,7 @@ def counted(frames: pl.DataFrame, meta: dict[str, Any]) -> Estimated:
     """frames.parquet's estimated frames and the training recordings labelled on every frame by the user."""
     episodes, labelled = frames["episode"].to_numpy(), frames["label"].is_not_null().to_numpy()
     clicked = clicked_episodes(meta.get("clicks", []))
-    names = meta["episode_names"]
+    names = meta.get("episode_names", [])  # none for a dataset (fetch, desk): nothing was estimated
     bare = [k for k, name in enumerate(names) if name in set(meta.get("unlabelled_episodes", []))]
     between = int(np.isin(episodes, clicked).sum()) - len(meta.get("clicks", []))
     aligned = int((np.isin(episodes, bare) & labelled).sum())

@@ -96,8 +96,10 @@ def candidates(meta: dict) -> tuple[list, bool]:
     without labels; else, where every recording was labelled by clicks (two or more), the clicked ones."""
     if meta.get("unlabelled_episodes"):
         return list(meta["unlabelled_episodes"]), False
+    if not meta.get("clicks"):  # a dataset (fetch, desk) or recordings labelled on every frame
+        return [], False
     names = meta["episode_names"]
-    clicked = [names[e] for e in clicked_episodes(meta.get("clicks", []))]
+    clicked = [names[e] for e in clicked_episodes(meta["clicks"])]
     return (clicked, True) if len(names) > 1 and len(clicked) == len(names) else ([], False)
 
 

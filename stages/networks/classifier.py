@@ -84,6 +84,35 @@ class SequenceClassifier(nn.Module):
         return torch.log_softmax(scores, dim=-1).view(g, b, t, -1)
 
 
+def merged(models: list[SequenceClassifier]) -> SequenceClassifier:
+    """One network that computes the mean of ``models``' class scores (before the log-softmax): an ensemble of networks
+    of one shape as one wider network of their type (its ``merged_body``), its h2c each body's h2c over G, and with a
+    PriorLayer each network's PriorLayer folded into it (h2c' = mean of P_h·h2c; PriorLayer' = [I, mean of P_c]); a
+    new network on the CPU (one: its copy)."""
+    first, g = models[0], len(models)
+    states = [{k: v.detach().cpu() for k, v in m.state_dict().items()} for m in models]
+    dtype = next(first.parameters()).dtype
+    if g == 1:
+        model = SequenceClassifier(first.config).to(dtype)
+        model.load_state_dict(states[0])
+        return model
+    body = first.kind.BODY
+    config, weights = first.kind.merged_body(first.config, [{k: v for k, v in s.items() if k.startswith(body + ".")}
+                                                           for s in states])
+    h2c, bias = [s["h2c.weight"] / g for s in states], [s["h2c.bias"] / g for s in states]
+    if first.prior is not None:
+        c = first.config.n_classes
+        h2c = [s["prior.weight"][:, :c] @ w for s, w in zip(states, h2c)]
+        bias = [s["prior.weight"][:, :c] @ b for s, b in zip(states, bias)]
+        from_mln = sum(s["prior.weight"][:, c:] for s in states) / g
+        weights["prior.weight"] = torch.cat([torch.eye(c, dtype=dtype), from_mln], 1)
+        weights["prior.bias"] = sum(s["prior.bias"] for s in states) / g
+    weights["h2c.weight"], weights["h2c.bias"] = torch.cat(h2c, 1), sum(bias)
+    model = SequenceClassifier(config).to(dtype)
+    model.load_state_dict(weights)
+    return model
+
+
 def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """G linear layers at once: inputs [G, N, in], weights [G, out, in], biases [G, out] -> [G, N, out]."""
     return torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))

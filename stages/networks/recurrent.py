@@ -8,7 +8,7 @@ with torch within 1e-5. The streaming state is the hidden state (and the LSTM's 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -96,6 +96,25 @@ def side_by_side_stacked(config: Config, weights: dict[str, Any], g: int) -> dic
         bias = weights[f"{BODY}.bias_{kind}_l0"].view(gates, g, h)
         out[f"{BODY}.bias_{kind}_l0"] = bias.transpose(0, 1).reshape(g, -1)
     return out
+
+
+def merged_body(config: Config, weights: list[dict[str, Any]]) -> tuple[Config, dict[str, Any]]:
+    """G networks of ``config`` (their bodies' torch weights) as one layer of G·H units that computes each one's
+    hidden state from the same features: the input weights stacked and the recurrent ones block-diagonal, rows in
+    the (gate, network, unit) order of one layer's gates; its hidden units in the (network, unit) order."""
+    import torch
+
+    g, gates, h = len(weights), _gates(config), config.hidden_size
+
+    def gate_major(per_network: Any) -> Any:  # rows (network, gate, unit) -> (gate, network, unit)
+        return per_network.reshape(g, gates, h, -1).transpose(0, 1).reshape(gates * g * h, -1)
+
+    out = {f"{BODY}.weight_ih_l0": gate_major(torch.cat([w[f"{BODY}.weight_ih_l0"] for w in weights])),
+           f"{BODY}.weight_hh_l0": gate_major(torch.block_diag(*(w[f"{BODY}.weight_hh_l0"] for w in weights)))}
+    for kind in ("ih", "hh"):
+        name = f"{BODY}.bias_{kind}_l0"
+        out[name] = gate_major(torch.cat([w[name] for w in weights])).reshape(-1)
+    return replace(config, hidden_size=g * h), out
 
 
 def torch_bodies_side_by_side(config: Config, weights: dict[str, Any], features: Any) -> Any:

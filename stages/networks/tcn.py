@@ -13,7 +13,7 @@ inputs of that layer, so a frame costs the same at any point of a stream.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import cache
 from typing import Any
 
@@ -123,6 +123,25 @@ def torch_bodies_side_by_side(config: Config, params: dict[str, Any], features: 
         inner = torch.relu(affine(taps, kernel, params[f"{dilated}.bias"]))
         x = x + affine(inner, params[f"{pointwise}.weight"][..., 0], params[f"{pointwise}.bias"])
     return x.view(g, b, t, h)
+
+
+def merged_body(config: Config, weights: list[dict[str, Any]]) -> tuple[Config, dict[str, Any]]:
+    """G networks of ``config`` (their bodies' torch weights) as one TCN of G·H channels that computes each one's
+    channels from the same features: the input convolutions stacked, the others block-diagonal (each network's
+    channels read only its own), channels in the (network, channel) order."""
+    import torch
+
+    def blocks(name: str) -> Any:  # [G·H, G·H, k]: each network's kernel on the diagonal
+        return torch.stack([torch.block_diag(*(w[name][..., m] for w in weights))
+                            for m in range(weights[0][name].shape[-1])], -1)
+
+    out = {f"{BODY}.conv_in.weight": torch.cat([w[f"{BODY}.conv_in.weight"] for w in weights]),
+           f"{BODY}.conv_in.bias": torch.cat([w[f"{BODY}.conv_in.bias"] for w in weights])}
+    for level in range(config.levels):
+        for layer in (f"{BODY}.dilated.{level}", f"{BODY}.pointwise.{level}"):
+            out[f"{layer}.weight"] = blocks(f"{layer}.weight")
+            out[f"{layer}.bias"] = torch.cat([w[f"{layer}.bias"] for w in weights])
+    return replace(config, hidden_size=len(weights) * config.hidden_size), out
 
 
 class Ring:

@@ -42,6 +42,7 @@ SUGGESTED_SPEC = "learned.binarize.toml"  # in the workdir: the predicates fit l
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
 MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
+SETTLED = {"optimizer": "averaged", "members": 3, "updates": 3000}  # how fit trains its networks (docs/reproduce.md)
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,8 @@ class FitOptions:
     spec: Path | None = None  # your predicate spec; None: predicates learned from the training split
     formulas: Path | None = None  # your formulas; None: the learned ones (with ``spec``: the built-in temporal.mln)
     folds: int | None = None  # cross-validation folds; None: one per training episode, at most 5
-    epochs: int = 100  # the network's passes over the training split
+    epochs: int = 100  # the network's passes over the training split, at most (networks/updates.py)
+    seed: int = 0  # the networks' seed (and fetch's simulation's)
     latency: float | None = None  # seconds a frame may wait (at the recordings' rate)
     lag: int | None = None  # the same in frames; neither (and not offline): lag 0
     offline: bool = False  # no budget: offline decoders over whole recordings too
@@ -77,10 +79,11 @@ class FitOptions:
         self.train_options(self.folds).validate()
 
     def train_options(self, folds: int | None) -> TrainOptions:
-        """train's: an LSTM in stream mode (whole episodes, as live frames come) with ``folds`` fold networks."""
+        """train's: an LSTM in stream mode (whole episodes, as live frames come) with ``folds`` fold networks, trained
+        to settle (``SETTLED``: averaged SGD, stopped by the folds, the mean of 3 networks)."""
         from mlnseq.train import TrainOptions
 
-        return TrainOptions(mode="stream", folds=folds, epochs=self.epochs)
+        return TrainOptions(mode="stream", folds=folds, epochs=self.epochs, seed=self.seed, **SETTLED)
 
 
 class Observer:

@@ -171,7 +171,7 @@ def failed_row(sweep: Sweep, config: Config, failed: Failure) -> dict[str, Any]:
         row[f"cv_{figure}"] = row[f"cv_{figure}_std"] = None
     row["cv_score"] = None
     for figure in FIGURES:
-        row[f"test_{figure}"] = None
+        row[f"test_{figure}"] = row[f"test_{figure}_std"] = None
     return {**row, "best_seed": None, "deploy": None}
 
 
@@ -187,7 +187,8 @@ def config_row(sweep: Sweep, config: Config, out: Path) -> dict[str, Any]:
         row[f"cv_{figure}_std"] = spread(values)
     row["cv_score"] = latency.criterion({f: row[f"cv_{f}"] for f in FIGURES})
     for figure in FIGURES:
-        row[f"test_{figure}"] = statistics.fmean(r.test[figure] for r in results)
+        values = [r.test[figure] for r in results]
+        row[f"test_{figure}"], row[f"test_{figure}_std"] = statistics.fmean(values), spread(values)
     row["best_seed"] = best.seed
     row["deploy"] = deploy_command(config, best, run_dir(out, config.name, best.seed))
     return row

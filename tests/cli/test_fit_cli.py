@@ -244,3 +244,17 @@ def test_fit_says_no_step_it_has_no_option_for_and_gives_paths_as_given(fitted):
     workdir, said = fitted
     assert "priorlayer" not in said  # conflate's note on the PriorLayer network fit does not train
     assert str(workdir.parent) not in said and f"{workdir.name}/learned.formulas.mln" in said  # relative, as given
+
+
+def test_fit_on_a_paper_dataset_makes_a_model_that_predicts_its_own_test_split(shared_data, tmp_path):
+    """A dataset (--env desk, as --env fetch) has no recordings' names, clicks or unlabelled episodes: fit still ranks
+    nothing, estimates nothing, and its model recognises the DESK test file."""
+    workdir = tmp_path / "desk"
+    result = CliRunner().invoke(app, ["fit", "--env", "desk", "--source", str(shared_data / "desk-taurus"),
+                                      "-w", str(workdir), "--epochs", "2"])
+    assert result.exit_code == 0, result.output
+    assert (workdir / "model.mlnseq").is_file()
+    assert not (workdir / "label_next.csv").exists()
+    assert "estimated" not in result.output
+    test = re.search(r"test split \(held out of everything above\): \S+ frame accuracy ([\d.]+)%", result.output)
+    assert test is not None and float(test.group(1)) > 50.0, result.output

@@ -111,7 +111,8 @@ def test_train_before_collect_names_collect(tmp_path):
 
 
 @pytest.mark.parametrize("change", [{"mode": "video"}, {"train_fraction": 0.0}, {"train_fraction": 1.5},
-                                    {"method": "tcn"}, {"epochs": 0}])
+                                    {"method": "tcn"}, {"epochs": 0}, {"optimizer": "rmsprop"}, {"members": 0},
+                                    {"updates": -1}, {"learning_rate": 0.0}])
 def test_bad_options_are_refused(change):
     with pytest.raises(BadInput):
         train.TrainOptions(**change).validate()
@@ -193,3 +194,22 @@ def test_select_val_accuracy_measures_every_epoch_and_refuses_measuring_the_last
         train.TrainOptions(select="val_accuracy", measure="last-epoch").validate()
     with pytest.raises(BadInput):
         train.TrainOptions(measure="sometimes").validate()
+
+
+def test_settled_training_keeps_the_epoch_its_fold_networks_stopped_at_and_repeats(desk_workdir):
+    """fit's training (Adam over a budget of updates, 2 networks averaged per seed): the fold networks train first and
+    say where to stop; the network kept is the members merged into one of twice the units, at that epoch, and a rerun
+    writes the same weights and out-of-fold predictions."""
+    options = train.TrainOptions(mode="stream", folds=3, epochs=30, optimizer="adam", members=2)
+    first = train.run(desk_workdir, options)
+    checkpoint = checkpoints.load_checkpoint(desk_workdir, "lstm")
+    kept = first.trained.kept_epoch
+    assert 1 <= kept <= 30 and set(first.trained.log["epoch"]) == {kept}
+    assert checkpoint.config["model"]["hidden_size"] == 64 and checkpoint.config["kept_epoch"] == kept
+    assert checkpoint.config["options"]["optimizer"] == "adam" and checkpoint.config["options"]["members"] == 2
+    assert first.trained.log.filter(pl.col("split") == "train")["accuracy"][0] > 2 / 7
+    oof = pl.read_parquet(artifacts.out_of_fold_path(desk_workdir, "lstm"))
+    train.run(desk_workdir, options)
+    for name, value in checkpoints.load_checkpoint(desk_workdir, "lstm").network.weights.items():
+        np.testing.assert_array_equal(value, checkpoint.network.weights[name], err_msg=name)
+    assert pl.read_parquet(artifacts.out_of_fold_path(desk_workdir, "lstm")).equals(oof)

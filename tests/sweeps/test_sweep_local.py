@@ -59,6 +59,7 @@ def test_the_table_holds_each_configs_cross_validated_figures_over_seeds(local_s
             assert abs(row[f"cv_{figure}"] - sum(cv[figure]) / 2) < 1e-9
             assert abs(row[f"cv_{figure}_std"] - abs(cv[figure][0] - cv[figure][1]) / 2 ** 0.5) < 1e-9
             assert abs(row[f"test_{figure}"] - sum(test[figure]) / 2) < 1e-9
+            assert abs(row[f"test_{figure}_std"] - abs(test[figure][0] - test[figure][1]) / 2 ** 0.5) < 1e-9
             assert 0 <= row[f"cv_{figure}"] <= 100
 
 

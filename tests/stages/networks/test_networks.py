@@ -5,7 +5,7 @@ import torch
 
 from mlnseq import networks
 from mlnseq.catalog.errors import BadInput
-from mlnseq.networks.classifier import SequenceClassifier
+from mlnseq.networks.classifier import SequenceClassifier, merged
 from mlnseq.networks.recurrent import Config as ModelConfig
 
 
@@ -80,3 +80,25 @@ def test_the_smoothing_loss_penalises_changes_between_real_frames_only():
     padded = valid.clone()
     padded[0, 2:] = False  # the jump falls on padding: nothing to smooth
     assert float(smooth.auxiliary_loss(jump, padded)) == 0.0
+
+
+@pytest.mark.parametrize("cell", networks.CELLS)
+@pytest.mark.parametrize("prior_layer", [False, True])
+def test_networks_merged_into_one_predict_the_mean_of_their_class_scores(cell, prior_layer):
+    """`train --members`: the networks of a seed kept as one wider network of their type, exactly their ensemble."""
+    config = networks.make_config(cell, n_features=3, n_classes=4, hidden_size=6, prior_layer=prior_layer)
+    members = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        members.append(SequenceClassifier(config).double().eval())
+        with torch.no_grad():
+            for parameter in members[-1].parameters():
+                parameter.add_(torch.randn_like(parameter) * 0.3)
+    x = torch.randn(2, 40, 3, dtype=torch.float64)
+    prior = torch.randn(2, 40, 4, dtype=torch.float64) if prior_layer else None
+    one = merged(members).double().eval()
+    assert one.config.hidden_size == 18 and networks.config_of(one.config.to_dict()) == one.config
+    with torch.no_grad():
+        mean = torch.log_softmax(sum(member(x, prior)[0] for member in members) / 3, -1)
+        torch.testing.assert_close(one(x, prior)[0], mean, rtol=0, atol=1e-12)
+    assert merged(members[:1]) is not members[0]  # one: a copy

@@ -13,7 +13,8 @@ from mlnseq import networks
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.methods import PaperFloor, Prior
 from mlnseq.networks import recurrent
-from mlnseq.networks.fitting import Fitting, SideBySide, Together, fit_together
+from mlnseq.networks.fitting import Fitting, Schedule, SideBySide, Together, fit_together
+from mlnseq.networks.updates import Optimizer, Training
 from mlnseq.choosing import folds as folding
 from mlnseq.fusion.fuse import prior_input
 from mlnseq.choosing.workdir_inputs import FrameData, mln_class_scores
@@ -104,3 +105,24 @@ def test_recurrent_networks_side_by_side_are_one_block_diagonal_layer_whose_bloc
     (layer * torch.randn_like(layer)).sum().backward()
     gradient = layer.grad.view(gates, 2, 5, 2, 5)
     assert (gradient[:, 0, :, 1] == 0).all() and (gradient[:, 1, :, 0] == 0).all() and (gradient[:, 0, :, 0] != 0).all()
+
+
+@pytest.mark.parametrize("cell, optimizer", [("lstm", Optimizer.ADAM), ("tcn", Optimizer.AVERAGED)])
+def test_settled_networks_fitted_side_by_side_end_where_each_fitted_alone_ends(desk_mln_workdir, cell, optimizer):
+    """Adam's or averaged SGD's budget of updates: each network draws its own batches, makes the same number of
+    updates and keeps its weights' moving average, alone or beside the others."""
+    frames, meta = artifacts.read_table(desk_mln_workdir / artifacts.FRAMES, "frames")
+    data = FrameData.from_frames(frames)
+    options = TrainOptions(mode="stream", cell=cell)
+    config = networks.make_config(cell, n_features=data.features.shape[1], n_classes=len(meta["classes"]))
+    folds = folding.assign(data.episodes, data.splits, data.labels, 3)
+    alone, together = started(data, folds, config, options), started(data, folds, config, options)
+    training, units = Training(optimizer, EPOCHS, BATCH), max(len(f.tensors[3]) for f in alone)
+    initial = together[0].model.h2c.weight.detach().clone()
+    for fitting in alone:
+        Schedule([fitting], training, units).run()
+    Schedule(together, training, units).run()
+    assert (together[0].model.h2c.weight - initial).abs().max() > 1e-3  # they trained
+    for one, batched in zip(alone, together):
+        for name, parameter in one.model.named_parameters():
+            torch.testing.assert_close(batched.model.get_parameter(name), parameter, rtol=0, atol=1e-10, msg=name)

@@ -118,7 +118,8 @@ def test_the_observer_hears_each_stage_as_it_finishes(fitted):
     assert names == ["collected", "binarized", "folded", "formulas_written", "weights_learned", "training", "trained",
                      "conflated"]
     assert not any(later or model for _, later, model in heard.calls)  # before the next stage ran, and the export
-    assert heard.epochs == list(range(1, EPOCHS + 1))
+    kept = result.trained.result.trained.kept_epoch  # where the fold networks, trained first, said to stop
+    assert 1 <= kept <= EPOCHS and heard.epochs == list(range(1, kept + 1))
     assert not any(note.code == "missing-input" for note in result.conflated.notes)  # no "run train --method
     # priorlayer": fit has no option for it
     assert result.binarized.spec == workdir / SUGGESTED_SPEC
@@ -153,3 +154,22 @@ def test_force_overwrites_the_model_and_a_learned_spec_edited_by_hand(bags, fitt
     assert again.standing is None and again.method == "conflation+filter" and again.folding.k == 0
     assert again.said[0] == ("chose conflation+filter (network and MLN) without cross-validation (--folds 0): nothing "
                              "to choose on")
+
+
+def test_the_seed_seeds_the_networks_and_the_model_file_records_it(bags, fitted, tmp_path, monkeypatch):
+    """The same seed and inputs give the same model file, byte for byte; another seed, other networks."""
+    import zipfile
+
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    spec = tmp_path / "hand.binarize.toml"
+    spec.write_text(desk_bags.HAND_SPEC)
+    model = tmp_path / "arm.mlnseq"
+    made = []
+    for seed in (1, 1, 2):
+        fitted_again = mlnseq.fit(source(bags[0]), tmp_path / "w", mlnseq.FitOptions(
+            epochs=EPOCHS, seed=seed, spec=spec, output=model, force=True))
+        assert fitted_again.manifest.network.seed == seed
+        with zipfile.ZipFile(model) as archive:
+            made.append((model.read_bytes(), archive.read("network.npz")))
+    assert made[0] == made[1] and made[1][1] != made[2][1]
+    assert fitted[1].manifest.network.seed == 0
