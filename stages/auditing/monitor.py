@@ -19,7 +19,7 @@ from mlnseq.auditing.profile import EDGE, Profile, model_profile, tempo
 from mlnseq.auditing.scoring import Check, Kind, Reason, Segment
 
 UNKNOWN_PACE = math.log(2.0)  # until two phases are done, a recording may be this much slower than labelled ones
-LAG_S = 0.5  # seconds the monitor's own decoder waits before it decides a frame (lagged Viterbi)
+LAG_S = 0.25  # seconds the monitor's own decoder waits before it decides a frame (lagged Viterbi)
 
 
 @dataclass(frozen=True)
