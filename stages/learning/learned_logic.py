@@ -19,6 +19,12 @@ cuts (`binarize --suggest` and `fit` without --spec).
    ``MIN_SUPPORT`` training frames, ``Has(a) ^ Has(b) => Topic(+c)``, kept where the exact score rises by
    ``MIN_STEP``.
 
+Where the training split holds more than ``SEARCH_FRAMES`` frames, all of the above runs on whole episodes drawn
+evenly from each of its folds, that many frames in all (``sampled``): a set's cross-validated score changes by a
+fraction of a point between a few dozen episodes and hundreds, while its cost grows with every frame. The folds are
+those `mlnseq fit` cuts on the whole split, so each fold's predicates are still learned without its episodes; the
+weights the model keeps are learned later on every training frame (`learn-weights`).
+
 Nothing here reads the test split.
 """
 
@@ -48,6 +54,7 @@ MIN_STEP = 0.5  # points of SCORE a further predicate or conjunction must add (c
 SCORE = "frame_accuracy"  # of the MLN, cross-validated, by the better of DECODERS: what a set is chosen by
 DECODERS = ("filter", "lagviterbi@0")  # the MLN's decoders at lag 0 a set is scored with: the better one counts
 PAIRS = 3
+SEARCH_FRAMES = 8_000  # training frames the search reads at most (whole episodes, from every fold)
 MIN_SUPPORT = 0.01  # share of training frames a conjunction's body must hold in (and at least 10 frames)
 
 
@@ -79,6 +86,8 @@ class Searched:
     train: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # the frames the weights learn on
     weights: pl.DataFrame | None = None  # the kept formulas' weights learned on the whole training split
     fold_record: dict | None = None  # the folds searched on (Folds.record)
+    frames: pl.DataFrame | None = None  # the frames searched (every training frame, or the episodes drawn)
+    sampled: tuple[int, int] | None = None  # (episodes searched, training episodes) where the search drew some
 
 
 @dataclass(frozen=True)
@@ -90,22 +99,49 @@ class Training:
     rows: np.ndarray  # the training rows' indices into the frames
     episodes: np.ndarray
     folds: folding.Folds
+    table: pl.DataFrame  # the frames searched: the training split's, or the episodes drawn from it
+    record: dict  # the folds as `mlnseq fit` cuts the whole training split (Folds.record)
+    sampled: tuple[int, int] | None = None  # (episodes drawn, training episodes), where drawn
 
 
-def training(frames: pl.DataFrame, n_classes: int) -> Training | None:
-    """The search's view of ``frames`` (sorted by episode and frame): None when the training split is too small for
-    2 folds (cut as `mlnseq fit` cuts them)."""
+def training(frames: pl.DataFrame, n_classes: int, most: int = SEARCH_FRAMES) -> Training | None:
+    """The search's view of ``frames`` (sorted by episode and frame), its training split cut into folds as `mlnseq
+    fit` cuts them, and beyond ``most`` training frames only the episodes ``drawn``: None when the training split is
+    too small for 2 folds."""
     episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].to_numpy().astype(np.int64)
     k = folding.suggested(episodes, splits)
     if not k:
         return None
-    folds = folding.assign(episodes, splits, labels, k)
+    whole = folding.assign(episodes, splits, labels, k)
+    kept, sampled = drawn(whole, episodes, most)
+    frames, episodes, labels = frames[kept], episodes[kept], labels[kept]
+    folds = folding.Folds(whole.fold[kept], whole.kind, whole.cut)
     view = Frames(folds.fold >= 0, labels, chain_starts(episodes), folds.fold, n_classes)
     rows = np.flatnonzero(folds.fold >= 0)
     split = Split(labels[rows], chain_starts(episodes, folds.fold, rows=rows), folds.fold[rows], episodes[rows],
                   n_classes)
-    return Training(view, split, rows, episodes, folds)
+    return Training(view, split, rows, episodes, folds, frames, whole.record(), sampled)
+
+
+def drawn(folds: folding.Folds, episodes: np.ndarray, most: int) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """The rows the search reads: every row where the training split has at most ``most``, else whole training
+    episodes spread evenly over each fold's, each fold its share of ``most`` (at least one episode); and (episodes
+    drawn, training episodes) where some were left out."""
+    train = np.flatnonzero(folds.fold >= 0)
+    if len(train) <= most:
+        return np.arange(len(folds.fold)), None
+    kept, drawn_episodes, total = [], 0, 0
+    for k in range(folds.k):
+        rows = np.flatnonzero(folds.fold == k)
+        names, first, sizes = np.unique(episodes[rows], return_index=True, return_counts=True)
+        order = np.argsort(first)  # episodes as they come
+        names, sizes = names[order], sizes[order]
+        share = max(1, min(len(names), int(round(len(names) * most / len(train)))))
+        chosen = names[np.unique(np.linspace(0, len(names) - 1, share).round().astype(np.int64))]
+        kept.append(rows[np.isin(episodes[rows], chosen)])
+        drawn_episodes, total = drawn_episodes + len(chosen), total + len(names)
+    return np.sort(np.concatenate(kept)), (drawn_episodes, total)
 
 
 def pool(found: list[Candidate], data: Training) -> list[Candidate]:
@@ -297,7 +333,8 @@ def interacting(chosen: list[Candidate], data: Training) -> list[tuple[float, in
             joint, apart = [], []
             for k in range(split.k):
                 (first, n_first), (second, n_second) = a.fold_codes(k), chosen[j].fold_codes(k)
-                joint.append(quick_chain.one_hot([first[rows] * n_second + second[rows]], [n_first * n_second]))
+                joint.append(quick_chain.one_hot([first[rows].astype(np.int64) * n_second + second[rows]],
+                                                  [n_first * n_second]))
                 apart.append(quick_chain.one_hot([first[rows], second[rows]], [n_first, n_second]))
             gained = quick_chain.per_frame_log_likelihood(joint, split) - \
                 quick_chain.per_frame_log_likelihood(apart, split)
@@ -319,16 +356,17 @@ def bodies(a: Candidate, b: Candidate, data: Training) -> list[Conjunction]:
     return found
 
 
-def search(frames: pl.DataFrame, n_classes: int) -> Searched | None:
-    """Learn the predicates and formulas of ``frames`` (sorted by episode and frame); None where the training split
-    is too small for 2 folds."""
-    data = training(frames, n_classes)
+def search(frames: pl.DataFrame, n_classes: int, most: int = SEARCH_FRAMES) -> Searched | None:
+    """Learn the predicates and formulas of ``frames`` (sorted by episode and frame), on at most ``most`` of its
+    training frames (``drawn``); None where the training split is too small for 2 folds."""
+    data = training(frames, n_classes, most)
     if data is None:
         return None
+    frames = data.table
     found, distances = channels(frames)
     made = candidates_of(found, data.frames)
     searched = Searched([], candidates=len(made), channels=len(found), folds=data.folds.describe(),
-                        fold_record=data.folds.record())
+                        fold_record=data.record, frames=frames, sampled=data.sampled)
     near = None
     for chosen, (figures, near) in forward(pool(made, data), data):
         searched.path.append({"predicates": [c.predicate.name for c in chosen], **figures})
@@ -381,5 +419,5 @@ def uncrossed(frames: pl.DataFrame, n_classes: int) -> Searched:
         if candidate.channel not in seen and len(kept) < UNCROSSED:
             kept.append(candidate)
             seen.add(candidate.channel)
-    result = Searched(kept, candidates=len(made), channels=len(found))
+    result = Searched(kept, candidates=len(made), channels=len(found), frames=frames)
     return finished(result, frames, view, distances)

@@ -21,6 +21,7 @@ from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.choosing.folds import masks
 from mlnseq.fusion.decoding import LIKELIHOOD_FLOOR, decode
 from mlnseq.mln import chain
+from mlnseq.mln.chain_scan import Repeats
 from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.lag import with_start
 
@@ -54,7 +55,7 @@ def one_hot(codes: list[np.ndarray], sizes: list[int], n: int | None = None) -> 
     out = np.zeros((n, sum(sizes)), dtype=bool)
     offset = 0
     for values, size in zip(codes, sizes):
-        out[np.arange(n), offset + values] = True
+        out[np.arange(n), offset + values.astype(np.int64)] = True
         offset += size
     return out
 
@@ -84,17 +85,18 @@ def logistic(rows: np.ndarray, counts: np.ndarray, l2: float = L2) -> np.ndarray
 
 
 def class_log_probs(evidence: np.ndarray, labels: np.ndarray, fit: np.ndarray, n_classes: int,
-                    rows: np.ndarray) -> np.ndarray:
-    """[len(rows), C] log p(class | evidence) of ``rows`` by the logistic regression fitted on the ``fit`` frames."""
+                    rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[len(rows), C] log p(class | evidence) of ``rows`` by the logistic regression fitted on the ``fit`` frames, and
+    [fit frames] the distinct evidence row of each fit frame (frames of one row have one class distribution)."""
     if evidence.shape[1] == 0:
-        return np.full((len(rows), n_classes), -np.log(n_classes))
+        return np.full((len(rows), n_classes), -np.log(n_classes)), np.zeros(int(np.sum(fit)), dtype=np.int64)
     distinct, index = distinct_rows(evidence[fit])
     counts = np.zeros((len(distinct), n_classes))
     np.add.at(counts, (index, labels[fit]), 1)
     weights = logistic(distinct, counts)
     scores = evidence[rows].astype(np.float64) @ weights
     scores -= scores.max(axis=1, keepdims=True)
-    return scores - np.log(np.exp(scores).sum(axis=1, keepdims=True))
+    return scores - np.log(np.exp(scores).sum(axis=1, keepdims=True)), index
 
 
 def transitions(labels: np.ndarray, starts: np.ndarray, mask: np.ndarray, n_classes: int) -> np.ndarray:
@@ -117,9 +119,11 @@ def out_of_fold(evidence: list[np.ndarray], split: Split) -> tuple[np.ndarray, n
         prior = np.log((np.bincount(split.labels[fit], minlength=c) + LAPLACE) / (fit.sum() + c * LAPLACE))
         pairwise = transitions(split.labels, split.starts, fit, c)[None]
         fitted = np.flatnonzero(fit)
-        own = class_log_probs(evidence[k], split.labels, fit, c, np.r_[fitted, rows]) - prior
+        own, kinds = class_log_probs(evidence[k], split.labels, fit, c, np.r_[fitted, rows])
+        own -= prior
         fit_link = np.where(chain.chain_starts(split.chains, rows=fitted), -1, 0)
-        scale = evidence_weight(chain.ChainFactors(own[:len(fitted)], pairwise, fit_link), split.labels[fitted])
+        scale = evidence_weight(chain.ChainFactors(own[:len(fitted)], pairwise, fit_link), split.labels[fitted],
+                                Repeats.of(kinds, fit_link))
         unary = scale * own[len(fitted):]
         link = np.where(chain.chain_starts(split.chains, rows=rows), -1, 0)
         factors = chain.ChainFactors(unary, pairwise, link)
@@ -134,12 +138,13 @@ def out_of_fold(evidence: list[np.ndarray], split: Split) -> tuple[np.ndarray, n
 SCALES = (0.25, 0.5, 1.0, 2.0, 4.0)  # the weights of the regression's evidence against the transitions tried
 
 
-def evidence_weight(factors: chain.ChainFactors, labels: np.ndarray) -> float:
+def evidence_weight(factors: chain.ChainFactors, labels: np.ndarray, repeats: Repeats | None = None) -> float:
     """The weight of ``factors.unary`` (in SCALES) under which the chains' classes are most likely (their
-    conditional log-likelihood: the labels' path score less log Z)."""
+    conditional log-likelihood: the labels' path score less log Z); ``repeats``: the frames' kinds of step, their
+    products computed once for every scale."""
     def likelihood(scale: float) -> float:
         scaled = chain.ChainFactors(scale * factors.unary, factors.pairwise, factors.link)
-        return chain.path_score(scaled, labels) - chain.log_partition(scaled)
+        return chain.path_score(scaled, labels) - chain.log_partition(scaled, repeats)
 
     return max(SCALES, key=likelihood)
 
@@ -156,6 +161,6 @@ def per_frame_log_likelihood(evidence: list[np.ndarray], split: Split) -> float:
     total = 0.0
     for k, fold in enumerate(masks(split.fold)):
         rows = fold.rows
-        log_p = class_log_probs(evidence[k], split.labels, fold.fit, split.n_classes, rows)
+        log_p, _ = class_log_probs(evidence[k], split.labels, fold.fit, split.n_classes, rows)
         total += float(log_p[np.arange(len(rows)), split.labels[rows]].sum())
     return total / len(split.labels)
