@@ -42,7 +42,7 @@ from mlnseq.learning import candidates as kinds
 from mlnseq.learning.candidates import Candidate, Frames
 from mlnseq.predicates.spec import Distance
 from mlnseq.learning import quick_chain
-from mlnseq.learning.quick_chain import Split
+from mlnseq.learning.training_frames import SEARCH_FRAMES, Training, training
 
 PRESELECT = 40  # candidates of best out-of-fold gain whose chains are scored (with every gripper)
 POOL = 20
@@ -54,7 +54,6 @@ MIN_STEP = 0.5  # points of SCORE a further predicate or conjunction must add (c
 SCORE = "frame_accuracy"  # of the MLN, cross-validated, by the better of DECODERS: what a set is chosen by
 DECODERS = ("filter", "lagviterbi@0")  # the MLN's decoders at lag 0 a set is scored with: the better one counts
 PAIRS = 3
-SEARCH_FRAMES = 8_000  # training frames the search reads at most (whole episodes, from every fold)
 MIN_SUPPORT = 0.01  # share of training frames a conjunction's body must hold in (and at least 10 frames)
 
 
@@ -88,60 +87,6 @@ class Searched:
     fold_record: dict | None = None  # the folds searched on (Folds.record)
     frames: pl.DataFrame | None = None  # the frames searched (every training frame, or the episodes drawn)
     sampled: tuple[int, int] | None = None  # (episodes searched, training episodes) where the search drew some
-
-
-@dataclass(frozen=True)
-class Training:
-    """The frames as the search reads them (episodes in order) and the folds."""
-
-    frames: Frames
-    split: Split  # the training rows only
-    rows: np.ndarray  # the training rows' indices into the frames
-    episodes: np.ndarray
-    folds: folding.Folds
-    table: pl.DataFrame  # the frames searched: the training split's, or the episodes drawn from it
-    record: dict  # the folds as `mlnseq fit` cuts the whole training split (Folds.record)
-    sampled: tuple[int, int] | None = None  # (episodes drawn, training episodes), where drawn
-
-
-def training(frames: pl.DataFrame, n_classes: int, most: int = SEARCH_FRAMES) -> Training | None:
-    """The search's view of ``frames`` (sorted by episode and frame), its training split cut into folds as `mlnseq
-    fit` cuts them, and beyond ``most`` training frames only the episodes ``drawn``: None when the training split is
-    too small for 2 folds."""
-    episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
-    labels = frames["label"].to_numpy().astype(np.int64)
-    k = folding.suggested(episodes, splits)
-    if not k:
-        return None
-    whole = folding.assign(episodes, splits, labels, k)
-    kept, sampled = drawn(whole, episodes, most)
-    frames, episodes, labels = frames[kept], episodes[kept], labels[kept]
-    folds = folding.Folds(whole.fold[kept], whole.kind, whole.cut)
-    view = Frames(folds.fold >= 0, labels, chain_starts(episodes), folds.fold, n_classes)
-    rows = np.flatnonzero(folds.fold >= 0)
-    split = Split(labels[rows], chain_starts(episodes, folds.fold, rows=rows), folds.fold[rows], episodes[rows],
-                  n_classes)
-    return Training(view, split, rows, episodes, folds, frames, whole.record(), sampled)
-
-
-def drawn(folds: folding.Folds, episodes: np.ndarray, most: int) -> tuple[np.ndarray, tuple[int, int] | None]:
-    """The rows the search reads: every row where the training split has at most ``most``, else whole training
-    episodes spread evenly over each fold's, each fold its share of ``most`` (at least one episode); and (episodes
-    drawn, training episodes) where some were left out."""
-    train = np.flatnonzero(folds.fold >= 0)
-    if len(train) <= most:
-        return np.arange(len(folds.fold)), None
-    kept, drawn_episodes, total = [], 0, 0
-    for k in range(folds.k):
-        rows = np.flatnonzero(folds.fold == k)
-        names, first, sizes = np.unique(episodes[rows], return_index=True, return_counts=True)
-        order = np.argsort(first)  # episodes as they come
-        names, sizes = names[order], sizes[order]
-        share = max(1, min(len(names), int(round(len(names) * most / len(train)))))
-        chosen = names[np.unique(np.linspace(0, len(names) - 1, share).round().astype(np.int64))]
-        kept.append(rows[np.isin(episodes[rows], chosen)])
-        drawn_episodes, total = drawn_episodes + len(chosen), total + len(names)
-    return np.sort(np.concatenate(kept)), (drawn_episodes, total)
 
 
 def pool(found: list[Candidate], data: Training) -> list[Candidate]:
