@@ -64,7 +64,7 @@ def drawn(folds: folding.Folds, episodes: np.ndarray, most: int) -> tuple[np.nda
         names, first, sizes = np.unique(episodes[rows], return_index=True, return_counts=True)
         order = np.argsort(first)  # episodes as they come
         names, sizes = names[order], sizes[order]
-        share = max(1, min(len(names), int(round(len(names) * most / len(train)))))
+        share = max(1, min(len(names), len(names) * most // len(train)))
         chosen = names[np.unique(np.linspace(0, len(names) - 1, share).round().astype(np.int64))]
         kept.append(rows[np.isin(episodes[rows], chosen)])
         drawn_episodes, total = drawn_episodes + len(chosen), total + len(names)
