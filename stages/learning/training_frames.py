@@ -14,7 +14,7 @@ from mlnseq.learning.candidates import Frames
 from mlnseq.learning.quick_chain import Split
 from mlnseq.mln.chain import chain_starts
 
-SEARCH_FRAMES = 8_000  # training frames the search reads at most (whole episodes, from every fold)
+SEARCH_FRAMES = 4_000  # training frames the search reads at most (whole episodes, from every fold)
 
 
 @dataclass(frozen=True)
