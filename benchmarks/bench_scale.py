@@ -11,7 +11,7 @@ an older checkout's venv), each size first with it, then with this one; a baseli
 
 ``BENCH_SCALE_EPISODES`` the sizes (default 50,200,800; ``desk`` among them for the DESK bags, run by default
 last), ``BENCH_SCALE_EPOCHS`` fit's epochs (default fit's), ``BENCH_SCALE_EXECUTOR`` fit's --executor (default
-local), ``BENCH_QUICK=1``: 8 episodes at 15 Hz, 2 epochs.
+local), ``BENCH_SCALE_KEEP=DIR`` keeps the workdirs there, ``BENCH_QUICK=1``: 8 episodes at 15 Hz, 2 epochs.
 """
 
 from __future__ import annotations
@@ -140,7 +140,10 @@ def main() -> None:
     print(f"scale: `mlnseq fit` ({epochs or 'default'} epochs, --executor {executor}); held-out frame accuracy (%) "
           "of the model chosen")
     rows, skipped = [], set()
-    with tempfile.TemporaryDirectory() as folder:
+    keep = os.environ.get("BENCH_SCALE_KEEP")
+    with tempfile.TemporaryDirectory() as temporary:
+        folder = keep or temporary
+        Path(folder).mkdir(parents=True, exist_ok=True)
         for name, args, reading in datasets(Path(folder), sizes, quick):
             results = {}
             for side, python in pythons:
