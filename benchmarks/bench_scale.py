@@ -65,13 +65,15 @@ print(json.dumps({"marks": marks, "peak_mb": peak / 1024, "method": fitted.metho
 '''
 
 
-def fit(python: str, source: dict, workdir: Path, epochs: int | None, executor: str) -> dict:
-    """One fit in a process of its own: its stages' CPU marks, wall, peak memory, choice and test figures."""
+def fit(python: str, source: dict, workdir: Path, epochs: int | None, executor: str, own_path: bool) -> dict:
+    """One fit in a process of its own: its stages' CPU marks, wall, peak memory, choice and test figures; not
+    ``own_path``: without this process's PYTHONPATH (another installation runs its own code)."""
     own = {"force": True, **({"epochs": epochs} if epochs else {}), **({"executor": executor} if executor != "local"
                                                                      else {})}
     started = time.perf_counter()
+    env = {k: v for k, v in os.environ.items() if own_path or k != "PYTHONPATH"}
     done = subprocess.run([python, "-c", MEASURED, json.dumps(source), str(workdir), json.dumps(own)],
-                          capture_output=True, text=True, cwd=workdir.parent)
+                          capture_output=True, text=True, cwd=workdir.parent, env=env)
     if done.returncode:
         raise RuntimeError(f"fit of {workdir.name} failed:\n{done.stderr[-3000:]}")
     measured = json.loads(done.stdout.strip().splitlines()[-1])
@@ -81,7 +83,7 @@ def fit(python: str, source: dict, workdir: Path, epochs: int | None, executor: 
             "training": training}
 
 
-def held_out(python: str, workdir: Path, reading: list[str] | None, result: dict) -> float:
+def held_out(python: str, workdir: Path, reading: list[str] | None, result: dict, own_path: bool) -> float:
     """The frame accuracy (%) of the model fit chose: on fit's test split, or on the recordings ``reading`` names."""
     if reading is None:
         return 100 * result["test"][result["method"]]
@@ -89,8 +91,9 @@ def held_out(python: str, workdir: Path, reading: list[str] | None, result: dict
 
     out = workdir / "heldout.parquet"
     script = Path(python).with_name("mlnseq")
+    env = {k: v for k, v in os.environ.items() if own_path or k != "PYTHONPATH"}
     subprocess.run([str(script), "predict", str(workdir / "model.mlnseq"), *reading, "-o", str(out), "--force"],
-                   check=True, capture_output=True)
+                   check=True, capture_output=True, env=env)
     table = pl.read_parquet(out)
     classes = [c.removeprefix("p_") for c in table.columns if c.startswith("p_")]
     labels = table["label"]
@@ -151,8 +154,9 @@ def main() -> None:
                     results[side] = None
                     continue
                 workdir = Path(folder) / f"{side}-{len(rows)}"
-                results[side] = fit(python, args, workdir, epochs, executor if side == "this" else "local")
-                results[side]["held_out"] = held_out(python, workdir, reading, results[side])
+                own = side == "this"
+                results[side] = fit(python, args, workdir, epochs, executor if own else "local", own)
+                results[side]["held_out"] = held_out(python, workdir, reading, results[side], own)
                 if side == "baseline" and results[side]["cpu"] > limit:
                     skipped.add(side)  # the larger sizes would take longer still
                 print(f"  {name}, {side}: {cell(results[side], 'time')}; {cell(results[side], 'accuracy')}",
