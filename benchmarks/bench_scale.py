@@ -1,145 +1,175 @@
-"""How the per-recording costs grow with a recording's length: eval (its segment matching and edit score apart),
-conflate's per-frame work (the numpy network over every frame, the MLN's class scores, Viterbi decoding) and one
-stream-mode training epoch, on one generated recording of 20k, 200k and 2M frames side by side, with the growth
-from each length to the next (10x the frames: about 10x is linear, about 100x quadratic).
+"""Fit at a lab's scale: `mlnseq fit` on 50, 200 and 800 generated episodes of the 7-joint arm (tests/arm_bags.py:
+xarm7, 60 Hz, 22 channels, about 630 frames an episode; one Parquet table, `--env table`; fit's own split: 30 % of
+the episodes held out as its test split) and on the real DESK trials as bags (tests/desk_bags.py, trial 7 held
+out), each fit in a process of its own: wall time, CPU time (the fit's and its jobs'), the peak resident memory of
+its largest process, the CPU time of training (train: the network and its fold networks) against the rest, and the
+held-out frame accuracy of the model fit chose, with the choice.
 
-The recording: DESK's test episode (real features, labels and predicates) repeated into one episode of N frames;
-the predictions scored are the MLN alone's (they flicker: many short segments, eval's hardest case). The network
-and the MLN weights are trained once on DESK's training split (examples/temporal.mln, 1 epoch). Before issue 29
-eval matched every predicted segment against every true one (that matching, kept in the tests as the reference,
-is timed beside at the lengths it fits in memory). Training runs windows of 64 frames, 4 a step, as `mlnseq train
---mode stream`; each figure is one run (the slowest take minutes at 2M frames).
+``BENCH_SCALE_BASELINE=PYTHON`` measures the same fits with another installation of mlnseq beside (its Python, e.g.
+an older checkout's venv), each size first with it, then with this one; a baseline fit over
+``BENCH_SCALE_BASELINE_MINUTES`` of CPU at an earlier size is not run at the larger ones (said as skipped).
 
-``BENCH_SCALE_FRAMES`` sets the lengths (default ``20000,200000,2000000``).
+``BENCH_SCALE_EPISODES`` the sizes (default 50,200,800; ``desk`` among them for the DESK bags, run by default
+last), ``BENCH_SCALE_EPOCHS`` fit's epochs (default fit's), ``BENCH_SCALE_EXECUTOR`` fit's --executor (default
+local), ``BENCH_SCALE_KEEP=DIR`` keeps the workdirs there, ``BENCH_QUICK=1``: 8 episodes at 15 Hz, 2 epochs.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parents[1]
-DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"
-QUADRATIC_LIMIT = 5e7  # predicted x true segments up to which the old matching runs (its IoU matrices: 8 bytes each)
+sys.path.insert(0, str(REPO / "tests"))  # the arm's and DESK's recordings as the tests write them
+DESK = REPO.parent / "shared" / "data" / "desk-taurus" / "taurus_kinematics_train.txt"
+
+# Run in the fit's own process (any installation's Python): fit through mlnseq.fit, each stage's end heard, then
+# one JSON line of CPU seconds per stage (its jobs' included), wall seconds and the peak memory of any process.
+MEASURED = r'''
+import json, resource, sys, time
+from contextlib import contextmanager
+from pathlib import Path
+import mlnseq
+from mlnseq.collect import CollectOptions, SourceOptions
+from mlnseq.pipeline import fit as pipeline
+
+def cpu():
+    own, jobs = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + jobs.ru_utime + jobs.ru_stime
+
+marks = [("start", cpu(), time.perf_counter())]
+
+class Timed(pipeline.Observer):
+    def __getattribute__(self, name):
+        if name in ("collected", "binarized", "weights_learned", "trained", "conflated"):
+            return lambda step: marks.append((name, cpu(), time.perf_counter()))
+        return object.__getattribute__(self, name)
+
+    @contextmanager
+    def training(self, epochs, folds):
+        marks.append(("training", cpu(), time.perf_counter()))
+        yield lambda done: None
+
+flags, workdir, own = json.loads(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
+source = CollectOptions(env=flags["env"], source=Path(flags["source"]), recordings=SourceOptions(**flags["recordings"]))
+fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own), Timed())
+marks.append(("end", cpu(), time.perf_counter()))
+peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+test = {name: figures.frame_accuracy for name, figures in fitted.test.items()}
+print(json.dumps({"marks": marks, "peak_mb": peak / 1024, "method": fitted.method, "test": test}))
+'''
 
 
-def _desk_workdir(folder: Path) -> Path:
-    """DESK frames, predicates, temporal.mln's weights and a stream LSTM trained 1 epoch."""
-    from mlnseq import binarize, collect, formulas, learn_weights, train
-
-    collect.run(folder, collect.CollectOptions(env="desk", source=DESK_SOURCE))
-    binarize.run(folder, binarize.BinarizeOptions())
-    formulas.run(folder, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
-    learn_weights.run(folder, learn_weights.LearnWeightsOptions())
-    train.run(folder, train.TrainOptions(mode="stream", epochs=1, folds=0))
-    return folder
-
-
-def _timed(work: Callable[[], object]) -> float:
+def fit(python: str, source: dict, workdir: Path, epochs: int | None, executor: str, own_path: bool) -> dict:
+    """One fit in a process of its own: its stages' CPU marks, wall, peak memory, choice and test figures; not
+    ``own_path``: without this process's PYTHONPATH (another installation runs its own code)."""
+    own = {"force": True, **({"epochs": epochs} if epochs else {}), **({"executor": executor} if executor != "local"
+                                                                     else {})}
     started = time.perf_counter()
-    work()
-    return time.perf_counter() - started
+    env = {k: v for k, v in os.environ.items() if own_path or k != "PYTHONPATH"}
+    done = subprocess.run([python, "-c", MEASURED, json.dumps(source), str(workdir), json.dumps(own)],
+                          capture_output=True, text=True, cwd=workdir.parent, env=env)
+    if done.returncode:
+        raise RuntimeError(f"fit of {workdir.name} failed:\n{done.stderr[-3000:]}")
+    measured = json.loads(done.stdout.strip().splitlines()[-1])
+    marks = {name: (cpu, wall) for name, cpu, wall in measured["marks"]}
+    training = (marks["trained"][0] - marks["training"][0]) if "training" in marks else None
+    return {**measured, "wall": time.perf_counter() - started, "cpu": marks["end"][0] - marks["start"][0],
+            "training": training}
 
 
-def _old_matching(predicted: np.ndarray, truth: np.ndarray) -> None:
-    """Eval's segment matching before issue 29: IoU of every predicted segment with every true one, per overlap."""
-    from mlnseq.timeline.metrics import OVERLAPS, label_runs
-
-    p = np.array(label_runs(predicted), dtype=np.int64).reshape(-1, 3)
-    t = np.array(label_runs(truth), dtype=np.int64).reshape(-1, 3)
-    for _ in OVERLAPS:
-        intersection = np.minimum(p[:, None, 2], t[None, :, 2]) - np.maximum(p[:, None, 1], t[None, :, 1])
-        union = np.maximum(p[:, None, 2], t[None, :, 2]) - np.minimum(p[:, None, 1], t[None, :, 1])
-        iou = np.where(p[:, None, 0] == t[None, :, 0], np.maximum(intersection, 0) / union, -1.0)
-        iou.argmax(axis=1)
-
-
-def measure(workdir: Path, n: int) -> dict[str, float | None]:
-    """Seconds of each piece of work on a recording of ``n`` frames."""
+def held_out(python: str, workdir: Path, reading: list[str] | None, result: dict, own_path: bool) -> float:
+    """The frame accuracy (%) of the model fit chose: on fit's test split, or on the recordings ``reading`` names."""
+    if reading is None:
+        return 100 * result["test"][result["method"]]
     import polars as pl
 
-    from mlnseq import networks
-    from mlnseq.catalog import artifacts
-    from mlnseq.mln import classifier
-    from mlnseq.mln.factors import MLNFactors
-    from mlnseq.model.checkpoints import load_checkpoint
-    from mlnseq.networks.fitting import Fitting, resolve_device
-    from mlnseq.fusion.decoding import decode
-    from mlnseq.fusion.fuse import chain_of
-    from mlnseq.timeline import metrics, sequences
-
-    frames = pl.read_parquet(workdir / artifacts.FRAMES)
-    predicates = pl.read_parquet(workdir / artifacts.PREDICATES)
-    weights = pl.read_parquet(workdir / artifacts.WEIGHTS)
-    classes = artifacts.read_metadata(workdir / artifacts.FRAMES, "frames")["classes"]
-    test = np.flatnonzero(frames["split"].to_numpy() == "test")
-    rows = pl.Series(np.resize(test, n))
-    frames, predicates = frames[rows], predicates[rows]  # one episode of n frames: the test episode repeated
-    labels = frames["label"].to_numpy().astype(np.int64)
-    features = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float32)
-    episodes, starts = np.zeros(n, dtype=np.int64), np.r_[True, np.zeros(n - 1, dtype=bool)]
-    columns = artifacts.feature_columns(predicates)
-    evidence = predicates.select(columns).to_numpy().astype(bool)
-    seconds: dict[str, float | None] = {}
-
-    scores: list[np.ndarray] = []
-    seconds["conflate: MLN class scores"] = _timed(
-        lambda: scores.append(classifier.class_scores(predicates, weights, classes)))
-    predicted = scores[0].argmax(1)
-    seconds["eval: every metric (score_method)"] = _timed(
-        lambda: metrics.score_method(predicted, labels, episodes, len(classes), 0.5, True))
-    seconds["eval: segment matching, 3 overlaps"] = _timed(lambda: metrics.overlap_counts_all(predicted, labels))
-    n_pairs = len(metrics.label_runs(predicted)) * len(metrics.label_runs(labels))
-    seconds["eval: the old matching (every pair)"] = (
-        _timed(lambda: _old_matching(predicted, labels)) if n_pairs <= QUADRATIC_LIMIT else None)
-    seconds["eval: edit score"] = _timed(lambda: metrics.edit_score(predicted, labels))
-
-    checkpoint = load_checkpoint(workdir, "lstm")
-    log_p: list[np.ndarray] = []
-    seconds["conflate: numpy LSTM, every frame"] = _timed(
-        lambda: log_p.append(checkpoint.network.log_probs([slice(0, n)], features, None)))
-    mln = MLNFactors.from_weights(weights, columns, classes)
-    seconds["conflate: Viterbi (conflation)"] = _timed(
-        lambda: decode(chain_of("conflation", mln, evidence, starts, log_p[0], 1.0), "viterbi"))
-
-    config = networks.make_config("lstm", n_features=features.shape[1], n_classes=len(classes), hidden_size=32,
-                                  prior_layer=False, smoothing=0.0)
-    windows = sequences.training_units("stream", episodes, np.full(n, "train"), labels, 64)
-    standardised = (features - features.mean(0)) / features.std(0)
-    fitting = Fitting.start(config, standardised.astype(np.float32), None, labels, windows, 0, resolve_device("cpu"))
-    seconds["train: one stream epoch (windows of 64)"] = _timed(lambda: fitting.epoch(4, 0.1))
-    return seconds
+    out = workdir / "heldout.parquet"
+    script = Path(python).with_name("mlnseq")
+    env = {k: v for k, v in os.environ.items() if own_path or k != "PYTHONPATH"}
+    subprocess.run([str(script), "predict", str(workdir / "model.mlnseq"), *reading, "-o", str(out), "--force"],
+                   check=True, capture_output=True, env=env)
+    table = pl.read_parquet(out)
+    classes = [c.removeprefix("p_") for c in table.columns if c.startswith("p_")]
+    labels = table["label"]
+    truth = labels.to_numpy() if labels.dtype == pl.String else [classes[k] for k in labels.to_numpy()]
+    return 100 * float((table["class"].to_numpy() == truth).mean())
 
 
-def _cell(value: float | None) -> str:
-    return "–" if value is None else f"{value:.3f}"
+def datasets(root: Path, sizes: list[str], quick: bool) -> list[tuple[str, dict, list[str] | None]]:
+    """(name, collect's env, source and recording options, predict's arguments for held-out recordings or None) per
+    size."""
+    import numpy as np
+
+    import arm_bags
+    import desk_bags
+
+    made = []
+    for size in sizes:
+        if size == "desk":
+            folder, heldout = desk_bags.write_folders(np.loadtxt(DESK), root / "desk", root / "desk-heldout")
+            made.append(("DESK bags (6 trials)", {"env": "rosbag", "source": str(folder),
+                                                  "recordings": {"label_topic": "/phase"}},
+                         ["--source", str(heldout / "trial_7")]))
+        else:
+            table = arm_bags.write_table(root / f"arm-{size}.parquet", seed=3, episodes=int(size),
+                                         rate=15.0 if quick else None)
+            made.append((f"{size} episodes", {"env": "table", "source": str(table), "recordings": {}}, None))
+    return made
+
+
+def cell(result: dict | None, what: str) -> str:
+    if result is None:
+        return "–"
+    if what == "time":
+        share = "" if result["training"] is None else f" (train {result['training']:.0f} s)"
+        return f"{result['wall']:.0f} s wall, {result['cpu']:.0f} s CPU{share}, {result['peak_mb']:,.0f} MB"
+    return f"{result['held_out']:.1f} ({result['method']})"
 
 
 def main() -> None:
-    from mlnseq.networks.fitting import set_threads
-
-    set_threads()
-    lengths = [int(x) for x in os.environ.get("BENCH_SCALE_FRAMES", "20000,200000,2000000").split(",")]
-    with tempfile.TemporaryDirectory() as folder:
-        workdir = _desk_workdir(Path(folder))
-        results = {}
-        for n in lengths:
-            results[n] = measure(workdir, n)
-            print(f"  measured {n:,} frames", flush=True)
-    names = list(results[lengths[0]])
-    header = " | ".join(f"{n:,} frames (s)" for n in lengths)
-    growth = " | ".join(f"x{b / a:g} frames" for a, b in zip(lengths, lengths[1:]))
-    print(f"| work | {header} | {growth} |")
-    print("|---" * (1 + len(lengths) + len(lengths) - 1) + "|")
-    for name in names:
-        values = [results[n][name] for n in lengths]
-        grown = [f"x{b / a:.1f}" if a and b else "–" for a, b in zip(values, values[1:])]
-        print(f"| {name} | {' | '.join(map(_cell, values))} | {' | '.join(grown)} |")
+    quick = os.environ.get("BENCH_QUICK") == "1"
+    sizes = ["8"] if quick else os.environ.get("BENCH_SCALE_EPISODES", "50,200,800,desk").split(",")
+    epochs = 2 if quick else int(os.environ["BENCH_SCALE_EPOCHS"]) if os.environ.get("BENCH_SCALE_EPOCHS") else None
+    executor = os.environ.get("BENCH_SCALE_EXECUTOR", "local")
+    baseline = os.environ.get("BENCH_SCALE_BASELINE")
+    limit = 60 * float(os.environ.get("BENCH_SCALE_BASELINE_MINUTES", "20"))
+    pythons = ([("baseline", baseline)] if baseline else []) + [("this", sys.executable)]
+    print(f"scale: `mlnseq fit` ({epochs or 'default'} epochs, --executor {executor}); held-out frame accuracy (%) "
+          "of the model chosen")
+    rows, skipped = [], set()
+    keep = os.environ.get("BENCH_SCALE_KEEP")
+    with tempfile.TemporaryDirectory() as temporary:
+        folder = keep or temporary
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        for name, args, reading in datasets(Path(folder), sizes, quick):
+            results = {}
+            for side, python in pythons:
+                if side in skipped:
+                    results[side] = None
+                    continue
+                workdir = Path(folder) / f"{side}-{len(rows)}"
+                own = side == "this"
+                results[side] = fit(python, args, workdir, epochs, executor if own else "local", own)
+                results[side]["held_out"] = held_out(python, workdir, reading, results[side], own)
+                if side == "baseline" and results[side]["cpu"] > limit:
+                    skipped.add(side)  # the larger sizes would take longer still
+                print(f"  {name}, {side}: {cell(results[side], 'time')}; {cell(results[side], 'accuracy')}",
+                      flush=True)
+            rows.append((name, results))
+    sides = [side for side, _ in pythons]
+    print("| data | " + " | ".join(f"{s}: time, memory | {s}: held-out" for s in sides) + " |")
+    print("|---" * (1 + 2 * len(sides)) + "|")
+    for name, results in rows:
+        print(f"| {name} | " + " | ".join(f"{cell(results.get(s), 'time')} | {cell(results.get(s), 'accuracy')}"
+                                        for s in sides) + " |")
+    print(f"scale: {len(rows)} size(s) measured" + (f"; baseline skipped past {limit / 60:g} CPU minutes"
+                                                     if skipped else ""))
 
 
 if __name__ == "__main__":

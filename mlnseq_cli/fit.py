@@ -16,6 +16,7 @@ from mlnseq_cli.binarize import print_learned
 from mlnseq_cli.conflate import summary
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from mlnseq_cli.train import epoch_progress
+from mlnseq.catalog.errors import BadInput
 from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
 
@@ -33,6 +34,8 @@ def fit_options(
     offline: Annotated[bool, typer.Option("--offline", help="No budget: offline decoders (viterbi, posterior) over whole recordings too.")] = False,
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="The model file \\[default: WORKDIR/model.mlnseq, replaced].", dir_okay=False)] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite --output if it exists, and a learned spec or formulas file edited by hand.")] = False,
+    executor: Annotated[str, typer.Option(help="Where the logic (binarize, formulas, learn-weights) and the networks (train) run: local (in this process, one after the other), processes (side by side on this machine's cores) or slurm (two cluster jobs, needs --profile); processes and slurm run on Snakemake.")] = pipeline.Executor.LOCAL.value,
+    profile: Annotated[Optional[Path], typer.Option(help="With --executor slurm: a Snakemake profile folder (config.yaml): the cluster's partition, resources, status command.", file_okay=False)] = None,
     workdir: WorkdirOption = DEFAULT,
 ) -> None:
     """fit's own options (their signature joins collect's below)."""
@@ -49,11 +52,20 @@ def fit(**flags: Any) -> None:
     own = {name: flags.pop(name) for name in inspect.signature(fit_options).parameters}
     workdir = own.pop("workdir")
     with reported_errors():
+        own["executor"] = executor_of(own["executor"])
         source = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"})
         fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own, seed=source.seed), Printed())
     for line in fitted.said:
         say(line)
     say(f"[green]fit[/]: {fitted.wrote}")
+
+
+def executor_of(text: str) -> pipeline.Executor:
+    try:
+        return pipeline.Executor(text)
+    except ValueError:
+        raise BadInput(f"unknown --executor {text!r}: choose one of "
+                       f"{', '.join(e.value for e in pipeline.Executor)}") from None
 
 
 def say(line: str, warnings: tuple[str, ...] = ()) -> None:
@@ -93,6 +105,10 @@ class Printed(pipeline.Observer):
 
     def conflated(self, step: ConflateResult) -> None:
         summary(step, step.path.parent)
+
+    def parts_running(self, executor: pipeline.Executor, logs: Path) -> None:
+        where = "as SLURM jobs" if executor is pipeline.Executor.SLURM else "as processes side by side"
+        say(f"binarize, formulas and learn-weights, and train, {where} (their logs: {logs}) ...")
 
 
 def _joined() -> inspect.Signature:

@@ -27,7 +27,7 @@ from mlnseq.model.checkpoints import Checkpoint, load_checkpoint
 from mlnseq.model.manifest import Manifest, NetworkEntry
 from mlnseq.choosing import latency
 from mlnseq.recognition import recognizer
-from mlnseq.choosing.network_weight import WeightChoice, WeightDecision
+from mlnseq.choosing.network_weight import WeightChoice, WeightDecision, decoding_notes
 from mlnseq.choosing.workdir_inputs import paper_floor, read_workdir
 
 AUTO = latency.AUTO  # --method auto: the method, decoder and lag with the best cross-validated figures in the workdir
@@ -182,11 +182,37 @@ def check_output(options: ExportOptions, workdir: Path) -> Path:
 
 def weight_choice(workdir: Path, method: Method, decode: str) -> tuple[WeightChoice, list[Note]]:
     """The network factor's weight of the one decoded network method exported, decided as conflate decides it
-    (recognition/network_weight.py), and the notes that bear on it."""
+    (recognition/network_weight.py), and the notes that bear on it; the weight conflate learned where it is still
+    the workdir's (``conflated_weight``)."""
     from mlnseq.mln.factors import MLNFactors
+
+    recorded = conflated_weight(workdir, decoded_name(method, decode))
+    if recorded is not None:
+        return recorded
 
     network = network_of(method)
     inputs = read_workdir(workdir, (network,))
     mln = MLNFactors.from_weights(inputs.mln.weights, inputs.mln.columns, inputs.classes)
     decision = WeightDecision(inputs, mln)
     return decision.choice(method, decode), decision.notes([network])
+
+
+def conflated_weight(workdir: Path, name: str) -> tuple[WeightChoice, list[Note]] | None:
+    """The weight conflate learned for ``name`` on the out-of-fold predictions, and the notes deciding it says, where
+    predictions.parquet records it (conflate chose it: no --network-weight): the same decision, not made twice over
+    every frame; None otherwise. A predictions.parquet whose inputs (networks, their out-of-fold predictions,
+    weights, predicates, frames) changed since is refused as it is everywhere (StaleArtifact)."""
+    import polars as pl
+
+    from mlnseq.catalog.methods import WeightSource
+
+    path = workdir / artifacts.PREDICTIONS
+    if not path.exists():
+        return None
+    meta = artifacts.read_metadata(path, "predictions")
+    record = (meta.get("network_weights") or {}).get(name)
+    if meta.get("network_weight_option") is not None or not record or record.get("how") != str(WeightSource.LEARNED):
+        return None
+    weights = pl.read_parquet(workdir / artifacts.WEIGHTS, columns=["weight", "hard", "temporal"])
+    temporal = bool(weights.filter((pl.col("weight") != 0) | pl.col("hard"))["temporal"].any())  # as MLNFactors counts
+    return WeightChoice(float(record["weight"]), None, {}, WeightSource.LEARNED), decoding_notes(temporal, [])

@@ -217,10 +217,11 @@ def _first_variables(formula) -> dict[str, str]:
 
 def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "native", objective: str | None = None,
           l2: float | None = None, where: str = artifacts.FORMULAS, class_names: Sequence[str] | None = None,
-          max_formulas: int = MAX_FORMULAS) -> Learned:
+          max_formulas: int = MAX_FORMULAS, near: dict[str, float] | None = None) -> Learned:
     """Expand and learn the weights of ``mln`` on the training split of ``predicates`` (pure); ``where`` names
     the formulas in messages; ``class_names`` (label order) name the classes in the weights table, learned.mln
-    and messages (None: the paper's C<k>)."""
+    and messages (None: the paper's C<k>). ``near``: weights by formula (as the table writes it) near the optimum,
+    the CLL learner's start (a fold's learner starts from the whole split's: the same optimum, in a few steps)."""
     options = LearnWeightsOptions(engine=engine, objective=objective, l2=l2)
     options.validate()
     training = training_data(predicates, n_classes, class_names)
@@ -243,7 +244,9 @@ def learn(predicates: pl.DataFrame, n_classes: int, mln: MLN, engine: str = "nat
         weights = bpll.learn(expanded, training.rows, training.space, training.starts, l2=l2)
     else:
         states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(n_classes)))
-        weights = cll.learn(expanded, training.evidence, training.labels, training.starts, states, l2=l2)
+        initial = None if near is None else np.array([near.get(show(e.formula, class_names), 0.0) for e in expanded])
+        weights = cll.learn(expanded, training.evidence, training.labels, training.starts, states, l2=l2,
+                            initial=initial)
     every = expanded + left_out
     values = np.concatenate([weights, np.zeros(len(left_out))])
     table = pl.DataFrame(
@@ -322,6 +325,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
     table_meta = {"options": record, "engine": options.engine, "objective": learned.objective, "l2": learned.l2,
                   "classes": classes, "source": meta.get("source"), "warnings": learned.warnings}
     per_fold = []
+    near = dict(learned.weights.filter(~pl.col("hard")).select("formula", "weight").iter_rows())
     if folds is not None:
         from mlnseq.choosing.folds import fold_predicates
 
@@ -330,7 +334,7 @@ def run(workdir: Path, options: LearnWeightsOptions) -> tuple[Path, Learned]:
             held_out = tables[k].with_columns(pl.Series("episode", named["episode"]),
                                               pl.Series("split", folds.splits(k)))
             fold = learn(held_out, len(classes), mln, options.engine, options.objective, options.l2, where,
-                         list(classes), options.max_formulas)
+                         list(classes), options.max_formulas, near)
             fold.warnings[:] = source_lines.located(fold.warnings, where)
             per_fold.append(fold.weights.with_columns(pl.lit(k, dtype=pl.Int32).alias("fold")))
             learned.warnings.extend(f"fold {k}: {w}" for w in fold.warnings if w not in learned.warnings)

@@ -227,6 +227,27 @@ def frames_table(signals: list[dict[str, np.ndarray]], splits: list[str]):
     return table.with_columns(label=pl.when(pl.col("split") != "unlabelled").then(pl.col("label")))
 
 
+def write_table(path: Path, robot: str = "xarm7", seed: int = 0, episodes: int = 8, rate: float | None = None) -> Path:
+    """``episodes`` episodes of ``robot`` (seeds seed*1000 + 0, 1, ...) as one Parquet table for `collect --env table`:
+    episode (ep0, ep1, ...), frame, the 22 channels named by joint (joint1_position ... gripper_width) and label (the
+    phase's name); ``rate``: another frame rate than the robot's."""
+    from dataclasses import replace
+
+    import polars as pl
+
+    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
+    tables = []
+    for k in range(episodes):
+        signals = episode_signals(arm, seed * 1000 + k)
+        n = len(signals["phase"])
+        columns = {f"joint{j + 1}_{field}": signals[field][:, j] for field in ("position", "velocity", "effort")
+                   for j in range(7)}
+        tables.append(pl.DataFrame({"episode": [f"ep{k}"] * n, "frame": np.arange(n), **columns,
+                                    "gripper_width": signals["width"], "label": np.array(PHASES)[signals["phase"]]}))
+    pl.concat(tables).write_parquet(path)
+    return path
+
+
 def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: int = 6, heldout: int = 2,
                   rate: float | None = None) -> tuple[Path, Path]:
     """``episodes`` bags of ``robot`` (seeds seed*1000 + 0, 1, ...) in ``folder`` and ``heldout`` more (the next

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-SMALL = {"BENCH_QUICK": "1", "BENCH_FETCH_EPISODES": "5", "BENCH_BAG_MINUTES": "1", "BENCH_SCALE_FRAMES": "20000",
+SMALL = {"BENCH_QUICK": "1", "BENCH_FETCH_EPISODES": "5", "BENCH_BAG_MINUTES": "1", "BENCH_LENGTH_FRAMES": "20000",
          "BENCH_STARTUP_ROUNDS": "1"}
 LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "audit": "audit: 1 row(s) measured",
@@ -21,7 +21,8 @@ LAST_FIGURE = {  # benchmark: the start of the line it prints last
     "networks": "tcn ",
     "recordings": "peak memory:",
     "review": "review: ",  # its figure, or why it skipped (no chromium)
-    "scale": "| train: one stream epoch",
+    "length": "| train: one stream epoch",
+    "scale": "scale: 1 size(s) measured",
     "startup": "mlnseq --help:",
     "train": "fetch (5 episodes):",
 }

@@ -190,15 +190,30 @@ def scored_within(budget: int | None, hard_rules: bool) -> tuple[tuple[Decoder, 
                                                                       | {budget}))
 
 
+STEADIER_FRAMES = 0.5  # points of cross-validated frame accuracy a steadier candidate gives up at most
+STEADIER_EDIT = 10.0  # points of cross-validated edit score it gains at least
+
+
 @dataclass(frozen=True)
 class Standing:
     """A choice as fit says it: the choice, the runner-up and the network alone (where neither of them), with their
-    cross-validated figures, ranked as ``best`` takes them among ``among`` candidates."""
+    cross-validated figures, ranked as ``best`` takes them among ``among`` candidates; and ``steadier``, where one
+    flickers far less for a fraction of a point of frames (``steadier``)."""
 
     chosen: Candidate
     runner_up: Candidate | None
     network_alone: Candidate | None
     among: int
+    steadier: Candidate | None = None
+
+
+def steadier(order: list[Candidate], chosen: Candidate) -> Candidate | None:
+    """The first of ``order`` (as ``best`` ranks them) other than ``chosen`` whose cross-validated frame accuracy is
+    within STEADIER_FRAMES points of the choice's and whose edit score is STEADIER_EDIT points higher: for live use,
+    where a flickering class is read as a new phase, the better trade; None where there is none."""
+    edit = chosen.figures.get("edit", math.nan)
+    return next((c for c in order if c is not chosen and frames(c) >= frames(chosen) - STEADIER_FRAMES
+                 and c.figures.get("edit", -math.inf) >= edit + STEADIER_EDIT), None)
 
 
 def standing(cross_validation: dict[str, Any], chosen: str, among: Any) -> Standing:
@@ -210,7 +225,7 @@ def standing(cross_validation: dict[str, Any], chosen: str, among: Any) -> Stand
     best_one = next(c for c in order if c.name == chosen)
     others = [c for c in order if c is not best_one]
     alone = next((c for c in others[1:] if c.method == Method.NETWORK and c.decoding.decoder is Decoder.NONE), None)
-    return Standing(best_one, others[0] if others else None, alone, len(order))
+    return Standing(best_one, others[0] if others else None, alone, len(order), steadier(order, best_one))
 
 
 AUTO = "auto"  # export --method auto: the method, decoder and lag with the best cross-validated figures

@@ -11,9 +11,12 @@ Per channel (a feature, or the distance between two 3-D points):
   opening, closed below the cut of best gain under it, and between them opening or closing beyond a dead band
   below the gripper's motion per frame (a fraction of its fastest frames' motion, the fraction of best gain).
 
-Cuts are tried at ``QUANTILES`` quantiles of the training values, so a candidate costs a few passes over the
-frames whatever their number. ``oof_gain`` scores a candidate's codes by cross-validation: the class given its
-value, counted on the other folds, as log-likelihood of the held-out fold's classes above the classes' prior.
+Cuts are tried at ``QUANTILES`` quantiles of the training values, and every cut, dead band or window is scored from
+one histogram of the frames over the cuts tried (class counts per bin, summed up to each cut), so a candidate costs a
+few passes over the frames whatever their number and however many cuts are tried; the gains are those of coding every
+frame with each cut in turn, to the bit. Codes are one byte a frame. ``oof_gain`` scores a candidate's codes by
+cross-validation: the class given its value, counted on the other folds, as log-likelihood of the held-out fold's
+classes above the classes' prior.
 """
 
 from __future__ import annotations
@@ -102,11 +105,22 @@ def entropy(counts: np.ndarray) -> np.ndarray:
 
 def gain_of(codes: np.ndarray, frames: Frames) -> float:
     """In-sample information gain of the class given ``codes`` on the training frames, nats per frame."""
-    labels, codes = frames.labels[frames.train], codes[frames.train]
+    labels, codes = frames.labels[frames.train], codes[frames.train].astype(np.int64)
     n_values = int(codes.max()) + 1 if codes.size else 1
     table = np.bincount(codes * frames.n_classes + labels, minlength=n_values * frames.n_classes)
-    table = table.reshape(n_values, frames.n_classes).astype(np.float64)
-    return float((entropy(table.sum(axis=0)) - entropy(table).sum()) / max(len(labels), 1))
+    return gains_of(table.reshape(1, n_values, frames.n_classes).astype(np.float64), len(labels))[0]
+
+
+def gains_of(tables: np.ndarray, frames: int) -> np.ndarray:
+    """[J] the information gain (nats per frame) of each coding's class table [J, values, C] of ``frames`` frames
+    (rows of values no frame takes add nothing)."""
+    return (entropy(tables[0].sum(axis=0)) - entropy(tables).sum(axis=1)) / max(frames, 1)
+
+
+def class_counts(index: np.ndarray, labels: np.ndarray, size: int, n_classes: int) -> np.ndarray:
+    """[size, C] the frames of each ``index`` (0 .. size - 1) counted per class, as floats."""
+    counts = np.bincount(index.astype(np.int64) * n_classes + labels, minlength=size * n_classes)
+    return counts.reshape(size, n_classes).astype(np.float64)
 
 
 def oof_gain(candidate: Candidate, frames: Frames) -> float:
@@ -116,8 +130,7 @@ def oof_gain(candidate: Candidate, frames: Frames) -> float:
     for k, fold in enumerate(masks(frames.fold)):
         codes, n_values = candidate.fold_codes(k)
         fit, held = fold.fit, fold.held
-        table = np.bincount(codes[fit] * frames.n_classes + frames.labels[fit],
-                            minlength=n_values * frames.n_classes).reshape(n_values, frames.n_classes) + LAPLACE
+        table = class_counts(codes[fit], frames.labels[fit], n_values, frames.n_classes) + LAPLACE
         given = np.log(table / table.sum(axis=1, keepdims=True))
         prior = np.log(table.sum(axis=0) / table.sum())
         total += float((given[codes[held], frames.labels[held]] - prior[frames.labels[held]]).sum())
@@ -137,8 +150,8 @@ def stumps(values: np.ndarray, frames: Frames, most: int = MAX_CUTS) -> tuple[li
     tried = cut_points(x)
     if not tried.size:
         return [], 0.0
-    rows = np.zeros((len(tried) + 2, frames.n_classes))  # row r + 1: the values between cuts r - 1 and r
-    np.add.at(rows, (np.searchsorted(tried, x, side="left") + 1, labels), 1)
+    # row r + 1: the values between cuts r - 1 and r
+    rows = class_counts(np.searchsorted(tried, x, side="left") + 1, labels, len(tried) + 2, frames.n_classes)
     below = np.cumsum(rows, axis=0)  # [r]: the class counts of the values below cut r - 1 (row 0: none)
     chosen: list[int] = []  # rows: cut r - 1
     gained = 0.0
@@ -169,34 +182,56 @@ def level(name: str, channel: str, values: np.ndarray, frames: Frames) -> Candid
     if not cuts:
         return None
     predicate = Bins(name, channel, tuple(cuts), LEVEL_NAMES[len(cuts)])
-    return Candidate(predicate, channel, "level", np.searchsorted(np.asarray(cuts), values, side="right"), gained)
+    codes = np.searchsorted(np.asarray(cuts), values, side="right").astype(CODE)
+    return Candidate(predicate, channel, "level", codes, gained)
+
+
+CODE = np.uint8  # a frame's value of a candidate: at most a few
 
 
 def change_codes(delta: np.ndarray, threshold: float) -> np.ndarray:
-    return np.where(delta > threshold, 1, np.where(delta < -threshold, 2, 0))
+    return np.where(delta > threshold, 1, np.where(delta < -threshold, 2, 0)).astype(CODE)
+
+
+def change_gains(delta: np.ndarray, thresholds: np.ndarray, frames: Frames) -> np.ndarray:
+    """[J] the gain of ``change_codes`` at each of the ascending ``thresholds`` (>= 0) on the training frames: each
+    frame's rise (fall) binned by the thresholds it exceeds, the bins summed from the top."""
+    moved, labels, c = delta[frames.train], frames.labels[frames.train], frames.n_classes
+    size = len(thresholds) + 1
+    rises = class_counts(np.where(moved > 0, np.searchsorted(thresholds, moved, side="left"), 0), labels, size, c)
+    falls = class_counts(np.where(moved < 0, np.searchsorted(thresholds, -moved, side="left"), 0), labels, size, c)
+    above = np.cumsum(rises[::-1], axis=0)[::-1][1:]  # [j]: frames rising beyond threshold j
+    below = np.cumsum(falls[::-1], axis=0)[::-1][1:]
+    total = rises.sum(axis=0)
+    return gains_of(np.stack([total - above - below, above, below], axis=1), len(labels))
 
 
 def change(name: str, channel: str, values: np.ndarray, frames: Frames) -> Candidate | None:
     """The window and dead band of best information gain; among those within ``NEAR_BEST`` of it, the shortest
     window and its middle dead band (a choice that moves little with the frames it is learned on)."""
-    tried: list[Candidate] = []
+    tried: list[tuple[int, float, float]] = []  # window, threshold, gain
     for window in WINDOWS:
         delta = values - looked_back(values, frames.first, window)
         delta[frames.first] = 0.0
         moved = np.abs(delta[frames.train])
-        for threshold in np.unique([written(q) for q in np.quantile(moved, np.linspace(0.1, 0.9, 9))]):
-            codes = change_codes(delta, float(threshold))
-            tried.append(Candidate(Change(name, channel, float(threshold), window=window), channel, "change", codes,
-                                   gain_of(codes, frames)))
-    return steady(tried, lambda c: c.predicate.window, lambda c: c.predicate.threshold)
+        thresholds = np.unique([written(q) for q in np.quantile(moved, np.linspace(0.1, 0.9, 9))])
+        tried += zip([window] * len(thresholds), thresholds.tolist(), change_gains(delta, thresholds, frames).tolist())
+    chosen = steady(tried, lambda t: t[0], lambda t: t[1], lambda t: t[2])
+    if chosen is None:
+        return None
+    window, threshold, gained = chosen
+    delta = values - looked_back(values, frames.first, window)
+    delta[frames.first] = 0.0
+    return Candidate(Change(name, channel, threshold, window=window), channel, "change",
+                     change_codes(delta, threshold), gained)
 
 
-def steady(tried: list[Candidate], first, second) -> Candidate | None:
-    """Among the candidates within NEAR_BEST of the best gain: the least ``first``, then the middle ``second``."""
-    best = max((c.gain for c in tried), default=0.0)
+def steady(tried: list, first, second, gain=lambda c: c.gain):
+    """Among the candidates within NEAR_BEST of the best ``gain``: the least ``first``, then the middle ``second``."""
+    best = max((gain(c) for c in tried), default=0.0)
     if best <= 0:
         return None
-    near = [c for c in tried if c.gain >= NEAR_BEST * best]
+    near = [c for c in tried if gain(c) >= NEAR_BEST * best]
     least = min(first(c) for c in near)
     near = sorted((c for c in near if first(c) == least), key=second)
     return near[len(near) // 2]
@@ -205,7 +240,24 @@ def steady(tried: list[Candidate], first, second) -> Candidate | None:
 def gripper_codes(values: np.ndarray, delta: np.ndarray, open_above: float, closed_below: float,
                   threshold: float) -> np.ndarray:
     return np.select([values > open_above, values < closed_below, delta > threshold, delta < -threshold],
-                     [0, 1, 2, 3], 4)
+                     [0, 1, 2, 3], 4).astype(CODE)
+
+
+def closed_gains(values: np.ndarray, delta: np.ndarray, open_above: float, closed: np.ndarray, threshold: float,
+                 frames: Frames) -> np.ndarray:
+    """[J] the gain of ``gripper_codes`` with each of the ascending ``closed`` cuts on the training frames: the frames
+    not open binned by the cuts above them, closed below a cut, else coded by their motion."""
+    x, moved, labels, c = values[frames.train], delta[frames.train], frames.labels[frames.train], frames.n_classes
+    shut = x <= open_above
+    motion = np.select([moved > threshold, moved < -threshold], [0, 1], 2)  # opening, closing, still
+    size = len(closed) + 1
+    binned = class_counts(np.searchsorted(closed, x[shut], side="right") * 3 + motion[shut], labels[shut], size * 3, c)
+    binned = binned.reshape(size, 3, c)
+    below = np.cumsum(binned.sum(axis=1), axis=0)[:-1]  # [j]: frames under cut j
+    moving = np.cumsum(binned[::-1], axis=0)[::-1][1:]  # [j, motion]: frames at or above cut j
+    opened = class_counts(np.zeros((~shut).sum(), dtype=np.int64), labels[~shut], 1, c)
+    tables = np.concatenate([np.broadcast_to(opened, (len(closed), 1, c)), below[:, None], moving], axis=1)
+    return gains_of(tables, len(labels))
 
 
 def gripper(name: str, channel: str, values: np.ndarray, frames: Frames) -> Candidate | None:
@@ -223,9 +275,10 @@ def gripper(name: str, channel: str, values: np.ndarray, frames: Frames) -> Cand
     tried = cut_points(below) if below.size > 1 else np.array([open_above])
 
     def scored(closed_below: float, share: float) -> Candidate:
-        predicate = Gripper(name, channel, open_above, written(min(closed_below, open_above)), written(share * fastest))
+        predicate = Gripper(name, channel, open_above, closed_below, written(share * fastest))
         codes = gripper_codes(values, delta, predicate.open_above, predicate.closed_below, predicate.threshold)
         return Candidate(predicate, channel, "gripper", codes, gain_of(codes, frames))
 
-    closed = max((scored(c, 0.1) for c in tried), key=lambda c: c.gain).predicate.closed_below
+    cuts = np.array([written(min(c, open_above)) for c in tried])
+    closed = float(cuts[np.argmax(closed_gains(values, delta, open_above, cuts, written(0.1 * fastest), frames))])
     return max((scored(closed, share) for share in DEAD_BANDS), key=lambda c: c.gain)

@@ -86,7 +86,7 @@ def learn(frames: pl.DataFrame, classes: list[str], source: str) -> Learned:
 
         raise BadInput("binarize --suggest: no channel of the training split varies with its classes, so no predicate "
                        "can be learned; write a spec of your own and pass it with --spec")
-    labels = frames["label"].to_numpy().astype(np.int64)
+    labels = searched.frames["label"].to_numpy().astype(np.int64)
     train = searched.train
     header = header_lines(searched, int(train.sum()), source)
     spec = learned_spec.render(searched.predicates, searched.distances, labels, train, names, header)
@@ -98,7 +98,8 @@ def learn(frames: pl.DataFrame, classes: list[str], source: str) -> Learned:
     record = {"predicates": [c.predicate.name for c in searched.predicates],
               "conjunctions": [f"{c.first} ^ {c.second}" for c in searched.conjunctions], "folds": searched.folds,
               "cross_validated": searched.figures, "path": searched.path, "candidates": searched.candidates,
-              "channels": searched.channels}
+              "channels": searched.channels,
+              **({"searched_episodes": list(searched.sampled)} if searched.sampled else {})}
     k = searched.fold_record["k"] if searched.fold_record else 0
     fold_specs = [learned_spec.plain([f for c in searched.predicates if (f := c.by_fold[j]) is not None],
                                      searched.distances) for j in range(k)]
@@ -119,7 +120,10 @@ def header_lines(searched: Searched, frames: int, source: str) -> list[str]:
     else:
         chosen = f"too few training frames for 2 folds: the candidates of best information gain, {kept}; not " \
                  "cross-validated."
+    read = f"{frames:,} training frames" if not searched.sampled else (
+        f"{frames:,} training frames of {searched.sampled[0]} of its {searched.sampled[1]} episodes, drawn evenly from "
+        "every fold")
     text = (f"Predicates `mlnseq binarize --suggest` learned from the training split of frames of source {source!r} "
-            f"({frames:,} training frames; {searched.candidates} candidates on {searched.channels} channels), {chosen} "
+            f"({read}; {searched.candidates} candidates on {searched.channels} channels), {chosen} "
             "Edit freely, then `mlnseq binarize --spec THIS_FILE`. Keys: docs/predicates.md.")
     return textwrap.wrap(text, 114, break_on_hyphens=False)

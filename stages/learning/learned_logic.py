@@ -19,6 +19,12 @@ cuts (`binarize --suggest` and `fit` without --spec).
    ``MIN_SUPPORT`` training frames, ``Has(a) ^ Has(b) => Topic(+c)``, kept where the exact score rises by
    ``MIN_STEP``.
 
+Where the training split holds more than ``SEARCH_FRAMES`` frames, all of the above runs on whole episodes drawn
+evenly from each of its folds, that many frames in all (``sampled``): a set's cross-validated score changes by a
+fraction of a point between a few dozen episodes and hundreds, while its cost grows with every frame. The folds are
+those `mlnseq fit` cuts on the whole split, so each fold's predicates are still learned without its episodes; the
+weights the model keeps are learned later on every training frame (`learn-weights`).
+
 Nothing here reads the test split.
 """
 
@@ -36,7 +42,7 @@ from mlnseq.learning import candidates as kinds
 from mlnseq.learning.candidates import Candidate, Frames
 from mlnseq.predicates.spec import Distance
 from mlnseq.learning import quick_chain
-from mlnseq.learning.quick_chain import Split
+from mlnseq.learning.training_frames import SEARCH_FRAMES, Training, training
 
 PRESELECT = 40  # candidates of best out-of-fold gain whose chains are scored (with every gripper)
 POOL = 20
@@ -79,33 +85,8 @@ class Searched:
     train: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # the frames the weights learn on
     weights: pl.DataFrame | None = None  # the kept formulas' weights learned on the whole training split
     fold_record: dict | None = None  # the folds searched on (Folds.record)
-
-
-@dataclass(frozen=True)
-class Training:
-    """The frames as the search reads them (episodes in order) and the folds."""
-
-    frames: Frames
-    split: Split  # the training rows only
-    rows: np.ndarray  # the training rows' indices into the frames
-    episodes: np.ndarray
-    folds: folding.Folds
-
-
-def training(frames: pl.DataFrame, n_classes: int) -> Training | None:
-    """The search's view of ``frames`` (sorted by episode and frame): None when the training split is too small for
-    2 folds (cut as `mlnseq fit` cuts them)."""
-    episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
-    labels = frames["label"].to_numpy().astype(np.int64)
-    k = folding.suggested(episodes, splits)
-    if not k:
-        return None
-    folds = folding.assign(episodes, splits, labels, k)
-    view = Frames(folds.fold >= 0, labels, chain_starts(episodes), folds.fold, n_classes)
-    rows = np.flatnonzero(folds.fold >= 0)
-    split = Split(labels[rows], chain_starts(episodes, folds.fold, rows=rows), folds.fold[rows], episodes[rows],
-                  n_classes)
-    return Training(view, split, rows, episodes, folds)
+    frames: pl.DataFrame | None = None  # the frames searched (every training frame, or the episodes drawn)
+    sampled: tuple[int, int] | None = None  # (episodes searched, training episodes) where the search drew some
 
 
 def pool(found: list[Candidate], data: Training) -> list[Candidate]:
@@ -297,7 +278,8 @@ def interacting(chosen: list[Candidate], data: Training) -> list[tuple[float, in
             joint, apart = [], []
             for k in range(split.k):
                 (first, n_first), (second, n_second) = a.fold_codes(k), chosen[j].fold_codes(k)
-                joint.append(quick_chain.one_hot([first[rows] * n_second + second[rows]], [n_first * n_second]))
+                joint.append(quick_chain.one_hot([first[rows].astype(np.int64) * n_second + second[rows]],
+                                                  [n_first * n_second]))
                 apart.append(quick_chain.one_hot([first[rows], second[rows]], [n_first, n_second]))
             gained = quick_chain.per_frame_log_likelihood(joint, split) - \
                 quick_chain.per_frame_log_likelihood(apart, split)
@@ -319,16 +301,17 @@ def bodies(a: Candidate, b: Candidate, data: Training) -> list[Conjunction]:
     return found
 
 
-def search(frames: pl.DataFrame, n_classes: int) -> Searched | None:
-    """Learn the predicates and formulas of ``frames`` (sorted by episode and frame); None where the training split
-    is too small for 2 folds."""
-    data = training(frames, n_classes)
+def search(frames: pl.DataFrame, n_classes: int, most: int = SEARCH_FRAMES) -> Searched | None:
+    """Learn the predicates and formulas of ``frames`` (sorted by episode and frame), on at most ``most`` of its
+    training frames (``drawn``); None where the training split is too small for 2 folds."""
+    data = training(frames, n_classes, most)
     if data is None:
         return None
+    frames = data.table
     found, distances = channels(frames)
     made = candidates_of(found, data.frames)
     searched = Searched([], candidates=len(made), channels=len(found), folds=data.folds.describe(),
-                        fold_record=data.folds.record())
+                        fold_record=data.record, frames=frames, sampled=data.sampled)
     near = None
     for chosen, (figures, near) in forward(pool(made, data), data):
         searched.path.append({"predicates": [c.predicate.name for c in chosen], **figures})
@@ -381,5 +364,5 @@ def uncrossed(frames: pl.DataFrame, n_classes: int) -> Searched:
         if candidate.channel not in seen and len(kept) < UNCROSSED:
             kept.append(candidate)
             seen.add(candidate.channel)
-    result = Searched(kept, candidates=len(made), channels=len(found))
+    result = Searched(kept, candidates=len(made), channels=len(found), frames=frames)
     return finished(result, frames, view, distances)

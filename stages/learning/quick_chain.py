@@ -21,9 +21,12 @@ from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.choosing.folds import masks
 from mlnseq.fusion.decoding import LIKELIHOOD_FLOOR, decode
 from mlnseq.mln import chain
+from mlnseq.mln.chain_scan import Repeats
 from mlnseq.mln.distinct_rows import distinct_rows
 from mlnseq.mln.lag import with_start
 
+NEWTON_STEPS = 50
+GTOL = 1e-7  # per frame: a gradient entry below this is zero
 L2 = 0.1  # as the CLL learner's default penalty (stages/mln/cll.py DEFAULT_L2), per weight, over the whole split
 LAPLACE = 1.0
 
@@ -54,47 +57,61 @@ def one_hot(codes: list[np.ndarray], sizes: list[int], n: int | None = None) -> 
     out = np.zeros((n, sum(sizes)), dtype=bool)
     offset = 0
     for values, size in zip(codes, sizes):
-        out[np.arange(n), offset + values] = True
+        out[np.arange(n), offset + values.astype(np.int64)] = True
         offset += size
     return out
 
 
 def logistic(rows: np.ndarray, counts: np.ndarray, l2: float = L2) -> np.ndarray:
     """Weights [D, C] of a multinomial logistic regression of the classes on the distinct rows [R, D] (bool) seen
-    ``counts`` [R, C] times, maximising the log-likelihood - l2/2 |W|^2."""
-    from scipy import optimize
-
+    ``counts`` [R, C] times, maximising the log-likelihood - l2/2 |W|^2: Newton's method with the exact Hessian (a
+    few dozen weights, a few steps), each step halved until the objective rises, until no gradient entry exceeds
+    ``GTOL`` per frame."""
     x = rows.astype(np.float64)
     d, c = x.shape[1], counts.shape[1]
     totals = counts.sum(axis=1)
+    frames = max(float(totals.sum()), 1.0)
 
-    def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        w = flat.reshape(d, c)
+    def objective(w: np.ndarray) -> tuple[float, np.ndarray]:
         scores = x @ w
         scores -= scores.max(axis=1, keepdims=True)
-        log_z = np.log(np.exp(scores).sum(axis=1))
-        log_p = scores - log_z[:, None]
-        value = float((counts * log_p).sum()) - 0.5 * l2 * float(flat @ flat)
-        gradient = x.T @ (counts - totals[:, None] * np.exp(log_p)) - l2 * w
-        return -value, -gradient.ravel()
+        log_p = scores - np.log(np.exp(scores).sum(axis=1))[:, None]
+        return float((counts * log_p).sum()) - 0.5 * l2 * float((w * w).sum()), log_p
 
-    found = optimize.minimize(objective, np.zeros(d * c), jac=True, method="L-BFGS-B",
-                              options={"maxiter": 200, "gtol": 1e-5})
-    return found.x.reshape(d, c)
+    w = np.zeros((d, c))
+    value, log_p = objective(w)
+    for _ in range(NEWTON_STEPS):
+        p = np.exp(log_p)
+        gradient = x.T @ (counts - totals[:, None] * p) - l2 * w
+        if np.abs(gradient).max() <= GTOL * frames:
+            break
+        spread = totals[:, None, None] * (p[:, :, None] * np.eye(c) - p[:, :, None] * p[:, None, :])
+        hessian = np.einsum("ri,rj,rkl->ikjl", x, x, spread).reshape(d * c, d * c) + l2 * np.eye(d * c)
+        step = np.linalg.solve(hessian, gradient.ravel()).reshape(d, c)
+        for _ in range(30):
+            tried, tried_log_p = objective(w + step)
+            if tried >= value:
+                break
+            step = step / 2
+        else:
+            break
+        w, value, log_p = w + step, tried, tried_log_p
+    return w
 
 
 def class_log_probs(evidence: np.ndarray, labels: np.ndarray, fit: np.ndarray, n_classes: int,
-                    rows: np.ndarray) -> np.ndarray:
-    """[len(rows), C] log p(class | evidence) of ``rows`` by the logistic regression fitted on the ``fit`` frames."""
+                    rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[len(rows), C] log p(class | evidence) of ``rows`` by the logistic regression fitted on the ``fit`` frames, and
+    [fit frames] the distinct evidence row of each fit frame (frames of one row have one class distribution)."""
     if evidence.shape[1] == 0:
-        return np.full((len(rows), n_classes), -np.log(n_classes))
+        return np.full((len(rows), n_classes), -np.log(n_classes)), np.zeros(int(np.sum(fit)), dtype=np.int64)
     distinct, index = distinct_rows(evidence[fit])
     counts = np.zeros((len(distinct), n_classes))
     np.add.at(counts, (index, labels[fit]), 1)
     weights = logistic(distinct, counts)
     scores = evidence[rows].astype(np.float64) @ weights
     scores -= scores.max(axis=1, keepdims=True)
-    return scores - np.log(np.exp(scores).sum(axis=1, keepdims=True))
+    return scores - np.log(np.exp(scores).sum(axis=1, keepdims=True)), index
 
 
 def transitions(labels: np.ndarray, starts: np.ndarray, mask: np.ndarray, n_classes: int) -> np.ndarray:
@@ -117,9 +134,11 @@ def out_of_fold(evidence: list[np.ndarray], split: Split) -> tuple[np.ndarray, n
         prior = np.log((np.bincount(split.labels[fit], minlength=c) + LAPLACE) / (fit.sum() + c * LAPLACE))
         pairwise = transitions(split.labels, split.starts, fit, c)[None]
         fitted = np.flatnonzero(fit)
-        own = class_log_probs(evidence[k], split.labels, fit, c, np.r_[fitted, rows]) - prior
+        own, kinds = class_log_probs(evidence[k], split.labels, fit, c, np.r_[fitted, rows])
+        own -= prior
         fit_link = np.where(chain.chain_starts(split.chains, rows=fitted), -1, 0)
-        scale = evidence_weight(chain.ChainFactors(own[:len(fitted)], pairwise, fit_link), split.labels[fitted])
+        scale = evidence_weight(chain.ChainFactors(own[:len(fitted)], pairwise, fit_link), split.labels[fitted],
+                                Repeats.of(kinds, fit_link))
         unary = scale * own[len(fitted):]
         link = np.where(chain.chain_starts(split.chains, rows=rows), -1, 0)
         factors = chain.ChainFactors(unary, pairwise, link)
@@ -134,12 +153,13 @@ def out_of_fold(evidence: list[np.ndarray], split: Split) -> tuple[np.ndarray, n
 SCALES = (0.25, 0.5, 1.0, 2.0, 4.0)  # the weights of the regression's evidence against the transitions tried
 
 
-def evidence_weight(factors: chain.ChainFactors, labels: np.ndarray) -> float:
+def evidence_weight(factors: chain.ChainFactors, labels: np.ndarray, repeats: Repeats | None = None) -> float:
     """The weight of ``factors.unary`` (in SCALES) under which the chains' classes are most likely (their
-    conditional log-likelihood: the labels' path score less log Z)."""
+    conditional log-likelihood: the labels' path score less log Z); ``repeats``: the frames' kinds of step, their
+    products computed once for every scale."""
     def likelihood(scale: float) -> float:
         scaled = chain.ChainFactors(scale * factors.unary, factors.pairwise, factors.link)
-        return chain.path_score(scaled, labels) - chain.log_partition(scaled)
+        return chain.path_score(scaled, labels) - chain.log_partition(scaled, repeats)
 
     return max(SCALES, key=likelihood)
 
@@ -156,6 +176,6 @@ def per_frame_log_likelihood(evidence: list[np.ndarray], split: Split) -> float:
     total = 0.0
     for k, fold in enumerate(masks(split.fold)):
         rows = fold.rows
-        log_p = class_log_probs(evidence[k], split.labels, fold.fit, split.n_classes, rows)
+        log_p, _ = class_log_probs(evidence[k], split.labels, fold.fit, split.n_classes, rows)
         total += float(log_p[np.arange(len(rows)), split.labels[rows]].sum())
     return total / len(split.labels)

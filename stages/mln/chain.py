@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mlnseq.mln.chain_factors import CLIP, ChainFactors, Filter, _restarted
-from mlnseq.mln.chain_scan import _Dead, _forward, _smoothed, _viterbi_once
+from mlnseq.mln.chain_scan import Repeats, _Dead, _forward, _smoothed, _viterbi_once
 
 __all__ = ["CLIP", "ChainFactors", "Decoded", "Filter", "chain_starts", "decode_filter", "decode_viterbi", "filtered",
            "log_partition", "path_score", "smoothed", "viterbi"]
@@ -47,11 +47,12 @@ def smoothed(factors: ChainFactors) -> np.ndarray:
         return np.log(_smoothed(_forward(factors))[0])
 
 
-def log_partition(factors: ChainFactors) -> float:
-    """Sum over chains of log Z (a chain cut by a dead end counts as its pieces)."""
+def log_partition(factors: ChainFactors, repeats: Repeats | None = None) -> float:
+    """Sum over chains of log Z (a chain cut by a dead end counts as its pieces); ``repeats``: where the chains' steps
+    repeat (frames of one unary row and link), for many passes over the same chains."""
     if len(factors.link) == 0:
         return 0.0
-    return _forward(factors, vectors=False).log_z
+    return _forward(factors, vectors=False, repeats=repeats).log_z
 
 
 def viterbi(factors: ChainFactors) -> np.ndarray:

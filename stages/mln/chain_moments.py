@@ -39,12 +39,40 @@ def expectations(factors: ChainFactors, repeats: Repeats | None = None) -> Expec
     return Expectations(forward.log_z, gamma, totals)
 
 
+CHUNK_FRAMES = 40_000  # frames whose covariance is found at once (about 2 kB of scratch each): whole chains
+
+
 def count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int, repeats: Repeats | None = None) -> np.ndarray:
     """[D, D], D = n_rows * C + P * C * C: the covariance, under the chains' distribution, of their counts: frames of
     each row (``row[t]`` in [0, n_rows)) with each class, then linked pairs of each pairwise row with each class
     pair. It is the Hessian of log Z when frames of one row share their unary log-potentials (the CLL learner's
     Newton metric). Exact: same-frame terms per kind of frame, cross-frame terms by a recursion over the chain
-    (``_cross_covariance``). ``repeats``: as for ``expectations``."""
+    (``_cross_covariance``). ``repeats``: as for ``expectations``. Over ``CHUNK_FRAMES`` frames, the sum of the
+    covariances of pieces of whole chains (independent, their counts' covariances add), so that the scratch memory is
+    bounded by the piece rather than the frames."""
+    pieces = _pieces(factors.link)
+    if len(pieces) == 1:
+        return _count_covariance(factors, row, n_rows, repeats)
+    total = None
+    for piece in pieces:
+        part = ChainFactors(factors.unary[piece], factors.pairwise, factors.link[piece])
+        covariance = _count_covariance(part, np.asarray(row)[piece], n_rows, None)
+        total = covariance if total is None else total + covariance
+    return total
+
+
+def _pieces(link: np.ndarray) -> list[slice]:
+    """Consecutive runs of whole chains of at most CHUNK_FRAMES frames (a longer chain alone), covering every frame."""
+    starts = np.flatnonzero(np.asarray(link) < 0).tolist() + [len(link)]
+    pieces, begin = [], 0
+    for start, end in zip(starts, starts[1:]):
+        if end - begin > CHUNK_FRAMES and start > begin:
+            pieces.append(slice(begin, start))
+            begin = start
+    return pieces + [slice(begin, len(link))]
+
+
+def _count_covariance(factors: ChainFactors, row: np.ndarray, n_rows: int, repeats: Repeats | None) -> np.ndarray:
     forward = _forward(factors, repeats=repeats)
     factors = forward.factors  # with chain starts at dead ends, as the marginals have them
     gamma, beta, _ = _smoothed(forward)

@@ -23,6 +23,8 @@ from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.methods import Method, decoded_name
 from mlnseq.catalog.notes import MISSING_INPUT
 from mlnseq.choosing import latency
+from mlnseq.pipeline import parts
+from mlnseq.pipeline.parts import Executor
 from mlnseq.sources.splits import Holdout
 from mlnseq.pipeline.steps import (Binarizing, Collecting, Fitted, Folding, FormulasFrom, Formulating, TestFigures,
                                    Training, Weighing)
@@ -33,7 +35,7 @@ if TYPE_CHECKING:
     from mlnseq.export import Exported
     from mlnseq.labelling.label_next import Proposal
     from mlnseq.sources.recording import Collected
-    from mlnseq.train import EpochDone, TrainOptions
+    from mlnseq.train import EpochDone, TrainOptions, TrainResult
 
 __all__ = ["fit", "FitOptions", "Observer", "Fitted", "Collecting", "Binarizing", "Folding", "Formulating", "Weighing",
            "Training", "TestFigures", "FormulasFrom"]
@@ -59,11 +61,15 @@ class FitOptions:
     offline: bool = False  # no budget: offline decoders over whole recordings too
     output: Path | None = None  # the model file; None: WORKDIR/model.mlnseq (replaced)
     force: bool = False  # overwrite an existing output, and a learned spec or formulas edited by hand
+    executor: Executor = Executor.LOCAL  # where the logic and the networks run (pipeline/parts.py)
+    profile: Path | None = None  # --executor slurm: a Snakemake profile folder
 
     def __post_init__(self) -> None:
-        for name in ("spec", "formulas", "output"):  # a path given as text
+        for name in ("spec", "formulas", "output", "profile"):  # a path given as text
             if isinstance(getattr(self, name), str):
                 object.__setattr__(self, name, Path(getattr(self, name)))
+        if isinstance(self.executor, str):
+            object.__setattr__(self, "executor", Executor(self.executor))
 
     def validate(self) -> None:
         """What can be checked before any work (the networks' options too: ``train_options``)."""
@@ -77,6 +83,7 @@ class FitOptions:
         if self.formulas is not None and not Path(self.formulas).is_file():
             raise BadInput(f"--formulas {self.formulas} not found: give a .mln file of formulas")
         self.train_options(self.folds).validate()
+        parts.check(self.executor, self.profile)
 
     def train_options(self, folds: int | None) -> TrainOptions:
         """train's: an LSTM in stream mode (whole episodes, as live frames come) with ``folds`` fold networks, trained
@@ -109,6 +116,10 @@ class Observer:
 
     def conflated(self, step: ConflateResult) -> None: ...
 
+    def parts_running(self, executor: Executor, logs: Path) -> None:
+        """The logic and the networks start as jobs (``executor`` not local; their logs in ``logs``): the stages'
+        methods follow, in their order, once both have finished."""
+
 
 def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOptions = FitOptions(),
         observer: Observer | None = None) -> Fitted:
@@ -125,18 +136,21 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
                      align=True)  # recordings without labels: labelled by alignment to the labelled ones
     collected = _collect(source, workdir, options)
     observer.collected(collected)
-    binarized = _binarize(workdir, options)
-    observer.binarized(binarized)
-    folding = _folds(collected.collected, options.folds)
-    observer.folded(folding)
-    formulas = _formulas(workdir, options, binarized)
-    observer.formulas_written(formulas)
-    weights = _weights(workdir, formulas, folding.k)
-    observer.weights_learned(weights)
-    with observer.training(options.epochs, folding.k) as progress:
-        result = train.run(workdir, options.train_options(folding.k), progress)
-    trained = Training(result, folding.k)
-    observer.trained(trained)
+    if options.executor is not Executor.LOCAL:
+        binarized, folding, formulas, weights, trained = _elsewhere(collected, workdir, options, observer)
+    else:
+        binarized = _binarize(workdir, options)
+        observer.binarized(binarized)
+        folding = _folds(collected.collected, options.folds)
+        observer.folded(folding)
+        formulas = _formulas(workdir, options, binarized)
+        observer.formulas_written(formulas)
+        weights = _weights(workdir, formulas, folding.k)
+        observer.weights_learned(weights)
+        with observer.training(options.epochs, folding.k) as progress:
+            result = train.run(workdir, options.train_options(folding.k), progress)
+        trained = Training(result, folding.k)
+        observer.trained(trained)
     conflated = _conflate(workdir, collected.budget, bool(weights.learned.weights["hard"].any()))
     observer.conflated(conflated)
     exported, standing = _export(workdir, options, folding.k, collected.budget)
@@ -146,6 +160,55 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     proposal, files = _label_next(workdir, collected.collected, standing)
     return Fitted(exported, standing, test, collected, binarized, folding, formulas, weights, trained, conflated,
                   proposal, files)
+
+
+def _elsewhere(collected: Collecting, workdir: Path, options: FitOptions, observer: Observer
+               ) -> tuple[Binarizing, Folding, Formulating, Weighing, Training]:
+    """The logic and the networks as jobs of ``options.executor`` (pipeline/parts.py), side by side; the observer
+    hears each stage once both have finished, in the order a local run says them."""
+    folding = _folds(collected.collected, options.folds)
+    out = parts.write_plan(workdir, (options, folding.k))
+    observer.parts_running(options.executor, out / "logs")
+    done = parts.run(workdir, options.executor, options.profile)
+    (binarized, formulas, weights), trained = done["logic"], _restored(*done["network"])
+    observer.binarized(binarized)
+    observer.folded(folding)
+    observer.formulas_written(formulas)
+    observer.weights_learned(weights)
+    observer.trained(trained)
+    return binarized, folding, formulas, weights, trained
+
+
+def run_part(part: str, workdir: str) -> None:
+    """One of fit's parts as a job (pipeline/parts.py): the logic (binarize, formulas, learn-weights) or the network
+    (train), by the plan in the workdir; its result written back for fit, or the error fit raises."""
+    from mlnseq import train
+    from mlnseq.catalog.errors import MlnseqError
+
+    options, k = parts.read_plan(Path(workdir))
+    try:
+        if part == "logic":
+            binarized = _binarize(Path(workdir), options)
+            formulas = _formulas(Path(workdir), options, binarized)
+            result: object = (binarized, formulas, _weights(Path(workdir), formulas, k))
+        else:
+            trained = train.run(Path(workdir), options.train_options(k))
+            model = trained.trained.model  # torch's module travels as its weights (it holds its type's module)
+            result = (replace(trained, trained=replace(trained.trained, model=None)), k, model.config,
+                      model.state_dict())
+    except MlnseqError as error:  # fit says it as a local run would
+        parts.write_result(Path(workdir), f"{part}.error", error)
+        raise SystemExit(f"error: {error}") from None
+    parts.write_result(Path(workdir), part, result)
+
+
+def _restored(result: TrainResult, k: int, config: object, state: dict) -> Training:
+    """The network part's result with its torch module built again from its weights."""
+    from mlnseq.networks.classifier import SequenceClassifier
+
+    model = SequenceClassifier(config)
+    model.load_state_dict(state)
+    return Training(replace(result, trained=replace(result.trained, model=model)), k)
 
 
 def _label_next(workdir: Path, collected: Collected,

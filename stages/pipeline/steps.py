@@ -176,13 +176,14 @@ class Fitted:
 
     @property
     def said(self) -> list[str]:
-        """The choice and why, the runner-up and the network alone with their cross-validated figures (segment /
-        frame / edit, and their mean), then the test split's figures."""
+        """The choice and why, the runner-up, the network alone and a steadier candidate with their cross-validated
+        figures (segment / frame / edit, and their mean), then the test split's figures."""
         standing = self.standing
         lines = [] if standing else [f"chose {self.method} (network and MLN) without cross-validation "
                                      f"({self.folding.why_none}): nothing to choose on"]
-        for candidate, role in ((standing.chosen, "chose"), (standing.runner_up, "runner-up"),
-                                (standing.network_alone, "network alone")) if standing else ():
+        roles = ((standing.chosen, "chose"), (standing.runner_up, "runner-up"),
+                 (standing.network_alone, "network alone"), (standing.steadier, "steadier")) if standing else ()
+        for candidate, role in roles:
             if candidate is not None:
                 f = candidate.figures
                 lines.append(f"  {role + ':':<15}{candidate.name:<24} cross-validated {f['segment_accuracy']:5.1f} / "
@@ -192,6 +193,8 @@ class Fitted:
             lines.append(f"chose {standing.chosen.name} of {standing.among} candidates within the budget by "
                          f"{self.folding.k}-fold cross-validation on the training split: {RULE}")
             lines += self.estimated_said
+        if standing and standing.steadier is not None:
+            lines.append(steadier_line(standing, self.collected.path.parent))
         if self.test:
             lines.append("test split (held out of everything above): " + "; ".join(
                 f"{name} frame accuracy {t.frame_accuracy:.1%}, segment accuracy {t.segment_accuracy:.1%}"
@@ -231,3 +234,15 @@ class Fitted:
         return (f"wrote {self.path} ({manifest.method}, decode {manifest.decode}"
                 f"{'' if manifest.lag is None else f' at lag {manifest.lag}'}: {why}); next: `mlnseq predict "
                 f"{self.path} --source NEW` or `mlnseq stream {self.path}`")
+
+
+def steadier_line(standing: Standing, workdir: Path) -> str:
+    """What the steadier candidate gives up and gains against the choice, and the command that deploys it."""
+    chosen, other = standing.chosen, standing.steadier
+    decoding = other.decoding
+    lag = f" --lag {decoding.lag}" if decoding.decoder.lagged else ""
+    lost = chosen.figures["frame_accuracy"] - other.figures["frame_accuracy"]
+    return (f"for live use, {other.name} flickers far less: {abs(lost):.1f} points of cross-validated frames "
+            f"{'fewer' if lost > 0 else 'more'}, edit {other.figures['edit'] - chosen.figures['edit']:.1f} points "
+            f"higher (docs/choosing.md); `mlnseq export -w {workdir} --method {other.method} --decode "
+            f"{decoding.decoder.value}{lag} -o FILE` deploys it")

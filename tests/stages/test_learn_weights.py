@@ -310,7 +310,8 @@ def test_fold_weights_are_learned_without_their_fold(tmp_path: Path, shared_data
     held_out = frames.with_columns(pl.Series("split", np.where(np.arange(frames.height) < 659, "heldout",
                                                                frames["split"].to_numpy())))
     expected = stage.learn(held_out, 7, parse_mln(TEMPORAL)).weights
-    np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy())
+    # each fold's learner starts from the whole split's weights: the optimum learned from zero, to its tolerance
+    np.testing.assert_allclose(first["weight"].to_numpy(), expected["weight"].to_numpy(), atol=1e-4)
     with pytest.raises(BadInput, match="--folds 1: .* at most 70; use --folds 5 \\(5 folds by block"):
         stage.run(tmp_path, stage.LearnWeightsOptions(folds=1))
 

@@ -65,3 +65,18 @@ def test_conflate_records_each_folds_frame_accuracy(desk_folds_workdir):
     assert max(spread.values()) > 0  # the folds differ: a standard error to weigh differences by
     assert expected_choice(cross["figures"], cross["fold_frame_accuracy"]) == latency.best(
         latency.candidates(cross["figures"], cross["fold_frame_accuracy"])).name
+
+
+def test_a_steadier_candidate_is_said_where_it_gives_up_a_fraction_of_a_point_of_frames():
+    # 800 generated arm episodes (issue 65), as conflate scored them: the choice undecoded (it flickers: edit 85.0),
+    # the network decoded by the filter 0.4 points of frames below the network alone, so under the floor, edit 96.9
+    network = scored("lstm", 100.0, 98.9, 60.1)
+    chosen = scored("conflation", 100.0, 98.9, 85.0)
+    decoded = scored("lstm+filter", 100.0, 98.5, 96.9)
+    assert latency.best([network, chosen, decoded]) is chosen  # the frames first: the floor holds
+    assert latency.steadier(latency.ranked([network, chosen, decoded]), chosen) is decoded
+    half_off = scored("lstm+filter", 100.0, 98.3, 96.9)  # more than half a point of frames: not said
+    flat = scored("lstm+filter", 100.0, 98.6, 94.0)  # less than 10 points of edit: not said
+    assert latency.steadier([chosen, half_off, flat, network], chosen) is None
+    figures = {c.name: c.figures for c in (network, chosen, decoded)}
+    assert latency.standing({"figures": figures}, "conflation", list(figures)).steadier.name == "lstm+filter"

@@ -179,3 +179,27 @@ def test_a_single_recording_is_cut_into_blocks_only_where_its_task_restarts(desk
     once = np.arange(len(labels)) < np.flatnonzero((labels == labels[0]) & (np.arange(len(labels)) > first))[0]
     assert folds.suggested(episodes[once], splits[once]) == 5  # blocks of one run of the task, without the labels
     assert folds.suggested(episodes[once], splits[once], labels=labels[once]) == 0  # not with them
+
+
+def test_export_takes_the_weight_conflate_learned_while_its_inputs_stand(desk_folds_workdir, tmp_path):
+    """export of a decoded network method takes the network factor's weight conflate learned, where conflate's record
+    still stands (none of predictions.parquet's inputs changed): the weight that learning it again gives, to the bit;
+    not once the weights changed since."""
+    from mlnseq.catalog.errors import StaleArtifact
+    from mlnseq.catalog.methods import Method, WeightSource
+    from mlnseq.choosing.network_weight import WeightDecision
+    from mlnseq.choosing.workdir_inputs import read_workdir
+    from mlnseq.mln.factors import MLNFactors
+
+    recorded, notes = export.conflated_weight(desk_folds_workdir, "conflation+filter")
+    inputs = read_workdir(desk_folds_workdir, (Method.NETWORK,))
+    again = WeightDecision(inputs, MLNFactors.from_weights(inputs.mln.weights, inputs.mln.columns, inputs.classes))
+    assert recorded == again.choice(Method.CONFLATION, "filter") and recorded.how == WeightSource.LEARNED
+    assert notes == again.notes([Method.NETWORK])
+    copy = tmp_path / "copy"
+    shutil.copytree(desk_folds_workdir, copy)
+    weights = pl.read_parquet(copy / artifacts.WEIGHTS)
+    artifacts.write_table(weights.with_columns(pl.col("weight") * 1.01), copy / artifacts.WEIGHTS, "weights",
+                          artifacts.read_metadata(copy / artifacts.WEIGHTS))
+    with pytest.raises(StaleArtifact, match="predictions.parquet was made from an older weights.parquet"):
+        export.conflated_weight(copy, "conflation+filter")

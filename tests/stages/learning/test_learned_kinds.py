@@ -97,3 +97,61 @@ def test_the_distance_between_two_points_where_neither_point_does(rng):
     alone = max(scored(frames, "level", f"{arm}_{a}")[0] for arm in ("left", "right") for a in "xyz")
     assert predicate is not None and predicate.channel == "between_left_and_right"
     assert distance > 95 and alone < 75 and scored(frames, None)[0] < 60, (distance, alone)
+
+
+def arm_view(episodes: int = 4) -> tuple[kinds.Frames, dict[str, np.ndarray]]:
+    """The generated arm's channels (tests/arm_bags.py) and the search's view of them, 4 episodes all training."""
+    import arm_bags
+
+    signals = [arm_bags.episode_signals(arm_bags.ROBOTS["xarm7"], 300 + k) for k in range(episodes)]
+    frames = arm_bags.frames_table(signals, ["train"] * episodes)
+    data = learned_logic.training(frames, len(arm_bags.PHASES))
+    return data.frames, {c: frames[c].to_numpy().astype(np.float64) for c in ("x1", "x7", "x15", "x21")}
+
+
+def test_every_dead_band_window_and_cut_is_scored_as_coding_every_frame_with_it_scores(rng):
+    """The binned scans (one histogram per window, or per gripper) give each threshold the gain, to the bit, that
+    coding every frame with it gives: on the arm's joint position, velocity, effort and gripper, in every fold."""
+    from dataclasses import replace
+
+    view, channels = arm_view()
+    for frames in [view] + [replace(view, train=fold.fit) for fold in learned_logic.folding.masks(view.fold)]:
+        for name, values in channels.items():
+            for window in kinds.WINDOWS:
+                delta = values - kinds.looked_back(values, frames.first, window)
+                delta[frames.first] = 0.0
+                tried = np.unique(np.quantile(np.abs(delta[frames.train]), np.linspace(0.1, 0.9, 9)))
+                alone = [kinds.gain_of(kinds.change_codes(delta, t), frames) for t in tried]
+                assert kinds.change_gains(delta, tried, frames).tolist() == alone, (name, window)
+            delta = values - kinds.looked_back(values, frames.first, 1)
+            delta[frames.first] = 0.0
+            open_above, threshold = np.quantile(values[frames.train], 0.9), np.quantile(np.abs(delta), 0.5)
+            cuts = np.quantile(values[frames.train], np.linspace(0, 0.9, 12))
+            alone = [kinds.gain_of(kinds.gripper_codes(values, delta, open_above, c, threshold), frames) for c in cuts]
+            assert kinds.closed_gains(values, delta, open_above, cuts, threshold, frames).tolist() == alone, name
+
+
+def test_a_long_training_split_is_searched_on_whole_episodes_of_every_fold():
+    """Beyond the frames the search reads, it draws whole episodes evenly from each of the folds `mlnseq fit` cuts on
+    the whole split (its record, so each fold's predicates are learned without that fold's episodes) and says so."""
+    from dataclasses import replace
+
+    import arm_bags
+
+    slow = replace(arm_bags.ROBOTS["xarm7"], rate=15.0)  # short episodes: about 160 frames
+    signals = [arm_bags.episode_signals(slow, 400 + k) for k in range(12)]
+    frames = arm_bags.frames_table(signals, ["train"] * 10 + ["test"] * 2)
+    train = frames.filter(pl.col("split") == "train")
+    whole = learned_logic.folding.assign(frames["episode"].to_numpy(), frames["split"].to_numpy(),
+                                         frames["label"].to_numpy(), 5)
+    searched = learned_logic.search(frames, len(arm_bags.PHASES), most=train.height // 2)
+    drawn = searched.frames
+    assert searched.sampled == (drawn["episode"].n_unique(), 10) and 5 <= searched.sampled[0] < 10
+    assert searched.fold_record == whole.record() and (drawn["split"] == "train").all()
+    assert drawn.height <= train.height // 2 * 1.3
+    for episode in drawn["episode"].unique():  # whole episodes, in order
+        assert drawn.filter(pl.col("episode") == episode)["frame"].to_list() == \
+            frames.filter(pl.col("episode") == episode)["frame"].to_list()
+    folds_drawn = {int(whole.fold[np.flatnonzero(frames["episode"].to_numpy() == e)[0]]) for e in drawn["episode"]}
+    assert folds_drawn == set(range(5)) and searched.predicates
+    assert learned_logic.training(frames, len(arm_bags.PHASES), most=train.height).sampled is None

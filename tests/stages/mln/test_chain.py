@@ -132,6 +132,22 @@ def test_count_covariance_of_long_chains_adds_up_across_blocks() -> None:
     assert short == pytest.approx(enumerated_count_covariance(pieces[1], rows[1], 4), abs=1e-10)
 
 
+def test_count_covariance_over_many_chains_is_found_in_pieces_of_whole_chains(monkeypatch) -> None:
+    """Beyond CHUNK_FRAMES frames the chains are taken a piece of whole chains at a time (the scratch memory bounded
+    by the piece): the covariance of all of them at once, a chain longer than a piece alone in its piece."""
+    from mlnseq.mln import chain_moments
+
+    rng = np.random.default_rng(11)
+    factors = random_factors(rng, 3000, 3, rows=2, cuts=0.02)
+    row = rng.integers(0, 4, size=len(factors.link))
+    whole = count_covariance(factors, row, 4)
+    monkeypatch.setattr(chain_moments, "CHUNK_FRAMES", 300)
+    pieces = chain_moments._pieces(factors.link)
+    assert len(pieces) > 5 and [p.start for p in pieces[1:]] == [p.stop for p in pieces[:-1]]
+    assert all(factors.link[p.start] < 0 for p in pieces)
+    assert np.abs(count_covariance(factors, row, 4) - whole).max() < 1e-10 * np.abs(whole).max()
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_repeated_steps_give_the_same_numbers(seed: int) -> None:
     """Frames sharing a unary row (a few rows, long runs and odd lengths, cuts, forbidden transitions): the scan that

@@ -1,0 +1,156 @@
+"""Where ``fit`` runs its two independent parts: the **logic** (binarize, formulas, learn-weights) and the
+**network** (train: the network, then its fold networks) read only the collected frames and the folds, so they can
+run side by side. ``Executor.LOCAL`` runs them one after the other in fit's own process; ``PROCESSES`` and
+``SLURM`` run them as the two jobs of a Snakemake workflow, on this machine's cores or as cluster jobs through
+Snakemake's SLURM executor (with a profile, as `mlnseq sweep --executor slurm` takes one). Each job is fit's own
+code (``mlnseq.pipeline.fit.run_part``) in a process of the same installation; what it returns comes back through
+a file, so the model file is the one a local run writes.
+
+The workflow lives in ``WORKDIR/.fit/``: the plan (fit's options and folds, as the driver made them), the
+Snakefile, each part's result and each job's log (``logs/PART.log``), which stay there for reading; the plan and
+the results are removed once read. The workdir must be on a file system the cluster's nodes share.
+"""
+
+from __future__ import annotations
+
+import enum
+import pickle
+import shlex
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from mlnseq.catalog import artifacts
+from mlnseq.catalog.errors import BadInput, MlnseqError
+
+FOLDER = ".fit"  # in the workdir
+PLAN = "plan.pickle"
+PARTS = ("logic", "network")
+# what a cluster schedules each part with; a profile's set-resources / set-threads override them
+RESOURCES = {"logic": {"mem_mb": 4000, "runtime": 60}, "network": {"mem_mb": 4000, "runtime": 240}}
+
+TEMPLATE = '''\
+# Written by `mlnseq fit --executor {executor}`: fit's two independent parts, each a job running fit's own code.
+# fit writes this file again on every run.
+localrules: all
+
+rule all:
+    input: {results}
+{rules}'''
+
+RULE = '''
+rule {part}:
+    output: "{part}.pickle"
+    log: "logs/{part}.log"
+    threads: 1
+    resources: {resources}
+    shell: "cd {cwd} && {python} -c 'import sys; from mlnseq.pipeline.fit import run_part; "
+           "run_part(sys.argv[1], sys.argv[2])' {part} {workdir} > {out}/{{log}} 2>&1"
+'''
+
+
+class Executor(enum.Enum):
+    """Where fit's parts run."""
+
+    LOCAL = "local"  # in fit's own process, one after the other
+    PROCESSES = "processes"  # side by side, as processes on this machine (Snakemake's local executor)
+    SLURM = "slurm"  # as SLURM jobs (Snakemake's SLURM executor, with --profile)
+
+
+def check(executor: Executor, profile: Path | None) -> None:
+    """What can be checked before any work: Snakemake (and its SLURM executor) installed, the profile readable."""
+    from mlnseq import sweep
+    from mlnseq.catalog import errors
+
+    if executor is Executor.LOCAL:
+        if profile is not None:
+            raise BadInput("--profile is for --executor slurm: leave it out, or add --executor slurm")
+        return
+    if executor is Executor.SLURM and profile is None:
+        raise BadInput("--executor slurm needs --profile DIR, a Snakemake profile for the cluster "
+                       "(examples/sweep/slurm-profile is one for a one-node cluster)")
+    if not sweep.installed("snakemake"):
+        raise BadInput(f"--executor {executor.value} runs fit's parts on Snakemake, which is not installed: "
+                       f"{errors.install_hint('sweep')}")
+    if executor is Executor.SLURM and not sweep.installed("snakemake_executor_plugin_slurm"):
+        raise BadInput(f"--executor slurm needs Snakemake's SLURM executor: {errors.install_hint('sweep')}")
+    if profile is not None:
+        sweep.check_profile(Path(profile))
+
+
+def folder(workdir: Path) -> Path:
+    return Path(workdir) / FOLDER
+
+
+def write_plan(workdir: Path, plan: Any) -> Path:
+    """A fresh ``WORKDIR/.fit`` (an earlier run's results and Snakemake's records gone) holding ``plan``."""
+    out = folder(workdir)
+    shutil.rmtree(out, ignore_errors=True)
+    (out / "logs").mkdir(parents=True)
+    with artifacts.atomic_path(out / PLAN) as staged:
+        staged.write_bytes(pickle.dumps(plan))
+    return out
+
+
+def read_plan(workdir: Path) -> Any:
+    return pickle.loads((folder(workdir) / PLAN).read_bytes())
+
+
+def write_result(workdir: Path, part: str, result: Any) -> None:
+    """A job's result (or ``PART.error``: the error it stopped with), whole or not at all (Snakemake takes the file
+    for the job's end)."""
+    with artifacts.atomic_path(folder(workdir) / f"{part}.pickle") as staged:
+        staged.write_bytes(pickle.dumps(result))
+
+
+def snakefile(workdir: Path, executor: Executor) -> str:
+    python, cwd = shlex.quote(sys.executable), shlex.quote(str(Path.cwd()))
+    out = shlex.quote(str(folder(workdir).resolve()))  # the job runs in this folder; fit's paths as they were given
+    rules = "".join(RULE.format(part=part, python=python, cwd=cwd, workdir=shlex.quote(str(workdir)), out=out,
+                                resources=", ".join(f"{k}={v}" for k, v in RESOURCES[part].items()))
+                    for part in PARTS)
+    results = ", ".join(f'"{part}.pickle"' for part in PARTS)
+    return TEMPLATE.format(executor=executor.value, results=results, rules=rules)
+
+
+def command(out: Path, executor: Executor, profile: Path | None) -> list[str]:
+    out = out.resolve()
+    base = [sys.executable, "-m", "snakemake", "--snakefile", str(out / "Snakefile"), "--directory", str(out)]
+    if executor is Executor.SLURM:
+        return base + ["--executor", "slurm", "--profile", str(Path(profile).resolve())]
+    return base + ["--cores", str(len(PARTS))]
+
+
+def run(workdir: Path, executor: Executor, profile: Path | None) -> dict[str, Any]:
+    """Run the parts of the plan in ``WORKDIR/.fit`` (``write_plan``) through Snakemake; each part's result. A job
+    that fails is an error naming its part, why and its log."""
+    from mlnseq.sweeps import running
+
+    out = folder(workdir)
+    artifacts.write_text(out / "Snakefile", snakefile(workdir, executor))
+    ran = running.run_snakemake(command(out, executor, profile), out / "snakemake.log", lambda _: None)
+    if ran.code != 0:
+        for part in PARTS:  # a part's own error (bad input), as a local run raises it
+            said = out / f"{part}.error.pickle"
+            if said.is_file():
+                raise pickle.loads(said.read_bytes())
+        raise MlnseqError(failed(ran, out))
+    results = {}
+    for part in PARTS:
+        path = out / f"{part}.pickle"
+        results[part] = pickle.loads(path.read_bytes())
+        path.unlink()
+    (out / PLAN).unlink(missing_ok=True)
+    return results
+
+
+def failed(ran: Any, out: Path) -> str:
+    """One line: which part failed and why, with its log and its last line; or Snakemake's own last line."""
+    for error in ran.errors:
+        log = out / "logs" / f"{error.rule}.log"
+        last = next((line.strip() for line in reversed(log.read_text(errors="replace").splitlines()) if line.strip()),
+                    "") if log.is_file() else ""
+        return f"fit's {error.rule} part {error.reason()}: {last or 'no output'}; its log: {log}"
+    last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
+    return f"fit's parts' workflow failed (snakemake exit {ran.code}): {last}; see {out / 'snakemake.log'}"
