@@ -63,7 +63,7 @@ def describe(manifest: Manifest, entries: dict[str, bytes], path: Path) -> list[
     if model_file.AUDIT in entries:
         rows.append(("audit", audit_text(entries[model_file.AUDIT], path)))
     limits = model_file.member_limits(manifest, path)
-    rows.append(("members", ", ".join(f"{name} {len(data):,} bytes (limit {limits[name]:,})"
+    rows.append(("members", "\n".join(f"{name} {len(data):,} bytes (limit {limits[name]:,})"
                                       for name, data in entries.items())))
     rows += [("written by", f"mlnseq {manifest.mlnseq_version}, {manifest.created}, format {manifest.format}"),
              ("inputs", ", ".join(f"{k} {v}" for k, v in manifest.inputs.items()))]

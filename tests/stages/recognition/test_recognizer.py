@@ -86,13 +86,14 @@ def test_a_bad_frame_is_refused_naming_the_feature(models, frame, needle):
 
 def test_every_part_is_in_the_file_and_lstm_alone_carries_no_mln(models):
     with zipfile.ZipFile(models["combined"]) as archive:
-        assert set(archive.namelist()) == {"manifest.json", "binarize.toml", "weights.parquet", "network.npz"}
+        assert set(archive.namelist()) == {"manifest.json", "binarize.toml", "weights.parquet", "network.npz",
+                                           "audit.json"}  # what audit checks against (auditing/profile.py)
         manifest = json.loads(archive.read("manifest.json"))
     assert manifest["format"] == model_file.MODEL_FORMAT and manifest["network"]["name"] == "priorlayer"
     assert manifest["features"] == ["arm_distance", "left_gripper", "right_gripper"] and len(manifest["classes"]) == 7
     assert set(manifest["inputs"]) == {"frames.parquet", "priorlayer.pt", "predicates.parquet", "weights.parquet"}
     with zipfile.ZipFile(models["lstm"]) as archive:
-        assert set(archive.namelist()) == {"manifest.json", "network.npz"}
+        assert set(archive.namelist()) == {"manifest.json", "network.npz", "audit.json"}
 
 
 def test_exporting_twice_writes_the_same_bytes(desk_stream_workdir, tmp_path, monkeypatch):
