@@ -21,7 +21,7 @@ from typing import Any
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import member
 from mlnseq.dds.domain import QosChoice
-from mlnseq.sources import rostopic
+from mlnseq.recognition import rostopic
 
 WAIT_S = 0.1  # the longest a wait for samples lasts before the stop flag is looked at again
 
