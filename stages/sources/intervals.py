@@ -22,6 +22,7 @@ import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import Recording
+from mlnseq.timeline.sequences import runs
 
 COLUMNS = ("episode", "start", "end", "label")
 POINT_COLUMNS = {"frame": "frames", "time": "seconds"}  # a click's column, and its unit unless --labels-unit says
@@ -37,6 +38,11 @@ class Interval:
     where: str  # file and line, for messages
     unit: str | None = None  # its own: a click's column's, the file's unit column's or --labels-unit; None: default
     click: bool = False  # a click (start == end): one frame said to be in this phase
+
+    def covers(self, key: np.ndarray, unit: str) -> np.ndarray:
+        """bool [len(key)]: the frames (positions or times ``key`` in ``unit``) this interval holds: frames
+        inclusive, seconds ``start <= t < end``."""
+        return (key >= self.start) & ((key <= self.end) if unit == "frames" else (key < self.end))
 
 
 def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
@@ -327,7 +333,7 @@ def _label_from_intervals(key: np.ndarray, found: list[Interval], unit: str, row
                    keep: np.ndarray, what: str) -> None:
     last = key[-1] if unit == "frames" else key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
     for interval in found:
-        inside = (key >= interval.start) & ((key <= interval.end) if unit == "frames" else (key < interval.end))
+        inside = interval.covers(key, unit)
         if interval.start < key[0] or interval.end > last + 1e-9 or not inside.any():
             raise BadInput(f"{interval.where}: interval {interval.start:g}..{interval.end:g} falls outside {what} "
                            f"({key[0]:g}..{last:g} {unit})")
@@ -344,9 +350,8 @@ def segments(episodes: list, positions: np.ndarray, times: np.ndarray, classes: 
     rows: dict[str, list] = {"episode": [], "start": [], "end": [], "label": []}
     ids = np.asarray(episodes, dtype=object)
     labels = np.asarray(classes, dtype=object)
-    change = np.flatnonzero((ids[1:] != ids[:-1]) | (labels[1:] != labels[:-1])) + 1
-    starts, ends = np.r_[0, change], np.r_[change, len(ids)]
-    for a, b in zip(starts, ends):
+    for run in runs(ids, labels):
+        a, b = run.start, run.stop
         rows["episode"].append(str(ids[a]))
         rows["label"].append(labels[a])
         if unit == "frames":
