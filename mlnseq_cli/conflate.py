@@ -61,6 +61,7 @@ def summary(result: stage.ConflateResult, workdir) -> None:
     auto chooses on (every method's figures: --verbose, and the metadata)."""
     from mlnseq_cli.console import verbose
     from mlnseq.catalog import artifacts
+    from mlnseq.choosing.cross_validation import figures_said
     from mlnseq.choosing.folds import describe
     from mlnseq.choosing.latency import candidates, ranked
 
@@ -77,9 +78,7 @@ def summary(result: stage.ConflateResult, workdir) -> None:
         return
     order = ranked(candidates(cross["figures"], cross.get("fold_frame_accuracy")))
     for candidate in order if verbose() else order[:SHOWN]:
-        f = candidate.figures
-        console.print(f"  {candidate.name:<26} cross-validated {f['segment_accuracy']:5.1f} / {f['frame_accuracy']:5.1f} "
-                      f"/ {f['edit']:5.1f} (segment / frame / edit), mean {candidate.score[0]:5.1f}", highlight=False)
+        console.print(f"  {candidate.name:<26} {figures_said(candidate.figures, candidate.score[0])}", highlight=False)
     if not verbose() and len(order) > SHOWN:
         console.print(f"  ... and {len(order) - SHOWN} more (--verbose, or the figures in {result.path.name}'s "
                       "metadata: cross_validation)", highlight=False)

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.catalog.methods import decoded_name
 from mlnseq.catalog.notes import counted
+from mlnseq.choosing.cross_validation import figures_said
 from mlnseq.choosing.latency import Standing
 
 if TYPE_CHECKING:
@@ -184,10 +185,8 @@ class Fitted:
         for candidate, role in ((standing.chosen, "chose"), (standing.runner_up, "runner-up"),
                                 (standing.network_alone, "network alone")) if standing else ():
             if candidate is not None:
-                f = candidate.figures
-                lines.append(f"  {role + ':':<15}{candidate.name:<24} cross-validated {f['segment_accuracy']:5.1f} / "
-                             f"{f['frame_accuracy']:5.1f} / {f['edit']:5.1f} (segment / frame / edit), mean "
-                             f"{candidate.score[0]:5.1f}")
+                lines.append(f"  {role + ':':<15}{candidate.name:<24} "
+                             + figures_said(candidate.figures, candidate.score[0]))
         if standing:
             lines.append(f"chose {standing.chosen.name} of {standing.among} candidates within the budget by "
                          f"{self.folding.k}-fold cross-validation on the training split: {RULE}")
