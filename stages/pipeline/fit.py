@@ -38,7 +38,6 @@ if TYPE_CHECKING:
 __all__ = ["fit", "FitOptions", "Observer", "Fitted", "Collecting", "Binarizing", "Folding", "Formulating", "Weighing",
            "Training", "TestFigures", "FormulasFrom"]
 
-SUGGESTED_SPEC = "learned.binarize.toml"  # in the workdir: the predicates fit learns (binarize --suggest)
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
 MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
@@ -186,7 +185,7 @@ def _binarize(workdir: Path, options: FitOptions) -> Binarizing:
     from mlnseq import binarize
     from mlnseq.learning.learned_files import formulas_path
 
-    suggested = None if options.spec is not None else workdir / SUGGESTED_SPEC
+    suggested = None if options.spec is not None else workdir / artifacts.LEARNED_SPEC
     path, binarized = binarize.run(workdir, binarize.BinarizeOptions(spec=options.spec, suggest=suggested,
                                                                      replace=options.force))
     learned = binarized.meta.get("learned") or None
