@@ -22,6 +22,7 @@ from mlnseq.catalog.parts import Part
 from mlnseq.mln.chain import chain_starts
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
+MOST_FOLDS = 5  # the folds suggested (fit's default): one per training episode, at most this many
 
 
 CUTS = ("restarts", "mixed", "segments", "frames")  # where blocks were cut: task restarts, restarts and segment
@@ -107,7 +108,8 @@ def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
     return max(len(np.unique(np.asarray(episodes)[train])), int(train.sum()) // MIN_BLOCK_FRAMES)
 
 
-def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5, labels: np.ndarray | None = None) -> int:
+def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = MOST_FOLDS,
+              labels: np.ndarray | None = None) -> int:
     """A K for a user's recogniser: whole episodes when the training split has at least 2 (up to ``most`` folds),
     else blocks (up to ``most``), else 0 (too small for folds). Given the ``labels``, blocks only where they can be
     cut where the task restarts: a single recording of one run of the task cut into blocks holds whole phases out of

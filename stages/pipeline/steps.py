@@ -12,6 +12,7 @@ from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.catalog.methods import decoded_name
 from mlnseq.catalog.notes import counted
 from mlnseq.choosing.cross_validation import figures_said
+from mlnseq.choosing.folds import MOST_FOLDS
 from mlnseq.choosing.latency import Standing
 
 if TYPE_CHECKING:
@@ -93,7 +94,7 @@ class Folding:
         if self.folds is None:
             return f"none ({self.why_none}): nothing is chosen by cross-validation"
         return (f"{self.folds.describe()} ({counted(self.training_episodes, 'training episode')}"
-                + ("" if self.asked is not None else "; fit's default: one per episode, at most 5")
+                + ("" if self.asked is not None else f"; fit's default: one per episode, at most {MOST_FOLDS}")
                 + "): cross-validation chooses the network's weight and the method")
 
 
