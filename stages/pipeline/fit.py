@@ -40,7 +40,6 @@ __all__ = ["fit", "FitOptions", "Observer", "Fitted", "Collecting", "Binarizing"
 
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
-MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
 
 
 @dataclass(frozen=True)
@@ -201,7 +200,7 @@ def _folds(collected: Collected, asked: int | None) -> Folding:
 
     frames = artifacts.labelled(collected.frames)  # recordings without labels are in no fold
     episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
-    k = asked if asked is not None else folding.suggested(episodes, splits, MOST_FOLDS, labels)
+    k = asked if asked is not None else folding.suggested(episodes, splits, labels=labels)
     cut = folding.assign(episodes, splits, labels, k) if k else None
     return Folding(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
 
