@@ -188,18 +188,23 @@ def cheapest(where: np.ndarray, cost: np.ndarray) -> list[int]:
     return chosen[::-1]
 
 
+def train_folds(k: int | None, mode: str, select: str, workdir: Path | None = None) -> int | None:
+    """``train --folds``'s K: as asked; None, the default: in stream mode without a validation part, the K of the
+    folds the MLN's weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none
+    (None); 0 is none."""
+    if k is not None:
+        return k
+    path = None if workdir is None else Path(workdir) / artifacts.FOLD_WEIGHTS
+    if mode != "stream" or select != "none" or path is None or not path.exists():
+        return None
+    return int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
+
+
 def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray, labels: np.ndarray,
             workdir: Path | None = None) -> Folds | None:
-    """``train --folds``: None is the default: in stream mode without a validation part, the folds the MLN's
-    weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none; 0 is none."""
-    if k is None:
-        path = None if workdir is None else Path(workdir) / artifacts.FOLD_WEIGHTS
-        if mode != "stream" or select != "none" or path is None or not path.exists():
-            return None
-        k = int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
-    if k == 0:
-        return None
-    return assign(episodes, splits, labels, k)
+    """``train --folds``: the folds of ``train_folds``' K, or None (none)."""
+    k = train_folds(k, mode, select, workdir)
+    return assign(episodes, splits, labels, k) if k else None
 
 
 def same(recorded: dict, folds: Folds, what: str, remedy: str) -> None:
