@@ -100,12 +100,9 @@ FOLD_NETWORKS = "fold networks"  # named in the bar's label when they train afte
 
 def _then_folds(workdir, options: stage.TrainOptions) -> str:
     """What trains after the bar's epochs: K fold networks (asked for, or as learn-weights cut them), or nothing."""
-    from mlnseq.catalog import artifacts
+    from mlnseq.choosing.folds import train_folds
 
-    k = options.folds
-    path = workdir / artifacts.FOLD_WEIGHTS
-    if k is None and options.mode == "stream" and options.select == "none" and path.exists():
-        k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
+    k = train_folds(options.folds, options.mode, options.select, workdir)
     return f", then {k} {FOLD_NETWORKS}" if k else ""
 
 
