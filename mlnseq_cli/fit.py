@@ -15,7 +15,7 @@ from mlnseq_cli import collect as collect_cli
 from mlnseq_cli.binarize import print_learned
 from mlnseq_cli.conflate import summary
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
-from mlnseq_cli.train import epoch_progress
+from mlnseq_cli.progress import epoch_progress
 from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
 

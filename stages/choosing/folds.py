@@ -207,6 +207,16 @@ def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits:
     return assign(episodes, splits, labels, k) if k else None
 
 
+def out_of_fold_said(checkpoint: Path, asked: bool) -> str:
+    """A trained network's fold networks in words (train's summary): which folds, where they came from (asked, or as
+    learn-weights cut them) and the out-of-fold predictions; "" without."""
+    oof = artifacts.out_of_fold_path(Path(checkpoint).parent.parent, Path(checkpoint).stem)
+    if not oof.exists():
+        return ""
+    how = "" if asked else f", as learn-weights cut them ({artifacts.FOLD_WEIGHTS})"
+    return f"; with {describe(artifacts.read_metadata(oof)['folds'])}{how}: out-of-fold predictions {oof}"
+
+
 def same(recorded: dict, folds: Folds, what: str, remedy: str) -> None:
     """Refuse an artifact whose recorded folds differ from ``folds``."""
     if recorded != folds.record():
