@@ -148,3 +148,11 @@ def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_with_a_note(tmp_path
         assert [n.text for n in result.notes if n.text.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
             f"{name}: the chain restarted at 1 frame(s) that no allowed transition reaches (a missed episode boundary, "
             f"or evidence that breaks a hard rule): episode 11 frame {own_data_glitch['frame']}"]
+
+
+def test_the_command_lines_decoders_bring_their_lags_and_lags_are_given_once():
+    assert conflate.options_from("paper", "smooth-legal@5,conflation+lagviterbi@2").lags == (5, 2)
+    both = conflate.options_from("exact", "all", "0,5", "2.5")
+    assert both.lags == (0, 5) and "viterbi" in both.decode and both.network_weight == 2.5
+    with pytest.raises(BadInput, match="give the lags once"):
+        conflate.options_from("paper", "smooth@5", "1,2")
