@@ -15,7 +15,7 @@ from pathlib import Path
 
 from benchmarks.bench_sweep import DESK_SOURCE, sweep_file, timed, with_weights
 from mlnseq import collect
-from mlnseq import sweep as stage
+from mlnseq.pipeline import sweep as stage
 from mlnseq.sweeps import workflow
 
 TEST_FRAMES = 1500

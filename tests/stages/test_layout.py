@@ -81,11 +81,11 @@ def test_no_library_imports_a_stage_and_no_stage_imports_another():
     assert not crossings, "\n".join(crossings)
 
 
-def test_only_the_command_line_and_the_packages_fit_import_the_pipeline():
+def test_only_the_command_line_and_the_packages_fit_and_sweep_import_the_pipeline():
     importers = {module for module, path in {**modules(), **modules(REPO / "mlnseq_cli", "mlnseq_cli")}.items()
                  if library_of(module) != COMPOSER
                  and any(library_of(name) == COMPOSER for name in imported_modules(ast.parse(path.read_text())))}
-    assert importers == {"mlnseq", "mlnseq_cli.fit"}
+    assert importers == {"mlnseq", "mlnseq_cli.fit", "mlnseq_cli.sweep"}
     assert COMPOSER in LIBRARIES
 
 
