@@ -183,7 +183,8 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]], features: list[str]) -> 
         return _relabelled(frames, placed), {**record, "labelled": len(known), "checked": check, "method": (
             f"each clicked recording aligned in time to the {len(known)} training recording{plural} labelled on every "
             "frame, within its clicks")}
-    return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans, n_classes, found)), {**record, "method": (
+    placed = from_clicks(z, labels, episodes, rows_of, spans, n_classes, found)
+    return _relabelled(frames, placed), {**record, "method": (
         "change point of the standardised features between two clicks, within the other recordings' clicks aligned "
         "to it, aligned with the boundaries of its kind in the other recordings, then agreed with their labels "
         "aligned to it")}

@@ -87,9 +87,10 @@ def clicked_episodes(clicks: Iterable[Iterable[int]]) -> list[int]:
 
 
 def given(recordings: list[Recording], table: pl.DataFrame, order: np.ndarray, names: list) -> dict[str, Any]:
-    """What a labels file gave ``recordings`` (``intervals.apply``'s), as frames.parquet's metadata keeps it (``table``: its
-    frames in the recordings' order taken by ``order``; ``names``: its episodes' ids): the episodes it labelled
-    (``labels_file_episodes``) and its clicks (``clicks``: episode, frame, class; the rest filled from them)."""
+    """What a labels file gave ``recordings`` (``intervals.apply``'s), as frames.parquet's metadata keeps it
+    (``table``: its frames in the recordings' order taken by ``order``; ``names``: its episodes' ids): the episodes
+    it labelled (``labels_file_episodes``) and its clicks (``clicks``: episode, frame, class; the rest filled from
+    them)."""
     given: dict[str, Any] = {}
     by_file = {str(e) for r in recordings if r.resolved.get("labels_file") for e in r.episode.unique().to_list()}
     if by_file:
