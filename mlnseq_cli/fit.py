@@ -62,29 +62,29 @@ def say(line: str, warnings: tuple[str, ...] = ()) -> None:
 class Printed(pipeline.Observer):
     """Each stage's line as it finishes."""
 
-    def collected(self, step: pipeline.Collecting) -> None:
+    def collected(self, step: pipeline.CollectStep) -> None:
         collect_cli.print_collected(step.path, step.collected)
         for line in step.said:
             say(line)
 
-    def binarized(self, step: pipeline.Binarizing) -> None:
+    def binarized(self, step: pipeline.BinarizeStep) -> None:
         if step.learned:
             print_learned(step.learned, step.spec)
         say(f"[green]binarize[/]: {step.said}")
 
-    def folded(self, step: pipeline.Folding) -> None:
+    def folded(self, step: pipeline.FoldStep) -> None:
         say(f"folds: {step.said}")
 
-    def formulas_written(self, step: pipeline.Formulating) -> None:
+    def formulas_written(self, step: pipeline.FormulasStep) -> None:
         say(f"[green]formulas[/]: {step.said}")
 
-    def weights_learned(self, step: pipeline.Weighing) -> None:
+    def weights_learned(self, step: pipeline.WeightsStep) -> None:
         say(f"[green]learn-weights[/]: {step.said}", tuple(step.learned.warnings))
 
     def training(self, epochs: int, folds: int) -> Any:
         return epoch_progress("lstm (stream mode)" + (f", then {folds} fold networks" if folds else ""), epochs)
 
-    def trained(self, step: pipeline.Training) -> None:
+    def trained(self, step: pipeline.TrainStep) -> None:
         say(f"[green]train[/]: {step.said}", tuple(step.result.trained.warnings))
 
     def conflated(self, step: ConflateResult) -> None:

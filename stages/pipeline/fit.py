@@ -24,8 +24,8 @@ from mlnseq.catalog.methods import Method, decoded_name
 from mlnseq.catalog.notes import MISSING_INPUT
 from mlnseq.choosing import latency
 from mlnseq.sources.splits import Holdout
-from mlnseq.pipeline.steps import (Binarizing, Collecting, Fitted, Folding, FormulasFrom, Formulating, TestFigures,
-                                   Training, Weighing)
+from mlnseq.pipeline.steps import (BinarizeStep, CollectStep, Fitted, FoldStep, FormulasFrom, FormulasStep, TestFigures,
+                                   TrainStep, WeightsStep)
 
 if TYPE_CHECKING:
     from mlnseq.collect import CollectOptions
@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from mlnseq.sources.recording import Collected
     from mlnseq.train import EpochDone, TrainOptions
 
-__all__ = ["fit", "FitOptions", "Observer", "Fitted", "Collecting", "Binarizing", "Folding", "Formulating", "Weighing",
-           "Training", "TestFigures", "FormulasFrom"]
+__all__ = ["fit", "FitOptions", "Observer", "Fitted", "CollectStep", "BinarizeStep", "FoldStep", "FormulasStep",
+           "WeightsStep", "TrainStep", "TestFigures", "FormulasFrom"]
 
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
@@ -85,22 +85,22 @@ class Observer:
     """What ``fit`` says as it goes: each method is called as its stage finishes, with the stage's typed result;
     here each says nothing (fit's default). A caller overrides those it shows (``mlnseq fit`` prints every one)."""
 
-    def collected(self, step: Collecting) -> None: ...
+    def collected(self, step: CollectStep) -> None: ...
 
-    def binarized(self, step: Binarizing) -> None: ...
+    def binarized(self, step: BinarizeStep) -> None: ...
 
-    def folded(self, step: Folding) -> None: ...
+    def folded(self, step: FoldStep) -> None: ...
 
-    def formulas_written(self, step: Formulating) -> None: ...
+    def formulas_written(self, step: FormulasStep) -> None: ...
 
-    def weights_learned(self, step: Weighing) -> None: ...
+    def weights_learned(self, step: WeightsStep) -> None: ...
 
     def training(self, epochs: int, folds: int) -> AbstractContextManager[Callable[[EpochDone], None]]:
         """Held open while the networks train (the network, then ``folds`` fold networks); what it gives hears each
         epoch of the network."""
         return nullcontext(lambda done: None)
 
-    def trained(self, step: Training) -> None: ...
+    def trained(self, step: TrainStep) -> None: ...
 
     def conflated(self, step: ConflateResult) -> None: ...
 
@@ -130,7 +130,7 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     observer.weights_learned(weights)
     with observer.training(options.epochs, folding.k) as progress:
         result = train.run(workdir, options.train_options(folding.k), progress)
-    trained = Training(result, folding.k)
+    trained = TrainStep(result, folding.k)
     observer.trained(trained)
     conflated = _conflate(workdir, collected.budget, bool(weights.learned.weights["hard"].any()))
     observer.conflated(conflated)
@@ -139,8 +139,9 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     test = held_out(workdir, [standing.chosen.name if standing else decoded_name(method, decoding.name),
                               Method.NETWORK.value])
     proposal, files = _label_next(workdir, collected.collected, standing)
-    return Fitted(exported, standing, test, collected, binarized, folding, formulas, weights, trained, conflated,
-                  proposal, files)
+    return Fitted(exported=exported, standing=standing, test=test, collected=collected, binarized=binarized,
+                  folding=folding, formulas=formulas, weights=weights, trained=trained, conflated=conflated,
+                  proposal=proposal, proposal_files=files)
 
 
 def _label_next(workdir: Path, collected: Collected,
@@ -171,17 +172,18 @@ def _label_next(workdir: Path, collected: Collected,
     return proposal, label_next.write(workdir, proposal)
 
 
-def _collect(source: CollectOptions, workdir: Path, options: FitOptions) -> Collecting:
+def _collect(source: CollectOptions, workdir: Path, options: FitOptions) -> CollectStep:
     """collect, then the budget at the recordings' rate (a --latency the rate cannot say is refused here)."""
     from mlnseq import collect
 
     path, collected = collect.run(workdir, source)
     rate = latency.rate_of(collected.meta)
-    return Collecting(path, collected, rate, latency.fit_budget(options.lag, options.latency, options.offline, rate))
+    return CollectStep(path, collected, rate, latency.fit_budget(options.lag, options.latency, options.offline, rate))
 
 
-def _binarize(workdir: Path, options: FitOptions) -> Binarizing:
+def _binarize(workdir: Path, options: FitOptions) -> BinarizeStep:
     from mlnseq import binarize
+    from mlnseq.catalog import artifacts
     from mlnseq.learning.learned_files import formulas_path
 
     suggested = None if options.spec is not None else workdir / artifacts.LEARNED_SPEC
@@ -189,10 +191,10 @@ def _binarize(workdir: Path, options: FitOptions) -> Binarizing:
                                                                      replace=options.force))
     learned = binarized.meta.get("learned") or None
     spec = suggested if suggested is not None else Path(options.spec)
-    return Binarizing(path, binarized, spec, learned, formulas_path(spec) if learned else None)
+    return BinarizeStep(path, binarized, spec, learned, formulas_path(spec) if learned else None)
 
 
-def _folds(collected: Collected, asked: int | None) -> Folding:
+def _folds(collected: Collected, asked: int | None) -> FoldStep:
     """K folds of the training split: as asked, else one per training episode (at most 5; blocks of frames where
     there is one episode), 0 where it is too small for 2."""
     from mlnseq.catalog import artifacts
@@ -202,10 +204,10 @@ def _folds(collected: Collected, asked: int | None) -> Folding:
     episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
     k = asked if asked is not None else folding.suggested(episodes, splits, labels=labels)
     cut = folding.assign(episodes, splits, labels, k) if k else None
-    return Folding(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
+    return FoldStep(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
 
 
-def _formulas(workdir: Path, options: FitOptions, binarized: Binarizing) -> Formulating:
+def _formulas(workdir: Path, options: FitOptions, binarized: BinarizeStep) -> FormulasStep:
     from mlnseq import formulas
 
     if options.formulas is not None:
@@ -214,15 +216,15 @@ def _formulas(workdir: Path, options: FitOptions, binarized: Binarizing) -> Form
         spec, origin = binarized.learned_formulas, FormulasFrom.LEARNED
     else:
         spec, origin = TEMPLATE, FormulasFrom.TEMPLATE
-    return Formulating(formulas.run(workdir, formulas.FormulasOptions(spec=spec)), spec, origin)
+    return FormulasStep(formulas.run(workdir, formulas.FormulasOptions(spec=spec)), spec, origin)
 
 
-def _weights(workdir: Path, formulas: Formulating, k: int) -> Weighing:
+def _weights(workdir: Path, formulas: FormulasStep, k: int) -> WeightsStep:
     from mlnseq import learn_weights
     from mlnseq.catalog import artifacts
 
     _, learned = learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=formulas.written.path, folds=k))
-    return Weighing(learned, workdir / artifacts.LEARNED_MLN, k)
+    return WeightsStep(learned, workdir / artifacts.LEARNED_MLN, k)
 
 
 def _conflate(workdir: Path, budget: int | None, hard_rules: bool) -> ConflateResult:

@@ -1,5 +1,6 @@
-"""What ``fit`` returns and tells its observer: each stage's typed result with the line it is said in (plain text,
-paths as the workdir was given), and ``Fitted``, the model file with the choice said back."""
+"""What ``fit`` returns and tells its observer: each stage's typed result (``CollectStep`` ... ``TrainStep``) with
+the line it is said in (plain text, paths as the workdir was given), and ``Fitted``, the model file with the choice
+said back."""
 
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ class FormulasFrom(enum.Enum):
 
 
 @dataclass(frozen=True)
-class Collecting:
+class CollectStep:
     path: Path  # frames.parquet
     collected: Collected
     rate_hz: float | None  # the recordings' frame rate, where known
@@ -62,7 +63,7 @@ class Collecting:
 
 
 @dataclass(frozen=True)
-class Binarizing:
+class BinarizeStep:
     path: Path  # predicates.parquet
     binarized: Binarized
     spec: Path  # the spec binarized with: yours, or the learned one
@@ -78,7 +79,7 @@ class Binarizing:
 
 
 @dataclass(frozen=True)
-class Folding:
+class FoldStep:
     k: int  # 0: none
     folds: Folds | None  # how the training split was cut
     asked: int | None  # FitOptions.folds (None: fit's default)
@@ -99,7 +100,7 @@ class Folding:
 
 
 @dataclass(frozen=True)
-class Formulating:
+class FormulasStep:
     written: WrittenFormulas  # WORKDIR/formulas.mln
     spec: Path  # the formulas file it was written from
     origin: FormulasFrom
@@ -111,7 +112,7 @@ class Formulating:
 
 
 @dataclass(frozen=True)
-class Weighing:
+class WeightsStep:
     learned: Learned
     learned_mln: Path  # every expanded formula with its weight
     folds: int
@@ -124,7 +125,7 @@ class Weighing:
 
 
 @dataclass(frozen=True)
-class Training:
+class TrainStep:
     result: TrainResult
     folds: int
 
@@ -147,12 +148,12 @@ class Fitted:
     exported: Exported  # the model file's path and manifest (its chosen_by_cross_validation: the choice's record)
     standing: Standing | None  # the choice, runner-up and network alone, cross-validated; None without folds
     test: dict[str, TestFigures]  # the choice's and the network alone's on the test split (empty: no test split)
-    collected: Collecting
-    binarized: Binarizing
-    folding: Folding
-    formulas: Formulating
-    weights: Weighing
-    trained: Training
+    collected: CollectStep
+    binarized: BinarizeStep
+    folding: FoldStep
+    formulas: FormulasStep
+    weights: WeightsStep
+    trained: TrainStep
     conflated: ConflateResult
     proposal: Proposal | None = None  # the unlabelled recordings ranked (label_next.csv), None without any
     proposal_files: tuple[Path, ...] = ()  # label_next.csv and the predicted phases
