@@ -34,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 import polars as pl
 
+from mlnseq.catalog.notes import counted
 from mlnseq.catalog.parts import Part
 from mlnseq.labelling import alignment
 from mlnseq.sources.recording import clicked_episodes
@@ -188,6 +189,13 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]], features: list[str]) -> 
         "change point of the standardised features between two clicks, within the other recordings' clicks aligned "
         "to it, aligned with the boundaries of its kind in the other recordings, then agreed with their labels "
         "aligned to it")}
+
+
+def filled_said(record: dict) -> str:
+    """What ``fill`` did (its record, frames.parquet's ``clicks_filled``) in one line, for collect's summary."""
+    return (f"clicks: {counted(record['clicks'], 'click')}, one label each; "
+            f"{counted(record['boundaries'], 'boundary', 'boundaries')} between them learned ({record['method']}); "
+            "clicked recordings all train (their labels between clicks are estimates, never a test split's)")
 
 
 def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of: dict[int, np.ndarray],

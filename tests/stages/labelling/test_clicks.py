@@ -62,6 +62,8 @@ def test_clicks_label_every_frame_keeping_the_clicked_ones(arm):
     assert found.frames.height == arm["truth"].frames.height and found.frames["label"].null_count() == 0
     given = found.meta["clicks"]
     assert len(given) == 4 * 5 and found.meta["clicks_filled"]["boundaries"] == 4 * 4
+    assert clicks.filled_said(found.meta["clicks_filled"]).startswith("clicks: 20 clicks, one label each; 16 "
+                                                                      "boundaries between them learned (change point")
     frames = found.frames
     for episode, frame, label in given:
         row = frames.filter((pl.col("episode") == episode) & (pl.col("frame") == frame))
