@@ -51,10 +51,10 @@ def export(
     if chosen is not None:
         from mlnseq.choosing.cross_validation import figures_said
 
+        figures = " ".join(figures_said(chosen.figures, chosen.score).split())
         console.print(f"export: --method auto chose {chosen.name} of {len(chosen.candidates)} candidates by "
-                      f"{chosen.folds}-fold cross-validation on the training split: "
-                      f"{' '.join(figures_said(chosen.figures, chosen.score).split())}, the criterion; F1@50 "
-                      f"{chosen.figures['f1_50']:.1f}", highlight=False)
+                      f"{chosen.folds}-fold cross-validation on the training split: {figures}, the criterion; "
+                      f"F1@50 {chosen.figures['f1_50']:.1f}", highlight=False)
     weight = manifest.network_weight
     delay = "" if manifest.lag is None else f", lag {manifest.lag} frame(s)" + (
         "" if manifest.latency_s is None else f" = {manifest.latency_s:g} s")
