@@ -30,7 +30,7 @@ test: setup ## Run the test suite in TEST_WORKERS processes (the SLURM cluster's
 	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
-	$(VENV)/bin/pytest -q -m slurm tests/sweeps
+	$(VENV)/bin/pytest -q -m slurm tests/stages/sweeps
 
 dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package index: install that file on a robot)
 	rm -rf build && $(PY) -m pip wheel --no-deps --no-build-isolation --no-index -q -w dist .

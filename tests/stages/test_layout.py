@@ -195,6 +195,28 @@ def test_the_import_rule_sees_each_form_of_import():
     assert {stage_of(name) for name in imported_modules(tree)} >= {"train", "formulas", "report", "export"}
 
 
+# --- the tests' layout, as docs/layout.md says it ---------------------------------------------------------------
+
+TESTS = REPO / "tests"
+WHOLE_PRODUCT = ("bad_inputs", "benchmarks", "desk_bags", "determinism", "examples", "hostile", "interruption",
+                 "properties", "reproduce", "stage_server", "wheel")  # the tests directly in tests/
+
+
+def test_the_tests_mirror_the_library():
+    """A test folder per library folder; directly in tests/stages/ only the stages' own tests (test_STAGE*.py) and
+    this one; directly in tests/ only the whole product's."""
+    untested = [folder for folder in LIBRARIES if folder != "specs"
+                and not list((TESTS / "stages" / folder).glob("test_*.py"))]
+    assert untested == []
+    stray = [path.name for path in (TESTS / "stages").glob("test_*.py") if path.stem != "test_layout" and not any(
+        path.stem == f"test_{stage}" or path.stem.startswith(f"test_{stage}_") for stage in STAGE_FILES)]
+    assert stray == []
+    assert [path.name for path in TESTS.glob("test_*.py") if not path.stem.removeprefix("test_").startswith(
+        WHOLE_PRODUCT)] == []
+    assert {path.name for path in TESTS.iterdir() if path.is_dir() and not path.name.startswith((".", "__"))} >= {
+        "stages", "cli", "docs"}
+
+
 # --- the plan kept true: docs/layout.md's floors and modules, the Makefile's stage sources ----------------------
 
 LAYOUT_PAGE = REPO / "docs" / "layout.md"

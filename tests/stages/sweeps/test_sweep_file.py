@@ -117,7 +117,7 @@ def test_a_sweep_is_planned_from_python_without_the_command_line(tmp_path, tiny_
 def test_the_example_profile_parses():
     from mlnseq.pipeline.sweep import check_profile
 
-    settings = check_profile(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "slurm-profile")
+    settings = check_profile(Path(__file__).resolve().parents[3] / "examples" / "sweep" / "slurm-profile")
     assert settings["executor"] == "slurm" and settings["slurm-status-command"] == "squeue"
 
 
@@ -129,7 +129,7 @@ def test_a_formulas_key_names_configs_by_the_files_stem(tmp_path, tiny_desk_work
 
 
 def test_the_example_sweep_file_reads():
-    sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
+    sweep = grid.read(Path(__file__).resolve().parents[3] / "examples" / "sweep" / "sweep.toml", STAGES)
     assert [c.name for c in sweep.configs] == ["cell-lstm", "cell-tcn"]
     assert sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
 
