@@ -351,6 +351,45 @@ def test_the_makefile_stage_sources_follow_the_imports():
     assert wrong == {}
 
 
+def table_rows(page: str, heading: str) -> list[list[str]]:
+    """The body rows of the first table under ``heading`` in ``page``, as cells."""
+    section = page.split(heading, 1)[1]
+    rows = [line for line in section.split("\n\n#", 1)[0].splitlines() if line.startswith("|")]
+    return [[cell.strip() for cell in row.strip("|").split("|")] for row in rows[2:]]
+
+
+def named(cell: str) -> list[str]:
+    return [word.strip("`/ ") for word in cell.split(",") if word.strip("`/ ")]
+
+
+def test_the_source_and_network_tables_are_the_registries():
+    from mlnseq import networks, sources
+
+    page = LAYOUT_PAGE.read_text()
+    documented = {env: module for env, module, *_ in table_rows(page, "## The source table")}
+    assert documented == {f"`{s.name}`": f"`{s.module.rsplit('.', 1)[1]}.py`" for s in sources.SOURCES}
+    cells = {name: named(module)[0] for names, module, _ in table_rows(page, "## Networks") for name in named(names)}
+    assert cells == {t.name: f"{t.module.rsplit('.', 1)[1]}.py" for t in networks.TYPES.values()}
+
+
+def test_where_a_change_goes_names_every_library_folder():
+    folders = {folder for _, goes in table_rows(LAYOUT_PAGE.read_text(), "## Where a change goes")
+               for folder in named(goes.split(";")[0]) + named(goes.split(";")[1].split(":")[1] if ";" in goes else "")}
+    assert folders == set(LIBRARIES) - {"specs"}
+
+
+def test_each_command_is_a_small_face_over_the_library():
+    """Every command's module of mlnseq_cli/ is under 110 lines (config.py, the project file's machinery as well as
+    `mlnseq config`, apart); nothing but mlnseq and mlnseq_cli is installed at the top level."""
+    import tomllib
+
+    modules = {command.module for command in COMMANDS.values()} - {"config"}
+    long = {m: n for m in modules if (n := len((REPO / "mlnseq_cli" / f"{m}.py").read_text().splitlines())) >= 110}
+    assert long == {}
+    assert set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]) == {
+        "mlnseq", "mlnseq_cli"}
+
+
 def test_the_wheel_packages_every_library_folder():
     import tomllib
 
