@@ -24,7 +24,7 @@ alignment's check).
 
 A clicked recording always trains (``sources/table.py``): its labels between clicks are estimates, which a test split
 would score against. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and
-did not help: docs/first-day.md.)"""
+did not help.)"""
 
 from __future__ import annotations
 

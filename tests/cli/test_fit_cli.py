@@ -1,7 +1,7 @@
 """`mlnseq fit` on a user's folder of 6 ROS 2 bags with a /phase topic (the real DESK trials, tests/desk_bags.py):
 one command to a model file with no spec written by hand (predicates and formulas learned from the training split),
 on a held-out bag no worse than the paper's hand-written predicates (at 3 epochs here; the full-size figures are
-benchmarks/bench_first_day.py's, in docs/first-day.md); the learned files read back as they are."""
+benchmarks/bench_first_day.py's, in docs/benchmarks.md); the learned files read back as they are."""
 
 from __future__ import annotations
 
