@@ -30,7 +30,7 @@ test: setup ## Run the test suite in TEST_WORKERS processes (the SLURM cluster's
 	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
-	$(VENV)/bin/pytest -q -m slurm tests/sweeps
+	$(VENV)/bin/pytest -q -m slurm tests/stages/sweeps
 
 dist: | $(SETUP_DONE) ## Build the wheel into dist/ (mlnseq is on no package index: install that file on a robot)
 	rm -rf build && $(PY) -m pip wheel --no-deps --no-build-isolation --no-index -q -w dist .
@@ -126,7 +126,7 @@ report: $(REPORT) ## Rebuild only the run's missing or outdated artifacts and th
 # tests/stages/test_layout.py checks each list against the imports.
 libraries = $(foreach folder,$(1),$(wildcard stages/$(folder)/*.py)) stages/__init__.py
 NETWORK_LIBRARIES := catalog timeline mln networks model fusion choosing
-COLLECT_SOURCES := stages/collect.py $(call libraries,catalog sources labelling)
+COLLECT_SOURCES := stages/collect.py $(call libraries,catalog timeline sources labelling)
 BINARIZE_SOURCES := stages/binarize.py $(call libraries,$(NETWORK_LIBRARIES) predicates learning)
 FORMULAS_SOURCES := stages/formulas.py $(call libraries,catalog mln)
 LEARN_SOURCES := stages/learn_weights.py $(call libraries,catalog timeline mln fusion choosing)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from mlnseq import binarize, collect, formulas, learn_weights
 from mlnseq.sweeps import grid, results, workflow
-from mlnseq_cli.sweep import STAGES
+from mlnseq.pipeline.sweep import SWEPT as STAGES
 
 REPO = Path(__file__).resolve().parents[1]
 DESK_SOURCE = REPO.parent / "shared" / "data" / "desk-taurus"

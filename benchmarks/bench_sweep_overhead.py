@@ -1,5 +1,5 @@
 """The sweep's own cost, measured apart from its stage commands: the sweep's Snakefile for 2 cells x 2 seeds
-(1 epoch) on a small DESK dataset (the training recording and the first 1,500 test frames, as tests/sweeps use)
+(1 epoch) on a small DESK dataset (the training recording and the first 1,500 test frames, as tests/stages/sweeps use)
 run by Snakemake with `--cores 2`, each stage command through a shell wrapper that logs its own CPU time (bash's
 ``times``); Snakemake's CPU is the whole run's CPU less the stage commands'. Unlike a difference of two whole
 runs (bench_sweep), this holds under load: only the 12 jobs' own CPU is subtracted.
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from benchmarks.bench_sweep import DESK_SOURCE, sweep_file, timed, with_weights
 from mlnseq import collect
-from mlnseq import sweep as stage
+from mlnseq.pipeline import sweep as stage
 from mlnseq.sweeps import workflow
 
 TEST_FRAMES = 1500

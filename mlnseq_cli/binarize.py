@@ -11,8 +11,8 @@ from rich.table import Table
 from mlnseq_cli.headings import legend, short_names
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, fail, reported_errors
 from mlnseq import binarize as stage
+from mlnseq.catalog import artifacts
 
-SUGGESTED = "learned.binarize.toml"  # --suggest's spec in the workdir (its formulas beside it: learned.formulas.mln)
 
 
 def binarize(
@@ -27,16 +27,15 @@ def binarize(
     """Read WORKDIR/frames.parquet and a predicate spec (--spec, the source's built-in one, or --suggest: one written from the frames); write WORKDIR/predicates.parquet (episode, frame, label, split, then one boolean column per predicate value, named <predicate>_<value>)."""
     if output is not None and not suggest:
         raise fail("--output names the spec --suggest writes: add --suggest", 2)
-    if table and spec is None and not suggest and (Path(workdir) / "predicates.parquet").exists():
-        from mlnseq.catalog import artifacts
-
+    if table and spec is None and not suggest:
         with reported_errors():  # the workdir's predicates as they are: nothing rewritten, nothing after made stale
-            predicates, meta = artifacts.read_table(Path(workdir) / artifacts.PREDICATES, "predicates")
-        console.print(f"binarize: {Path(workdir) / artifacts.PREDICATES} as it is (spec {meta['spec']['path']}); "
-                      "--spec FILE binarizes again", highlight=False)
-        print_class_table(predicates, meta["predicates"], list(meta["classes"]))
-        return
-    suggested = (output or Path(workdir) / SUGGESTED) if suggest else None
+            existing = stage.as_it_is(workdir)
+        if existing is not None:
+            console.print(f"binarize: {existing.path} as it is (spec {existing.meta['spec']['path']}); --spec FILE "
+                          "binarizes again", highlight=False)
+            print_class_table(existing.predicates, existing.meta["predicates"], list(existing.meta["classes"]))
+            return
+    suggested = (output or Path(workdir) / artifacts.LEARNED_SPEC) if suggest else None
     options = stage.BinarizeOptions(spec=spec, suggest=suggested, replace=force, max_columns=max_columns)
     with reported_errors():
         path, binarized = stage.run(workdir, options)

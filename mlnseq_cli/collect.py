@@ -84,12 +84,10 @@ def print_collected(path: Path, collected: stage.Collected) -> None:
         f"{counted(len(collected.meta['features']), 'feature')})"
     )
     console.print(collected.classes_line, markup=False, highlight=False)
-    filled = collected.meta.get("clicks_filled")
-    if filled:
-        console.print(f"clicks: {counted(filled['clicks'], 'click')}, one label each; "
-                      f"{counted(filled['boundaries'], 'boundary', 'boundaries')} between them learned "
-                      f"({filled['method']}); clicked recordings all train (their labels between clicks are "
-                      "estimates, never a test split's)", highlight=False)
+    if collected.meta.get("clicks_filled"):
+        from mlnseq.labelling.clicks import filled_said
+
+        console.print(filled_said(collected.meta["clicks_filled"]), highlight=False)
     for note in collected.meta.get("notes", []):
         console.print(f"note: {note}")
     if "success_rate" in collected.meta:

@@ -9,11 +9,6 @@ from rich.markup import escape
 
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, counted, reported_errors
 from mlnseq import conflate as stage
-from mlnseq.catalog.decoders import parse_lags
-from mlnseq.catalog.errors import BadInput
-from mlnseq.catalog.methods import decoders_named
-
-LAGS_TEXT = ",".join(map(str, stage.DEFAULT_LAGS))  # --lags as written by default
 
 
 def conflate(
@@ -27,7 +22,7 @@ def conflate(
                                              "(smooth-legal@5) brings its lag.")] = "none",
     lags: Annotated[str, typer.Option(help="Lags in frames at which smooth and lagviterbi decode (frame t decided "
                                            "once t + LAG has arrived), comma-separated.")]
-    = LAGS_TEXT,
+    = stage.LAGS_TEXT,
     network_weight: Annotated[str, typer.Option(help="Decoded methods: the weight of the network's log-probabilities, "
                                                      "auto (chosen on the validation part) or a number.")] = "auto",
     workdir: WorkdirOption = DEFAULT,
@@ -41,14 +36,7 @@ def conflate(
     training split, in the metadata, with the log-likelihood of the true labels and the forbidden transitions each
     decoded method emits)."""
     with reported_errors():
-        decoders, named_lags = decoders_named(stage.parse_decode(decode))  # smooth-legal@5: the lag with its decoder
-        if named_lags and lags != LAGS_TEXT:
-            raise BadInput(f"--decode {decode} names its lags; --lags {lags} names others: give the lags once")
-        options = stage.ConflateOptions(mln_mode=mln_mode, decode=decoders,
-                                        network_weight=stage.parse_network_weight(network_weight),
-                                        lags=named_lags or parse_lags(lags))
-    with reported_errors():
-        result = stage.run(workdir, options)
+        result = stage.run(workdir, stage.options_from(mln_mode, decode, lags, network_weight))
     summary(result, workdir)
 
 
@@ -60,26 +48,22 @@ def summary(result: stage.ConflateResult, workdir) -> None:
     method's), the methods counted by kind, the few the cross-validation ranks first by the criterion export --method
     auto chooses on (every method's figures: --verbose, and the metadata)."""
     from mlnseq_cli.console import verbose
-    from mlnseq.catalog import artifacts
+    from mlnseq.choosing.cross_validation import figures_said
     from mlnseq.choosing.folds import describe
-    from mlnseq.choosing.latency import candidates, ranked
 
     for note in result.notes:
         console.print(f"[yellow]note[/]: {escape(note.text)}")
     weights = weight_lines(result.choices)
     for line in (weights if verbose() else weights[:1]):
         console.print(line, highlight=False)
-    cross = artifacts.read_metadata(result.path).get("cross_validation")
+    cross, order = stage.ranking(result.path)
     counts = kinds(result.methods)
     console.print(f"[green]conflate[/]: wrote {result.path}: {counted(len(result.methods), 'method')} ({counts})"
                   + (f"; cross-validated over {describe(cross['folds'])}" if cross else ""), highlight=False)
     if not cross:
         return
-    order = ranked(candidates(cross["figures"], cross.get("fold_frame_accuracy")))
     for candidate in order if verbose() else order[:SHOWN]:
-        f = candidate.figures
-        console.print(f"  {candidate.name:<26} cross-validated {f['segment_accuracy']:5.1f} / {f['frame_accuracy']:5.1f} "
-                      f"/ {f['edit']:5.1f} (segment / frame / edit), mean {candidate.score[0]:5.1f}", highlight=False)
+        console.print(f"  {candidate.name:<26} {figures_said(candidate.figures, candidate.score[0])}", highlight=False)
     if not verbose() and len(order) > SHOWN:
         console.print(f"  ... and {len(order) - SHOWN} more (--verbose, or the figures in {result.path.name}'s "
                       "metadata: cross_validation)", highlight=False)

@@ -49,12 +49,12 @@ def export(
         console.print(f"[yellow]note[/]: {escape(note)}")
     chosen = manifest.chosen_by_cross_validation
     if chosen is not None:
-        figures = chosen.figures
+        from mlnseq.choosing.cross_validation import figures_said
+
+        figures = " ".join(figures_said(chosen.figures, chosen.score).split())
         console.print(f"export: --method auto chose {chosen.name} of {len(chosen.candidates)} candidates by "
-                      f"{chosen.folds}-fold cross-validation on the training split: segment accuracy "
-                      f"{figures['segment_accuracy']:.1f} %, frame accuracy {figures['frame_accuracy']:.1f} %, edit "
-                      f"{figures['edit']:.1f} (the criterion: the mean of these three, {chosen.score:.1f}); F1@50 "
-                      f"{figures['f1_50']:.1f}")
+                      f"{chosen.folds}-fold cross-validation on the training split: {figures}, the criterion; "
+                      f"F1@50 {chosen.figures['f1_50']:.1f}", highlight=False)
     weight = manifest.network_weight
     delay = "" if manifest.lag is None else f", lag {manifest.lag} frame(s)" + (
         "" if manifest.latency_s is None else f" = {manifest.latency_s:g} s")

@@ -15,7 +15,7 @@ from mlnseq_cli import collect as collect_cli
 from mlnseq_cli.binarize import print_learned
 from mlnseq_cli.conflate import summary
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
-from mlnseq_cli.train import epoch_progress
+from mlnseq_cli.progress import epoch_progress
 from mlnseq.catalog.errors import BadInput
 from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
@@ -77,30 +77,30 @@ def say(line: str, warnings: tuple[str, ...] = ()) -> None:
 class Printed(pipeline.Observer):
     """Each stage's line as it finishes."""
 
-    def collected(self, step: pipeline.Collecting) -> None:
+    def collected(self, step: pipeline.CollectStep) -> None:
         collect_cli.print_collected(step.path, step.collected)
         for line in step.said:
             say(line)
 
-    def binarized(self, step: pipeline.Binarizing) -> None:
+    def binarized(self, step: pipeline.BinarizeStep) -> None:
         if step.learned:
             print_learned(step.learned, step.spec)
         say(f"[green]binarize[/]: {step.said}")
 
-    def folded(self, step: pipeline.Folding) -> None:
+    def folded(self, step: pipeline.FoldStep) -> None:
         say(f"folds: {step.said}")
 
-    def formulas_written(self, step: pipeline.Formulating) -> None:
+    def formulas_written(self, step: pipeline.FormulasStep) -> None:
         say(f"[green]formulas[/]: {step.said}")
 
-    def weights_learned(self, step: pipeline.Weighing) -> None:
+    def weights_learned(self, step: pipeline.WeightsStep) -> None:
         say(f"[green]learn-weights[/]: {step.said}", tuple(step.learned.warnings))
 
     def training(self, epochs: int, folds: int) -> Any:
         return epoch_progress("lstm (stream mode)" + (f", stopped where its {folds} networks without a fold score best "
                                                       "on it (those first)" if folds else ""), epochs)
 
-    def trained(self, step: pipeline.Training) -> None:
+    def trained(self, step: pipeline.TrainStep) -> None:
         say(f"[green]train[/]: {step.said}", tuple(step.result.trained.warnings))
 
     def conflated(self, step: ConflateResult) -> None:

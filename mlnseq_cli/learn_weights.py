@@ -57,11 +57,11 @@ def learn_weights(
         console.print(table)
     also = ""
     if folds:
-        from mlnseq.choosing.folds import describe
+        from mlnseq.choosing.folds import MOST_FOLDS, describe
 
         meta = artifacts.read_metadata(path.parent / artifacts.FOLD_WEIGHTS, "fold_weights")
         record, episodes = meta["folds"], meta.get("training_episodes", 0)
-        across = (f", across episodes: the training split has {episodes} and `--folds {min(episodes, 5)}` cuts whole "
+        across = (f", across episodes: the training split has {episodes} and `--folds {min(episodes, MOST_FOLDS)}` cuts whole "
                   "ones;" if record["kind"] == "blocks" and episodes >= 2 else ";")
         also = f", and {artifacts.FOLD_WEIGHTS} ({describe(record)}{across} each fold's weights learned without it)"
     console.print(f"[green]learn-weights[/] ({engine}, {learned.objective}, l2 {learned.l2:g}): wrote {path} "

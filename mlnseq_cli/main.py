@@ -1,4 +1,6 @@
-"""The mlnseq application: registers the stage commands in pipeline order.
+"""The mlnseq application: the commands in pipeline order (``COMMANDS``) and the command line's own machinery: the
+global options accepted anywhere on the line, the project file loaded before a command runs, a usage error said in
+one line.
 
 A command's module, and the stage behind it with its libraries (torch, MuJoCo, matplotlib), is imported
 only when that command runs or shows its own help; `mlnseq --help` lists the commands by the summaries

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -10,19 +9,8 @@ from typing import Annotated, Optional
 import typer
 
 from mlnseq_cli.console import console, reported_errors
-from mlnseq_cli.conflate import conflate as conflate_command
-from mlnseq_cli.export import export as export_command
-from mlnseq_cli.train import train as train_command
-from mlnseq import conflate, export, train
-from mlnseq import sweep as stage
 from mlnseq.catalog.errors import BadInput
-
-# The stages whose options a grid sets (the command line wires them: the sweep stage imports no other stage), with
-# the options their commands take: a grid key is one of those, as the workflow runs the commands.
-STAGES = stage.grid.StageOptions(
-    {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions},
-    {name: inspect.signature(command).parameters for name, command in
-     (("train", train_command), ("conflate", conflate_command), ("export", export_command))})
+from mlnseq.pipeline import sweep as stage
 
 
 def sweep(
@@ -42,7 +30,7 @@ def sweep(
                            f"{', '.join(e.value for e in stage.Executor)}") from None
         options = stage.SweepOptions(cores=cores, executor=chosen, profile=profile, out=out,
                                      limit=None if yes else stage.grid.MAX_CONFIGS)
-        swept = stage.run(sweep_file, options, STAGES, say_progress)
+        swept = stage.sweep(sweep_file, options, say_progress)
     console.print("cross-validated on the training split (mean ± spread over seeds); test only for display:",
                   highlight=False)
     for line in summary_lines(swept):

@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-import contextlib
-import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Optional
 
 import polars as pl
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mlnseq_cli.console import DEFAULT, console, counted, reported_errors
+from mlnseq_cli.progress import FOLD_NETWORKS, epoch_progress
 from mlnseq import networks
 from mlnseq import train as stage
+from mlnseq.choosing.folds import out_of_fold_said
 
 Defaults = stage.TrainOptions
 HELP = {
@@ -102,72 +100,17 @@ def train(
         console.print(
             f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
             f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
-            + _folds_said(result.checkpoint, folds)
+            + out_of_fold_said(result.checkpoint, folds is not None)
         )
-
-
-FOLD_NETWORKS = "fold networks"  # named in the bar's label when they train after its epochs
 
 
 def _then_folds(workdir, options: stage.TrainOptions) -> str:
     """What trains after the bar's epochs: K fold networks (asked for, or as learn-weights cut them), or nothing."""
-    from mlnseq.catalog import artifacts
+    from mlnseq.choosing.folds import train_folds
 
-    k = options.folds
-    path = workdir / artifacts.FOLD_WEIGHTS
-    if k is None and options.mode == "stream" and options.select == "none" and path.exists():
-        k = artifacts.read_metadata(path, "fold_weights")["folds"]["k"]
+    k = train_folds(options.folds, options.mode, options.select, workdir)
     if not k:
         return ""
     if options.optimizer == "sgd":
         return f", then {k} {FOLD_NETWORKS}"
     return f", stopped where its {k} networks without a fold score best on it (those first)"
-
-
-def _folds_said(checkpoint, asked: Optional[int]) -> str:
-    """With folds: which, and where they came from (asked, or inherited from learn-weights)."""
-    from mlnseq.catalog import artifacts
-    from mlnseq.choosing.folds import describe
-
-    oof = artifacts.out_of_fold_path(checkpoint.parent.parent, checkpoint.stem)
-    if not oof.exists():
-        return ""
-    how = "" if asked is not None else f", as learn-weights cut them ({artifacts.FOLD_WEIGHTS})"
-    return f"; with {describe(artifacts.read_metadata(oof)['folds'])}{how}: out-of-fold predictions {oof}"
-
-
-@contextlib.contextmanager
-def epoch_progress(what: str, epochs: int) -> Iterator[stage.Progress]:
-    """On a terminal, a progress bar over the epochs; into a pipe or file (Make's log), one plain line at
-    each tenth of the epochs."""
-    if console.is_terminal:
-        columns = (TextColumn("training {task.description}: epoch {task.completed}/{task.total}"), BarColumn(),
-                   TextColumn("{task.fields[scores]}"), TimeRemainingColumn())
-        with Progress(*columns, console=console, transient=True) as bar:
-            task = bar.add_task(what, total=epochs, scores="")
-            yield lambda done: bar.update(task, completed=done.epoch, total=done.epochs, refresh=True,
-                                          scores=_scores(done) + ("; now the fold networks" if done.epoch == done.epochs
-                                                                  and FOLD_NETWORKS in what else ""))
-        return
-    started, said = time.monotonic(), []
-
-    def line(done: stage.EpochDone) -> None:
-        if done.epoch == done.epochs or 10 * done.epoch // done.epochs > 10 * (done.epoch - 1) // done.epochs:
-            left = (time.monotonic() - started) / done.epoch * (done.epochs - done.epoch)
-            then = "now the fold networks" if done.epoch == done.epochs and FOLD_NETWORKS in what else \
-                f"{left:.0f} s left"
-            scores = _scores(done)
-            if not scores and not said:  # said once: the epochs in between are not measured
-                scores = "measured after the last epoch (--measure every-epoch: after each)"
-                said.append(True)
-            console.print(f"training {what}: epoch {done.epoch}/{done.epochs}, {scores + ', ' if scores else ''}{then}",
-                          soft_wrap=True, highlight=False)
-
-    yield line
-
-
-def _scores(done: stage.EpochDone) -> str:
-    if done.loss is None:
-        return ""  # not measured (--measure last-epoch)
-    val = "–" if done.val_accuracy is None else f"{done.val_accuracy:.1%}"
-    return f"loss {done.loss:.3f}, train {done.train_accuracy:.1%}, val {val}"

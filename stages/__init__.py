@@ -34,6 +34,9 @@ Each stage's result is in it (``fitted.collected`` ... ``fitted.conflated``); ``
 ``mlnseq.pipeline.fit.Observer``) hears each stage as it finishes. Bad options raise ``mlnseq.BadInput`` before any
 work.
 
+``mlnseq.sweep`` runs a sweep file (a grid of train, conflate and export options times seeds) as ``mlnseq sweep``
+does: ``mlnseq.sweep("sweep.toml", mlnseq.SweepOptions(cores=2)).best`` is the best config by cross-validation.
+
 Inside, the package's modules are the pipeline's stages, one per command (``mlnseq.collect`` ...
 ``mlnseq.stream``: a pure function on data and a small ``run`` doing the file I/O), and its folders the
 libraries they share (docs/layout.md).
@@ -47,7 +50,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from mlnseq.recognition.recognizer import Recognizer
 
-__all__ = ["load", "fit", "FitOptions", "Recognizer", "Prediction", "BadInput"]
+__all__ = ["load", "fit", "FitOptions", "sweep", "SweepOptions", "Recognizer", "Prediction", "BadInput"]
 
 # The MLN engine's small matrix products run fastest on one BLAS thread; several threads contend on a
 # shared 2-core machine and made weight learning 30 times slower under load. Users may still override.
@@ -69,10 +72,14 @@ def __getattr__(name: str) -> Any:
         from mlnseq.recognition import recognizer
 
         return getattr(recognizer, name)
-    if name in ("fit", "FitOptions"):  # the one caller of the pipeline beside the command line
+    if name in ("fit", "FitOptions"):  # the callers of the pipeline beside the command line
         from mlnseq.pipeline import fit
 
         return getattr(fit, name)
+    if name in ("sweep", "SweepOptions"):
+        from mlnseq.pipeline import sweep
+
+        return getattr(sweep, name)
     if name == "BadInput":
         from mlnseq.catalog.errors import BadInput
 

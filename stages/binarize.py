@@ -50,6 +50,7 @@ class Binarized:
 
     predicates: pl.DataFrame
     meta: dict[str, Any]
+    path: Path | None = None  # where it was read from (``as_it_is``); None: just made
 
 
 def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
@@ -81,6 +82,15 @@ def binarize(frames: pl.DataFrame, spec: PredicateSpec) -> pl.DataFrame:
     names = names_of(spec)
     return frames.select(artifacts.KEY_COLUMNS).with_columns(
         pl.Series(name, evidence[:, i], dtype=pl.Boolean) for i, name in enumerate(names))
+
+
+def as_it_is(workdir: Path) -> Binarized | None:
+    """The workdir's predicates as they are (``binarize --table`` without a spec: nothing rewritten, nothing made
+    stale), or None where it has none."""
+    path = Path(workdir) / artifacts.PREDICATES
+    if not path.exists():
+        return None
+    return Binarized(*artifacts.read_table(path, "predicates"), path=path)
 
 
 def true_shares(predicates: pl.DataFrame, columns: dict[str, list[str]]) -> list[tuple[str, str, float]]:

@@ -12,6 +12,7 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import polars as pl
 
@@ -25,7 +26,7 @@ from mlnseq.labelling.estimates import estimated
 from mlnseq.sources import ENVS, RECORDING_ENVS, SourceOptions
 from mlnseq.sources.recording import Collected, Labels, TableColumns, split_by_position
 from mlnseq.sources.splits import Holdout
-from mlnseq.sources.table import collect_frames, reading_record
+from mlnseq.sources.table import collect_frames
 
 
 @dataclass(frozen=True)
@@ -105,8 +106,15 @@ def unlabelled_note(n: int, aligned: Aligned | None = None) -> str:
     if aligned is not None and aligned.labelled:
         return aligned.said()
     unlabelled = f"{n:,} recording{'s' if n != 1 else ''} without labels: used unlabelled"
-    why = f"; {aligned.said()}" if aligned is not None and aligned.checked is not None else ""
+    why = f"; {aligned.said()}" if aligned is not None and aligned.right_when_left_out is not None else ""
     return f"{unlabelled} (never in a test split or a score){why}"
+
+
+def reading_record(env: str, columns: TableColumns, **options: Any) -> dict[str, Any]:
+    """How recordings were read, as a model remembers it for ``predict``: the env, the key columns, the
+    source's own options (JSON-ready)."""
+    return {"env": env, "label_column": columns.label, "episode_column": columns.episode,
+            "time_column": columns.time, **{k: (str(v) if isinstance(v, Path) else v) for k, v in options.items()}}
 
 
 def table_class_order(columns: TableColumns, classes: list[str]) -> str:

@@ -26,14 +26,16 @@ import polars as pl
 
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput, MissingArtifact, check_choice
-from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder, decodings
-from mlnseq.catalog.methods import METHODS, MLN_MODES, NETWORKS, MLNMode, decoded_name, member, network_of
+from mlnseq.catalog.decoders import DEFAULT_LAGS, Decoder, decodings, parse_lags
+from mlnseq.catalog.methods import (METHODS, MLN_MODES, NETWORKS, MLNMode, decoded_name, decoders_named, member,
+                                    network_of)
 from mlnseq.catalog.notes import CHAIN_RESTARTED, Note
 from mlnseq.catalog.parts import Part
 from mlnseq.mln import chain
 from mlnseq.mln.blas import one_thread
 from mlnseq.fusion import decoding as decoders
 from mlnseq.choosing.cross_validation import CrossValidated, cross_validate
+from mlnseq.choosing.latency import Candidate, candidates, ranked
 from mlnseq.choosing.network_weight import WeightChoice, WeightDecision
 from mlnseq.fusion.fuse import chain_of, fuse, restart_note
 from mlnseq.choosing.workdir_inputs import WorkdirInputs, read_workdir
@@ -66,6 +68,28 @@ class ConflateOptions:
         are always predicted."""
         asked = tuple(Decoder(kind) for kind in self.decode)
         return ("none", *dict.fromkeys(d.name for d in decodings(asked, tuple(self.lags))))
+
+
+LAGS_TEXT = ",".join(map(str, DEFAULT_LAGS))  # --lags as written by default
+
+
+def options_from(mln_mode: str, decode: str, lags: str = LAGS_TEXT, network_weight: str = "auto") -> ConflateOptions:
+    """The options as the command line writes them: ``--decode`` (a decoder as names print it, ``smooth-legal@5``,
+    brings its lag; then ``--lags`` must not name others), ``--lags``, ``--network-weight``."""
+    decoders, named_lags = decoders_named(parse_decode(decode))
+    if named_lags and lags != LAGS_TEXT:
+        raise BadInput(f"--decode {decode} names its lags; --lags {lags} names others: give the lags once")
+    return ConflateOptions(mln_mode=mln_mode, decode=decoders, network_weight=parse_network_weight(network_weight),
+                           lags=named_lags or parse_lags(lags))
+
+
+def ranking(path: Path) -> tuple[dict[str, Any] | None, list[Candidate]]:
+    """A predictions file's cross-validation record (None without fold networks) and its candidates, best first by
+    the criterion ``export --method auto`` chooses on."""
+    cross = artifacts.read_metadata(path).get("cross_validation")
+    if not cross:
+        return None, []
+    return cross, ranked(candidates(cross["figures"], cross.get("fold_frame_accuracy")))
 
 
 def parse_decode(text: str) -> tuple[str, ...]:

@@ -20,8 +20,9 @@ from typing import Any
 
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import member
+from mlnseq.catalog.stopping import stop_on_signals
 from mlnseq.dds.domain import QosChoice
-from mlnseq.sources import rostopic
+from mlnseq.recognition import rostopic
 
 WAIT_S = 0.1  # the longest a wait for samples lasts before the stop flag is looked at again
 
@@ -83,7 +84,7 @@ def csv_line(values: list[Any]) -> str:
 def run(options: EchoOptions, emit: Callable[[str], None], warn: Callable[[str], None],
         stop: threading.Event | None = None) -> EchoSummary:
     """Print the topic's messages through ``emit`` until SIGINT or SIGTERM (or ``stop``), or --count of them."""
-    from mlnseq.dds import domain, require, stopped_by_signals, types
+    from mlnseq.dds import domain, require, types
 
     options.validate()
     require()
@@ -92,8 +93,8 @@ def run(options: EchoOptions, emit: Callable[[str], None], warn: Callable[[str],
     participant = domain.Participant(distro, "mlnseq_echo")
     subscriptions = domain.Subscriptions(participant, message_types, [options.topic], options.qos,
                                          lambda topic, text: warn(f"error: {text}"))
-    with stopped_by_signals(stop) as stop:
-        return _echo(options, subscriptions, participant.domain_id, emit, warn, stop)
+    with stop_on_signals(stop) as heard:
+        return _echo(options, subscriptions, participant.domain_id, emit, warn, heard.stop)
 
 
 def _echo(options: EchoOptions, subscriptions: Any, domain_id: int, emit: Callable[[str], None],

@@ -3,7 +3,8 @@
 The recordings are read as `predict` reads them (as the model's own were read; or, with a fit's workdir, the
 recordings it was fitted on, as fit read them, its labels file too) and each is decided as `explain` decides it, so
 a click on a frame shows exactly the terms `mlnseq explain --json` prints for it; a fit's workdir also gives each
-recording's labels as fit trained on them and the phases fit proposes to correct (stages/reviewing/fitted.py). The
+recording's labels as fit trained on them and the phases fit proposes to correct (stages/reviewing/fitted.py,
+stages/reviewing/decisions.py). The
 page (stages/reviewing/page/, its site stages/reviewing/site.py) is served on 127.0.0.1 by a guarded
 standard-library server (stages/serving/guarded.py); a save writes the recording's labels into the one labels file
 given at the start (stages/reviewing/corrections.py), in the form `collect --labels` reads.
@@ -15,16 +16,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
-from mlnseq.auditing import verdicts
-from mlnseq.auditing.profile import model_profile
 from mlnseq.catalog.errors import BadInput
-from mlnseq.explaining.explainer import Keys
 from mlnseq.recognition import reading
 from mlnseq.recognition.reading import ReadOptions
-from mlnseq.reviewing import corrections, fitted, views
-from mlnseq.reviewing.site import Review, Reviewed
+from mlnseq.reviewing import corrections, decisions, fitted
+from mlnseq.reviewing.site import Review
 from mlnseq.serving.guarded import BODY_LIMIT, GuardedServer, reachable_from, serve
 from mlnseq.sources import intervals
 
@@ -59,54 +55,6 @@ class ReviewOptions:
         return Path(f"{Path(self.source).stem}.labels.csv")
 
 
-def audited(read: reading.Reading, where: Path) -> dict[str, dict] | None:
-    """Each recording's audit, as `mlnseq audit` gives it (its verdict, score, rank and reasons with their frames),
-    by episode id; None where the model file holds no audit profile."""
-    import json
-
-    profile = model_profile(read.model, where)
-    if profile is None:
-        return None
-    features = read.frames.select(read.model.features).to_numpy()
-    _, recordings = verdicts.audited(read.model, profile, features, read.frames["episode"].to_numpy(), read.names,
-                                     np.asarray(read.times, dtype=np.float64))
-    return {row["episode"]: {"verdict": row["verdict"], "score": row["score"], "rank": row["rank"],
-                             "reasons": json.loads(row["reasons"])}
-            for row in verdicts.table(profile, recordings).iter_rows(named=True)}
-
-
-def decide(read: reading.Reading, workdir: fitted.Workdir | None, audits: dict[str, dict] | None = None
-           ) -> list[Reviewed]:
-    """Each recording decided on its own, as `explain` decides it; its labels as read, or, from a fit's workdir, as
-    fit trained on them (and where they came from) with the phases fit proposes to correct; its audit, given."""
-    found = []
-    model, frames, classes = read.model, read.frames, list(read.model.classes)
-    for index, name in enumerate(read.names):
-        rows = read.episode(index)
-        features = frames[rows].select(model.features).to_numpy()
-        keys = Keys([name] * len(rows), frames["frame"].to_numpy()[rows], np.asarray(read.times, dtype=float)[rows])
-        scores = model.scored(features, None, read.decode)
-        labels, origin, proposal = frames["label"].to_numpy()[rows].astype(np.int64), None, None
-        if workdir is not None:
-            labels, origin = _as_fit_trained(workdir, str(name), labels, classes)
-            proposal = workdir.proposal(str(name), len(rows), classes)
-        decided = views.Decided(str(name), keys.time, features, np.asarray(scores.path, dtype=np.int64),
-                                np.asarray(scores.probabilities), labels if (labels >= 0).any() else None, origin,
-                                proposal, None if audits is None else audits.get(str(name)))
-        found.append(Reviewed(decided, keys, scores))
-    return found
-
-
-def _as_fit_trained(workdir: fitted.Workdir, name: str, labels: np.ndarray,
-                    classes: list[str]) -> tuple[np.ndarray, str | None]:
-    """A recording's labels as its fit trained on them, and where they came from (as read where the workdir's frames
-    of it are not these: the recordings changed since)."""
-    given = workdir.labels.get(name)
-    if given is None or len(given.names) != len(labels):  # none fit trained on, or not these frames: as read
-        return labels, None
-    return np.array([-1 if k is None else classes.index(k) for k in given.names], dtype=np.int64), given.origin.value
-
-
 @dataclass(frozen=True)
 class Started:
     """What `run` tells before it serves: where, and what it read."""
@@ -139,7 +87,7 @@ def prepare(options: ReviewOptions, said: Callable[[str], None] = lambda line: N
     if workdir is not None and workdir.labels_file is not None and given == workdir.labels_file:
         carried = intervals.read(workdir.labels_file, workdir.labels_unit)  # the fit's labels, kept in each save
     labels = corrections.LabelsFile(save, read.source.unit(read.env), carried)
-    decided = decide(read, workdir, audited(read, Path(options.model)))
+    decided = decisions.decide(read, workdir, decisions.audited(read, Path(options.model)))
     for recording in decided:  # a labels file that does not fit the recordings is refused now, not at a click
         labels.saved(recording.decided.id, recording.decided.time, list(read.model.classes))
     lerobot = None if options.save_lerobot is None else (source, Path(options.save_lerobot))

@@ -20,7 +20,6 @@ subscriptions with it again (rospy does not), with a note.
 from __future__ import annotations
 
 import os
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -32,6 +31,7 @@ from typing import Any
 from mlnseq.catalog.decoders import parse_decoding
 from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import member
+from mlnseq.catalog.stopping import stop_on_signals
 from mlnseq.dds.domain import QosChoice
 from mlnseq.recognition.live import QUEUE, LiveFrame, MessageFeed, needed_fields, prepared
 
@@ -240,46 +240,46 @@ def run(options: RosOptions, warn: Callable[[str], None], stop: threading.Event 
     feed = MessageFeed(model, warn, time.monotonic, options.max_hold, options.queue_size, decode)
     decode.error = feed.error
     uri = check_master()
-    stop = stop or threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    rospy.init_node(options.node_name, disable_signals=True)
-    activity = rospy.Publisher(options.activity_topic, String, queue_size=PUBLISHER_QUEUE)
-    framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String, queue_size=PUBLISHER_QUEUE)
-    alerting = rospy.Publisher(options.activity_topic.rstrip("/") + ALERT_SUFFIX, String,
-                               queue_size=PUBLISHER_QUEUE) if options.monitor else None
+    with stop_on_signals(stop) as heard:
+        stop = heard.stop
+        rospy.init_node(options.node_name, disable_signals=True)
+        activity = rospy.Publisher(options.activity_topic, String, queue_size=PUBLISHER_QUEUE)
+        framed = rospy.Publisher(options.activity_topic.rstrip("/") + FRAME_SUFFIX, String,
+                                 queue_size=PUBLISHER_QUEUE)
+        alerting = rospy.Publisher(options.activity_topic.rstrip("/") + ALERT_SUFFIX, String,
+                                   queue_size=PUBLISHER_QUEUE) if options.monitor else None
 
-    def publish(frames: list[LiveFrame]) -> None:
-        for frame in frames:
-            activity.publish(String(data=frame.prediction.name))
-            framed.publish(String(data=frame.json(model.classes)))
-        for line in monitor.alert_lines(model, frames) if alerting is not None else ():
-            alerting.publish(String(data=line))
+        def publish(frames: list[LiveFrame]) -> None:
+            for frame in frames:
+                activity.publish(String(data=frame.prediction.name))
+                framed.publish(String(data=frame.json(model.classes)))
+            for line in monitor.alert_lines(model, frames) if alerting is not None else ():
+                alerting.publish(String(data=line))
 
-    for topic in feed.topics:
-        rospy.Subscriber(topic, rospy.AnyMsg, lambda raw, t: feed.offer(t, raw, rospy.get_rostime().to_nsec()),
-                         callback_args=topic, queue_size=options.queue_size)
-    threading.Thread(target=watch_master, args=(rospy, uri, warn, stop), daemon=True).start()
-    warn(f"ros: {options.node_name} at {uri}: listening to {', '.join(feed.topics)} on the model's "
-         f"{feed.live.rate:g} Hz clock; publishing {options.activity_topic} and "
-         f"{options.activity_topic.rstrip('/')}{FRAME_SUFFIX}")
-    while not stop.is_set() and not rospy.is_shutdown():
-        publish(feed.pending(0.1))
-    last = feed.drain()  # what was queued, and every frame held (a lagged decoder's last frames), decided
-    publish(last)
-    if last:
-        time.sleep(FLUSH_S)  # rospy sends from a thread per connection: let the last frames leave
-    rospy.signal_shutdown("mlnseq ros stopped")
+        for topic in feed.topics:
+            rospy.Subscriber(topic, rospy.AnyMsg, lambda raw, t: feed.offer(t, raw, rospy.get_rostime().to_nsec()),
+                             callback_args=topic, queue_size=options.queue_size)
+        threading.Thread(target=watch_master, args=(rospy, uri, warn, stop), daemon=True).start()
+        warn(f"ros: {options.node_name} at {uri}: listening to {', '.join(feed.topics)} on the model's "
+             f"{feed.live.rate:g} Hz clock; publishing {options.activity_topic} and "
+             f"{options.activity_topic.rstrip('/')}{FRAME_SUFFIX}")
+        while not stop.is_set() and not rospy.is_shutdown():
+            publish(feed.pending(0.1))
+        last = feed.drain()  # what was queued, and every frame held (a lagged decoder's last frames), decided
+        publish(last)
+        if last:
+            time.sleep(FLUSH_S)  # rospy sends from a thread per connection: let the last frames leave
+        rospy.signal_shutdown("mlnseq ros stopped")
     return RosSummary(feed.frames, feed.bad, feed.dropped)
 
 
 def run_dds(options: RosOptions, warn: Callable[[str], None], stop: threading.Event | None = None) -> RosSummary:
     """The ROS 2 node (stages/dds/node.py) until SIGINT or SIGTERM (or ``stop``)."""
-    from mlnseq.dds import node, require, stopped_by_signals, types
+    from mlnseq.dds import node, require, types
 
     require()
     node_options = node.NodeOptions(options.model, options.activity_topic, options.node_name,
                                     options.distro or types.default_distro(), options.qos, options.max_hold,
                                     options.queue_size, options.decode, options.explain, options.monitor)
-    with stopped_by_signals(stop) as stop:
-        return RosSummary(*node.run(node_options, warn, stop))
+    with stop_on_signals(stop) as heard:
+        return RosSummary(*node.run(node_options, warn, heard.stop))

@@ -42,7 +42,7 @@ from mlnseq.catalog.stopping import Stopped, StopSignals
 from mlnseq.recognition import live as ros_live
 from mlnseq.recognition.live import encoded
 from mlnseq.recognition.recognizer import Recognizer
-from mlnseq.sources import rostopic
+from mlnseq.recognition import rostopic
 
 EPISODE = "episode"
 TIMES = ("time", "timestamp")  # an input key naming a frame's time, echoed on its output line as "time"

@@ -13,9 +13,9 @@ The markers are HTML comments (invisible on the rendered page), each alone on th
 - ``<!-- continues: PAGE -->`` (anywhere in a page): the page runs in a copy of PAGE's folder after PAGE ran;
 
 and, inside prose or a table, right after a number: ``<!-- figure: [PAGE:] PATTERN [~ TOLERANCE] -->``: the
-number is what PATTERN's ``{}`` matches in the first printed line of the page (or PAGE) that PATTERN matches,
-or ``wall``: the seconds the page's shell blocks took. TOLERANCE is absolute (``~ 0.5``) or a factor
-(``~ 4x``); without it the numbers must be equal, as seeded runs repeat exactly.
+number is what PATTERN's ``{}`` matches in the first printed line of the page (or PAGE) that PATTERN matches.
+TOLERANCE is absolute (``~ 0.5``) or a factor (``~ 4x``); without it the numbers must be equal, as seeded runs
+repeat exactly. No figure is a time: how long a run takes is a benchmark's figure (docs/benchmarks.md).
 
 With MLNSEQ_DOCS_FIGURES=write (``make docs-figures``) every quoted number is rewritten from the run instead.
 """
@@ -27,7 +27,6 @@ import re
 import shutil
 import subprocess
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from unittest import SkipTest
@@ -176,7 +175,6 @@ def evaluate_block(example) -> None:
 class Printed:
     line: int  # the block's line in its page
     text: str  # its stdout and stderr as they came
-    seconds: float
 
 
 @dataclass
@@ -192,17 +190,13 @@ class PageRun:
     def run_block(self, line: int, source: str, expected: int) -> None:
         trap = "set -eo pipefail\ntrap 'echo \"docs test: this command failed: $BASH_COMMAND\" >&2' ERR\n"
         script = (trap if expected == 0 else "set -o pipefail\n") + source
-        started = time.monotonic()
         done = subprocess.run(["bash", "-c", script], cwd=self.folder, env=self.env, stdin=subprocess.DEVNULL,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=BLOCK_TIMEOUT)
-        self.printed.append(Printed(line, done.stdout, time.monotonic() - started))
+        self.printed.append(Printed(line, done.stdout))
         if done.returncode != expected:
             tail = "\n".join(done.stdout.splitlines()[-30:])
             raise AssertionError(f"{self.page}:{line}: the block ended with exit status {done.returncode}, "
                                  f"not {expected} (in {self.folder}):\n{tail}")
-
-    def seconds(self) -> float:
-        return sum(p.seconds for p in self.printed)
 
     def check_output(self, line: int, start: int, shown: str) -> str | None:
         """The shown lines against what the last shell block printed: None when each is there, in order."""
@@ -223,9 +217,7 @@ class PageRun:
         return None
 
     def figure(self, pattern: str) -> str | None:
-        """The number PATTERN's ``{}`` stands for in the first printed line it matches (``wall``: seconds)."""
-        if pattern == "wall":
-            return f"{max(1, round(self.seconds()))}"  # whole seconds, at least 1
+        """The number PATTERN's ``{}`` stands for in the first printed line it matches."""
         head, _, tail = pattern.partition("{}")
         regex = re.compile(line_pattern(head, capture=False).pattern + f"({NUMBER})"
                            + line_pattern(tail, capture=False).pattern)

@@ -1,4 +1,4 @@
-"""tests/desk_bags.py as the README and docs/first-day.md run it: a second run in the same folder says the bags
+"""tests/desk_bags.py as the README and docs/deploy.md run it: a second run in the same folder says the bags
 are there (no traceback), and a folder in the way is one line, exit 2, nothing removed."""
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ FORMULAS = "formulas.mln"
 WEIGHTS = "weights.parquet"
 FOLD_WEIGHTS = "weights.folds.parquet"  # each fold's MLN weights, learned without that fold (column fold)
 LEARNED_MLN = "learned.mln"
+LEARNED_SPEC = "learned.binarize.toml"  # the predicates binarize --suggest (and fit) learn, their formulas beside it
 MODELS_DIR = "models"
 PREDICTIONS = "predictions.parquet"
 METRICS = "metrics.parquet"

@@ -1,9 +1,11 @@
-"""SIGINT and SIGTERM heard by a live command (stream): it stops reading, decides and writes every frame it holds,
-then exits with the signal's usual code (128 + its number: 130 for SIGINT, 143 for SIGTERM).
+"""SIGINT and SIGTERM heard by a live command. ``stop_on_signals``: the nodes and servers (ros, echo, review) run
+until a signal sets an event, then stop, and the handlers they replaced are put back. ``StopSignals``: stream stops
+reading, decides and writes every frame it holds, then exits with the signal's usual code (128 + its number: 130
+for SIGINT, 143 for SIGTERM).
 
-A signal that comes while the command waits for input ends the wait at once (`Stopped` is raised from the read);
-one that comes while it answers frames takes effect at its next read, so every frame already read is answered
-first. A second signal stops the process at once, as the signal does by default.
+With ``StopSignals`` a signal that comes while the command waits for input ends the wait at once (`Stopped` is
+raised from the read); one that comes while it answers frames takes effect at its next read, so every frame already
+read is answered first. A second signal stops the process at once, as the signal does by default.
 """
 
 from __future__ import annotations
@@ -11,9 +13,42 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import threading
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@dataclass
+class Heard:
+    """What ``stop_on_signals`` hears: ``stop`` is set by SIGINT or SIGTERM (or by the caller), ``signal`` names the
+    first signal heard; ``listening`` is False outside the main thread, where no handler can be set."""
+
+    stop: threading.Event
+    listening: bool = True
+    signal: str | None = None
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: threading.Event | None = None) -> Iterator[Heard]:
+    """An event SIGINT and SIGTERM set (``stop``, or a new one) while inside; the previous handlers after. Outside
+    the main thread, where no handler can be set, only the caller sets it."""
+    heard = Heard(stop or threading.Event())
+
+    def set_stop(signum: int, frame) -> None:
+        heard.signal = heard.signal or signal.Signals(signum).name
+        heard.stop.set()
+
+    try:
+        previous = {signum: signal.signal(signum, set_stop) for signum in SIGNALS}
+    except ValueError:  # not the main thread
+        previous, heard.listening = {}, False
+    try:
+        yield heard
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 class Stopped(Exception):

@@ -28,6 +28,13 @@ if TYPE_CHECKING:
     from mlnseq.choosing.workdir_inputs import MLNInputs, WorkdirInputs
 
 FIGURES = ("segment_accuracy", "frame_accuracy", "edit", "f1_50")  # accuracies in %
+
+
+def figures_said(figures: dict[str, float], criterion: float) -> str:
+    """A candidate's cross-validated figures, as conflate, export and fit say them: ``cross-validated  71.2 /  90.9 /
+    83.6 (segment / frame / edit), mean  81.9`` (the mean: the criterion the choice ranks by)."""
+    return (f"cross-validated {figures['segment_accuracy']:5.1f} / {figures['frame_accuracy']:5.1f} / "
+            f"{figures['edit']:5.1f} (segment / frame / edit), mean {criterion:5.1f}")
 # beside them: log_likelihood (nats per frame, of the true labels) and forbidden_transitions (decoded methods)
 
 

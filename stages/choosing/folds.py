@@ -22,6 +22,7 @@ from mlnseq.catalog.parts import Part
 from mlnseq.mln.chain import chain_starts
 
 MIN_BLOCK_FRAMES = 20  # a block fold holds at least this many frames: shorter chains say little
+MOST_FOLDS = 5  # the folds suggested (fit's default): one per training episode, at most this many
 
 
 CUTS = ("restarts", "mixed", "segments", "frames")  # where blocks were cut: task restarts, restarts and segment
@@ -107,7 +108,8 @@ def largest(episodes: np.ndarray, splits: np.ndarray) -> int:
     return max(len(np.unique(np.asarray(episodes)[train])), int(train.sum()) // MIN_BLOCK_FRAMES)
 
 
-def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = 5, labels: np.ndarray | None = None) -> int:
+def suggested(episodes: np.ndarray, splits: np.ndarray, most: int = MOST_FOLDS,
+              labels: np.ndarray | None = None) -> int:
     """A K for a user's recogniser: whole episodes when the training split has at least 2 (up to ``most`` folds),
     else blocks (up to ``most``), else 0 (too small for folds). Given the ``labels``, blocks only where they can be
     cut where the task restarts: a single recording of one run of the task cut into blocks holds whole phases out of
@@ -186,18 +188,33 @@ def cheapest(where: np.ndarray, cost: np.ndarray) -> list[int]:
     return chosen[::-1]
 
 
+def train_folds(k: int | None, mode: str, select: str, workdir: Path | None = None) -> int | None:
+    """``train --folds``'s K: as asked; None, the default: in stream mode without a validation part, the K of the
+    folds the MLN's weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none
+    (None); 0 is none."""
+    if k is not None:
+        return k
+    path = None if workdir is None else Path(workdir) / artifacts.FOLD_WEIGHTS
+    if mode != "stream" or select != "none" or path is None or not path.exists():
+        return None
+    return int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
+
+
 def resolve(k: int | None, mode: str, select: str, episodes: np.ndarray, splits: np.ndarray, labels: np.ndarray,
             workdir: Path | None = None) -> Folds | None:
-    """``train --folds``: None is the default: in stream mode without a validation part, the folds the MLN's
-    weights were learned on (weights.folds.parquet, from `learn-weights --folds K`), else none; 0 is none."""
-    if k is None:
-        path = None if workdir is None else Path(workdir) / artifacts.FOLD_WEIGHTS
-        if mode != "stream" or select != "none" or path is None or not path.exists():
-            return None
-        k = int(artifacts.read_metadata(path, "fold_weights")["folds"]["k"])
-    if k == 0:
-        return None
-    return assign(episodes, splits, labels, k)
+    """``train --folds``: the folds of ``train_folds``' K, or None (none)."""
+    k = train_folds(k, mode, select, workdir)
+    return assign(episodes, splits, labels, k) if k else None
+
+
+def out_of_fold_said(checkpoint: Path, asked: bool) -> str:
+    """A trained network's fold networks in words (train's summary): which folds, where they came from (asked, or as
+    learn-weights cut them) and the out-of-fold predictions; "" without."""
+    oof = artifacts.out_of_fold_path(Path(checkpoint).parent.parent, Path(checkpoint).stem)
+    if not oof.exists():
+        return ""
+    how = "" if asked else f", as learn-weights cut them ({artifacts.FOLD_WEIGHTS})"
+    return f"; with {describe(artifacts.read_metadata(oof)['folds'])}{how}: out-of-fold predictions {oof}"
 
 
 def same(recorded: dict, folds: Folds, what: str, remedy: str) -> None:

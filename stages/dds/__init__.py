@@ -10,11 +10,6 @@ live core (recognition/live.py's `MessageFeed`), which `mlnseq ros` (ROS 1) runs
 
 from __future__ import annotations
 
-import contextlib
-import signal
-import threading
-from collections.abc import Iterator
-
 from mlnseq.catalog.errors import MissingExtra, install_hint
 
 EXTRA = "ros2"  # the extra of cyclonedds and rosbags
@@ -29,18 +24,3 @@ def require() -> None:
             raise MissingExtra(f"ROS 2 over DDS needs cyclonedds and rosbags ({module} is not installed): "
                                f"{install_hint(EXTRA)}") from None
 
-
-@contextlib.contextmanager
-def stopped_by_signals(stop: threading.Event | None = None) -> Iterator[threading.Event]:
-    """An event SIGINT and SIGTERM set (``stop``, or a new one) while inside; the previous handlers after. Outside
-    the main thread, where no handler can be set, only the caller sets it."""
-    stop = stop or threading.Event()
-    try:
-        previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
-    except ValueError:  # not the main thread
-        previous = {}
-    try:
-        yield stop
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)

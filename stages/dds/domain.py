@@ -22,7 +22,7 @@ from typing import Any
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.dds.types import MessageTypes, ros_type_name
-from mlnseq.sources import rostopic
+from mlnseq.recognition import rostopic
 
 TOPIC_PREFIX = "rt"  # ROS 2 topics in DDS: rt/joint_states (rmw's namespace_prefix.hpp)
 MAX_DOMAIN_ID = 232  # Cyclone's port mapping: 7400 + 250 x domain stays below 65536

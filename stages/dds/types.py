@@ -3,7 +3,7 @@ hand, no ROS install): ``sensor_msgs/msg/JointState`` is the ``@final`` struct `
 (rmw_cyclonedds' naming), serialized in plain CDR (XCDR1) to the bytes a ROS 2 bag holds for it.
 
 Each built class also answers rclpy's ``get_fields_and_field_types``, so the live core reads its messages as it
-reads rclpy's (stages/sources/rostopic.py).
+reads rclpy's (stages/recognition/rostopic.py).
 """
 
 from __future__ import annotations

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from mlnseq.catalog import artifacts
 from mlnseq.catalog.parts import Part
 
 TRUSTED = 0.8  # the share of a labelled recording's frames its alignment to the others must get right
@@ -30,6 +29,7 @@ MOST_CELLS = 2_500_000  # pairs of frames one alignment compares; longer recordi
 ROUNDS = 3  # of weighting the channels by their spread along the pairings, each followed by aligning again
 WEIGHING_PAIRS = 12  # at most this many pairs of recordings measure the channels' spreads
 MOST_TEMPLATES = 8  # labelled recordings a recording is aligned to, spread over them in order
+PARTNERS = 8  # other recordings each clicked recording is aligned to in time, without recordings labelled whole
 
 
 @dataclass(frozen=True)
@@ -38,12 +38,12 @@ class Aligned:
 
     labelled: int
     templates: int
-    checked: float | None = None  # the share of labelled frames their alignment to the others got right
+    right_when_left_out: float | None = None  # the share of labelled frames their alignment to the others got right
     clicked: int = 0  # of the templates, those labelled by clicks (not checked)
 
     def said(self) -> str:
-        check = ("" if self.checked is None else
-                 f"aligned to each other, the labelled ones come out {self.checked:.1%} right")
+        check = ("" if self.right_when_left_out is None else
+                 f"aligned to each other, the labelled ones come out {self.right_when_left_out:.1%} right")
         if not self.labelled:
             return f"not labelled by alignment: {check}, under {TRUSTED:.0%}"
         plural = "s" if self.templates != 1 else ""
@@ -54,12 +54,12 @@ class Aligned:
 
     def record(self) -> dict:
         return {"labelled": self.labelled, "templates": self.templates, "clicked": self.clicked,
-                "checked": self.checked,
+                "checked": self.right_when_left_out,
                 "method": "dynamic time warping of the standardised features, each channel weighted by its spread "
                           "along the pairings; a vote over the labelled recordings"}
 
 
-def path(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def warping_path(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The least-cost monotone pairing of the rows of ``a`` [n, F] with those of ``b`` [m, F] (Euclidean distance;
     steps: both, ``a`` alone, ``b`` alone), from (0, 0) to (n-1, m-1), as two index arrays."""
     n, m = len(a), len(b)
@@ -113,7 +113,7 @@ class Pairing:
 def paired(features: np.ndarray, template: np.ndarray) -> Pairing:
     """``features`` aligned to ``template``; long recordings every k-th frame (at most MOST_CELLS pairs)."""
     step = _every(features, template)
-    ours, theirs = path(features[::step], template[::step])
+    ours, theirs = warping_path(features[::step], template[::step])
     return Pairing(ours, theirs, step, len(features))
 
 
@@ -136,6 +136,18 @@ def channel_weights(pairs: list[tuple[np.ndarray, np.ndarray]], rounds: int = RO
     return weights
 
 
+def pairings(z: np.ndarray, rows_of: dict[int, np.ndarray]) -> dict[tuple[int, int], Pairing]:
+    """Each recording of ``rows_of`` (its rows of ``z``, the standardised features; clicked recordings) aligned to up
+    to PARTNERS others (the next ones in order), on the features weighted as ``channel_weights`` weighs them:
+    ``{(ours, theirs): Pairing}``."""
+    order = list(rows_of)
+    partners = {u: [order[(k + d) % len(order)] for d in range(1, min(PARTNERS, len(order) - 1) + 1)]
+                for k, u in enumerate(order)}
+    weighing = [(z[rows_of[u]], z[rows_of[t]]) for u, ts in partners.items() for t in ts[:1]]
+    weighted = z * channel_weights(weighing[:WEIGHING_PAIRS])
+    return {(u, t): paired(weighted[rows_of[u]], weighted[rows_of[t]]) for u, ts in partners.items() for t in ts}
+
+
 def template_votes(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> np.ndarray:
     """[len(features), C]: the votes of the ``templates`` (features, labels; at most MOST_TEMPLATES of them, spread
     over them in order) aligned to a recording, per frame."""
@@ -148,15 +160,15 @@ def transferred(features: np.ndarray, templates: list[tuple[np.ndarray, np.ndarr
     return template_votes(features, templates, n_classes).argmax(axis=1)
 
 
-def checked(templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> float:
+def right_when_left_out(templates: list[tuple[np.ndarray, np.ndarray]], n_classes: int) -> float:
     """The share of the labelled frames right when each labelled recording is aligned to the others."""
     right = [transferred(f, templates[:k] + templates[k + 1:], n_classes) == y for k, (f, y) in enumerate(templates)]
     return float(np.concatenate(right).mean())
 
 
-def standardised(frames: pl.DataFrame) -> np.ndarray:
-    """[rows, F]: every feature column of ``frames`` (frames.parquet) standardised over all its rows."""
-    values = frames.select(artifacts.feature_columns(frames)).to_numpy().astype(np.float64)
+def standardised(frames: pl.DataFrame, features: list[str]) -> np.ndarray:
+    """[rows, F]: the ``features`` columns of ``frames`` (frames.parquet) standardised over all its rows."""
+    values = frames.select(features).to_numpy().astype(np.float64)
     return (values - values.mean(axis=0)) / (values.std(axis=0) + 1e-9)
 
 
@@ -183,18 +195,18 @@ def aligned_votes(z: np.ndarray, bare: list[np.ndarray], known: list[np.ndarray]
     pairs = [(z[u], z[t]) for u in bare for t in every]
     z = z * channel_weights(pairs[::max(1, len(pairs) // WEIGHING_PAIRS)][:WEIGHING_PAIRS])
     templates = [(z[rows], labels[rows]) for rows in every]
-    check = checked(templates[:len(known)], n_classes) if len(known) > 1 else None
+    check = right_when_left_out(templates[:len(known)], n_classes) if len(known) > 1 else None
     if check is not None and check < TRUSTED:
         return None, check
     return [template_votes(z[rows], templates, n_classes) for rows in bare], check
 
 
-def label_unlabelled(frames: pl.DataFrame, n_classes: int,
+def label_unlabelled(frames: pl.DataFrame, features: list[str], n_classes: int,
                      clicked: Collection[int] = ()) -> tuple[pl.DataFrame, Aligned]:
     """frames.parquet with its unlabelled recordings labelled by alignment to the labelled training ones (their split
     then ``train``), and what was done; as it was when there is nothing to align to or the check fails. The episodes
     ``clicked`` (labelled by clicks) are aligned to but not checked."""
-    z = standardised(frames)
+    z = standardised(frames, features)
     episodes, splits = frames["episode"].to_numpy(), frames["split"].to_numpy()
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     by_hand = training_recordings(frames, leaving_out=clicked)

@@ -10,35 +10,37 @@ Where each boundary falls is then learned: ``fill`` first aligns each clicked re
 aligned (``narrowed``: the boundary comes after their earlier clicks and before their later ones), places the
 boundary where the frames left split best into two parts of their own means (the least-squares change point of the
 standardised features: the two phases look different, nothing else is assumed), moves each where the frames around
-it look most like those around the boundaries of the same kind in the other recordings (``aligned``: a change point
-misses each boundary by its own amount, which a network learns as blur; aligned, they miss alike), and last moves
-each, between its two clicks, to where its frames agree most with the labels the other recordings pair with them
-(``agreed``). The clicked frames never change.
+it look most like those around the boundaries of the same kind in the other recordings (``moved_to_their_kind``: a
+change point misses each boundary by its own amount, which a network learns as blur; aligned, they miss alike), and
+last moves each, between its two clicks, to where its frames agree most with the labels the other recordings pair
+with them (``agreed``). The clicked frames never change.
 
 Clicks say which phase a frame is in, not where a phase begins: where a stretch could belong to either phase (a still
 arm before the fingers close), those steps give it to one side in every recording alike. Where training recordings
 labelled on every frame sit beside the clicked ones, they say it: each clicked recording is then aligned to them as
 alignment labels a recording without labels, and each boundary placed, between its two clicks, where their labels
-agree most (``from_labelled``; the clicked-only steps again if aligning them to each other fails alignment's check).
+agree most (``alignment.aligned_votes``; the clicked-only steps again if aligning them to each other fails
+alignment's check).
 
 A clicked recording always trains (``sources/table.py``): its labels between clicks are estimates, which a test split
 would score against. (Re-placing the boundaries from a fitted model's log-probabilities, an EM step, was measured and
-did not help: docs/first-day.md.)"""
+did not help.)"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import polars as pl
 
+from mlnseq.catalog.notes import counted
 from mlnseq.catalog.parts import Part
 from mlnseq.labelling import alignment
 from mlnseq.sources.recording import clicked_episodes
 
 ALIGN_HALF_WIDTH = 10  # frames on each side of a boundary compared with the other boundaries of its kind
 ALIGN_ROUNDS = 3  # rounds of moving every boundary to the others' mean window (more drift them together)
-PARTNERS = 8  # other recordings each clicked recording is aligned to in time
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,14 @@ class Span:
     episode: int
     first: int
     last: int
+    before: int
+    after: int
+
+
+class Stretch(NamedTuple):
+    """A span's rows (positions among frames.parquet's rows, first to last) and its two phases' classes."""
+
+    rows: np.ndarray
     before: int
     after: int
 
@@ -77,8 +87,8 @@ def _window(z: np.ndarray, episodes: np.ndarray, row: int, half: int) -> np.ndar
     return z[np.where(episodes[around] == episodes[row], around, row)]
 
 
-def aligned(z: np.ndarray, episodes: np.ndarray, spans: list[tuple[np.ndarray, int, int]], cuts: list[int],
-            half: int = ALIGN_HALF_WIDTH, rounds: int = ALIGN_ROUNDS) -> list[int]:
+def moved_to_their_kind(z: np.ndarray, episodes: np.ndarray, spans: list[Stretch], cuts: list[int],
+                        half: int = ALIGN_HALF_WIDTH, rounds: int = ALIGN_ROUNDS) -> list[int]:
     """Each boundary ``cuts[i]`` (in 1 .. len(rows)-1 of span i) moved, ``rounds`` times, to where the rows around it
     are nearest (least squares) the mean of the rows around the other boundaries of its kind; one alone of its kind
     stays."""
@@ -98,25 +108,13 @@ def aligned(z: np.ndarray, episodes: np.ndarray, spans: list[tuple[np.ndarray, i
     return cuts
 
 
-def _spans_rows(rows_of: dict[int, np.ndarray], spans: list[Span]) -> list:
-    return [(rows_of[s.episode][s.first:s.last + 1], s.before, s.after) for s in spans]
+def _stretches(rows_of: dict[int, np.ndarray], spans: list[Span]) -> list[Stretch]:
+    return [Stretch(rows_of[s.episode][s.first:s.last + 1], s.before, s.after) for s in spans]
 
 
 def _relabelled(frames: pl.DataFrame, labels: np.ndarray) -> pl.DataFrame:
     labelled = pl.Series((frames["split"] != Part.UNLABELLED).to_numpy())
     return frames.with_columns(label=pl.when(labelled).then(pl.Series(labels, dtype=pl.Int16)))
-
-
-def pairings(z: np.ndarray, rows_of: dict[int, np.ndarray]) -> dict[tuple[int, int], alignment.Pairing]:
-    """Each clicked recording aligned to up to PARTNERS others (the next ones in order), on the features weighted as
-    alignment weighs them: ``{(ours, theirs): Pairing}``."""
-    order = list(rows_of)
-    partners = {u: [order[(k + d) % len(order)] for d in range(1, min(PARTNERS, len(order) - 1) + 1)]
-                for k, u in enumerate(order)}
-    weighing = [(z[rows_of[u]], z[rows_of[t]]) for u, ts in partners.items() for t in ts[:1]]
-    weighted = z * alignment.channel_weights(weighing[:alignment.WEIGHING_PAIRS])
-    return {(u, t): alignment.paired(weighted[rows_of[u]], weighted[rows_of[t]]) for u, ts in partners.items()
-            for t in ts}
 
 
 def narrowed(spans: list[Span], found: dict[tuple[int, int], alignment.Pairing]) -> list[Span]:
@@ -163,20 +161,11 @@ def moved_to_votes(labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: li
     return moved
 
 
-def from_labelled(z: np.ndarray, labels: np.ndarray, rows_of: dict[int, np.ndarray], spans: list[Span], known: list,
-                  n_classes: int) -> tuple[np.ndarray | None, float | None]:
-    """Each boundary placed, between its two clicks, where the labelled training recordings ``known``, aligned to the
-    clicked one in time (as alignment labels a recording without labels), agree most; None where aligning the
-    labelled ones to each other fails alignment's check; and that check (None under two)."""
-    found, check = alignment.aligned_votes(z, list(rows_of.values()), known, labels, n_classes)
-    return None if found is None else moved_to_votes(labels, rows_of, spans, dict(zip(rows_of, found))), check
-
-
-def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, dict]:
+def fill(frames: pl.DataFrame, clicks: list[list[int]], features: list[str]) -> tuple[pl.DataFrame, dict]:
     """frames.parquet with every boundary between two clicks placed, and a record of how: by the training recordings
-    labelled on every frame where there are any (``from_labelled``), else from the clicked recordings alone (change
-    point in the span the other recordings' clicks leave, aligned, then agreed)."""
-    z = alignment.standardised(frames)
+    labelled on every frame where there are any (their votes, aligned in time to each clicked recording, placing each
+    boundary between its two clicks), else from the clicked recordings alone (``from_clicks``)."""
+    z = alignment.standardised(frames, features)
     labels = frames["label"].fill_null(-1).to_numpy().astype(np.int64)
     episodes, frame = frames["episode"].to_numpy(), frames["frame"].to_numpy()
     every = alignment.rows_by_recording(episodes)
@@ -186,26 +175,37 @@ def fill(frames: pl.DataFrame, clicks: list[list[int]]) -> tuple[pl.DataFrame, d
     record = {"clicks": len(clicks), "boundaries": len(spans)}
     known = alignment.training_recordings(frames, leaving_out=rows_of)  # labelled on every frame, not by clicks
     n_classes = int(labels.max()) + 1
-    placed, check = from_labelled(z, labels, rows_of, spans, known, n_classes) if known else (None, None)
-    if placed is not None:
+    votes, check = (alignment.aligned_votes(z, list(rows_of.values()), known, labels, n_classes) if known else
+                    (None, None))  # None: none labelled on every frame, or they fail alignment's check
+    found = alignment.pairings(z, rows_of) if votes is None and len(rows_of) > 1 else {}
+    if votes is not None:  # each boundary where the labelled ones, aligned to the clicked one, agree most
         plural = "s" if len(known) != 1 else ""
+        placed = moved_to_votes(labels, rows_of, spans, dict(zip(rows_of, votes)))
         return _relabelled(frames, placed), {**record, "labelled": len(known), "checked": check, "method": (
             f"each clicked recording aligned in time to the {len(known)} training recording{plural} labelled on every "
             "frame, within its clicks")}
-    return _relabelled(frames, from_clicks(z, labels, episodes, rows_of, spans, n_classes)), {**record, "method": (
+    placed = from_clicks(z, labels, episodes, rows_of, spans, n_classes, found)
+    return _relabelled(frames, placed), {**record, "method": (
         "change point of the standardised features between two clicks, within the other recordings' clicks aligned "
         "to it, aligned with the boundaries of its kind in the other recordings, then agreed with their labels "
         "aligned to it")}
 
 
+def filled_said(record: dict) -> str:
+    """What ``fill`` did (its record, frames.parquet's ``clicks_filled``) in one line, for collect's summary."""
+    return (f"clicks: {counted(record['clicks'], 'click')}, one label each; "
+            f"{counted(record['boundaries'], 'boundary', 'boundaries')} between them learned ({record['method']}); "
+            "clicked recordings all train (their labels between clicks are estimates, never a test split's)")
+
+
 def from_clicks(z: np.ndarray, labels: np.ndarray, episodes: np.ndarray, rows_of: dict[int, np.ndarray],
-                spans: list[Span], n_classes: int) -> np.ndarray:
-    """The labels with each boundary placed from the clicked recordings alone: change point in the span the other
-    recordings' clicks leave (``narrowed``), ``aligned``, then ``agreed``."""
+                spans: list[Span], n_classes: int, found: dict[tuple[int, int], alignment.Pairing]) -> np.ndarray:
+    """The labels with each boundary placed from the clicked recordings alone, ``found`` each aligned to others
+    (``alignment.pairings``): change point in the span the other recordings' clicks leave (``narrowed``),
+    ``moved_to_their_kind``, then ``agreed``."""
     labels = labels.copy()
-    found = pairings(z, rows_of) if len(rows_of) > 1 else {}
-    placed = _spans_rows(rows_of, narrowed(spans, found))
-    cuts = aligned(z, episodes, placed, [change_point(z[rows]) for rows, _, _ in placed])
+    placed = _stretches(rows_of, narrowed(spans, found))
+    cuts = moved_to_their_kind(z, episodes, placed, [change_point(z[rows]) for rows, _, _ in placed])
     for (rows, before, after), t in zip(placed, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
     return agreed(labels, rows_of, spans, found, n_classes) if found else labels

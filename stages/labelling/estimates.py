@@ -19,11 +19,11 @@ def estimated(frames: pl.DataFrame, meta: dict[str, Any], align: bool) -> tuple[
     """frames.parquet's ``frames`` with the labels the few given ones say (``meta``: its metadata, told how, under
     ``clicks_filled`` and ``aligned``), and what alignment did (None: not asked, or nothing to label)."""
     if meta.get("clicks"):  # one click per phase: where each phase ends, learned from the recordings
-        frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"])
+        frames, meta["clicks_filled"] = clicks.fill(frames, meta["clicks"], meta["features"])
     if not align or not meta.get("unlabelled_episodes"):
         return frames, None
     clicked = set(clicked_episodes(meta.get("clicks", [])))
-    frames, aligned = alignment.label_unlabelled(frames, len(meta["classes"]), clicked)
+    frames, aligned = alignment.label_unlabelled(frames, meta["features"], len(meta["classes"]), clicked)
     meta["aligned"] = aligned.record()
     return frames, aligned
 

@@ -225,11 +225,15 @@ def propose(recognizer: Any, frames: pl.DataFrame, episode_names: list, without_
                     pl.concat(segments), clicked, proposed, shortest, why)
 
 
+def files(workdir: Path) -> tuple[Path, Path]:
+    """Where a proposal goes: ``WORKDIR/label_next.csv`` and ``WORKDIR/unlabelled.intervals.csv``."""
+    return Path(workdir) / artifacts.LABEL_NEXT, Path(workdir) / artifacts.UNLABELLED_INTERVALS
+
+
 def write(workdir: Path, proposal: Proposal) -> tuple[Path, Path]:
-    """``WORKDIR/label_next.csv`` (episode, rank, reason, the measures) and the proposed phases,
-    ``WORKDIR/unlabelled.intervals.csv`` (episode, start, end, label, unit: frames, as the file says)."""
-    workdir = Path(workdir)
-    paths = workdir / artifacts.LABEL_NEXT, workdir / artifacts.UNLABELLED_INTERVALS
+    """The ranking (episode, rank, reason, the measures) and the proposed phases (episode, start, end, label, unit:
+    frames, as the file says) written to their ``files``."""
+    paths = files(workdir)
     for table, path in zip((proposal.ranked, proposal.intervals), paths):
         with artifacts.atomic_path(path) as staged:
             table.write_csv(staged, float_precision=4)
@@ -238,7 +242,7 @@ def write(workdir: Path, proposal: Proposal) -> tuple[Path, Path]:
 
 def remove(workdir: Path) -> list[Path]:
     """A workdir's ranking and proposed phases from an earlier fit, removed (nothing left to rank); those removed."""
-    found = [Path(workdir) / name for name in (artifacts.LABEL_NEXT, artifacts.UNLABELLED_INTERVALS)]
+    found = list(files(workdir))
     for path in found:
         path.unlink(missing_ok=True)
     return [path for path in found if not path.exists()]

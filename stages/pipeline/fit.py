@@ -26,8 +26,8 @@ from mlnseq.choosing import latency
 from mlnseq.pipeline import parts
 from mlnseq.pipeline.parts import Executor
 from mlnseq.sources.splits import Holdout
-from mlnseq.pipeline.steps import (Binarizing, Collecting, Fitted, Folding, FormulasFrom, Formulating, TestFigures,
-                                   Training, Weighing)
+from mlnseq.pipeline.steps import (BinarizeStep, CollectStep, Fitted, FoldStep, FormulasFrom, FormulasStep, TestFigures,
+                                   TrainStep, WeightsStep)
 
 if TYPE_CHECKING:
     from mlnseq.collect import CollectOptions
@@ -37,13 +37,11 @@ if TYPE_CHECKING:
     from mlnseq.sources.recording import Collected
     from mlnseq.train import EpochDone, TrainOptions, TrainResult
 
-__all__ = ["fit", "FitOptions", "Observer", "Fitted", "Collecting", "Binarizing", "Folding", "Formulating", "Weighing",
-           "Training", "TestFigures", "FormulasFrom"]
+__all__ = ["fit", "FitOptions", "Observer", "Fitted", "CollectStep", "BinarizeStep", "FoldStep", "FormulasStep",
+           "WeightsStep", "TrainStep", "TestFigures", "FormulasFrom"]
 
-SUGGESTED_SPEC = "learned.binarize.toml"  # in the workdir: the predicates fit learns (binarize --suggest)
 TEMPLATE = Path(importlib.resources.files("mlnseq") / "specs" / "temporal.mln")  # formulas for a spec alone
 MODEL = "model.mlnseq"  # in the workdir, without --output
-MOST_FOLDS = 5  # fit's default: one fold per training episode, at most this many
 SETTLED = {"optimizer": "averaged", "members": 3, "updates": 3000}  # how fit trains its networks (docs/reproduce.md)
 
 
@@ -97,22 +95,22 @@ class Observer:
     """What ``fit`` says as it goes: each method is called as its stage finishes, with the stage's typed result;
     here each says nothing (fit's default). A caller overrides those it shows (``mlnseq fit`` prints every one)."""
 
-    def collected(self, step: Collecting) -> None: ...
+    def collected(self, step: CollectStep) -> None: ...
 
-    def binarized(self, step: Binarizing) -> None: ...
+    def binarized(self, step: BinarizeStep) -> None: ...
 
-    def folded(self, step: Folding) -> None: ...
+    def folded(self, step: FoldStep) -> None: ...
 
-    def formulas_written(self, step: Formulating) -> None: ...
+    def formulas_written(self, step: FormulasStep) -> None: ...
 
-    def weights_learned(self, step: Weighing) -> None: ...
+    def weights_learned(self, step: WeightsStep) -> None: ...
 
     def training(self, epochs: int, folds: int) -> AbstractContextManager[Callable[[EpochDone], None]]:
         """Held open while the networks train (the network, then ``folds`` fold networks); what it gives hears each
         epoch of the network."""
         return nullcontext(lambda done: None)
 
-    def trained(self, step: Training) -> None: ...
+    def trained(self, step: TrainStep) -> None: ...
 
     def conflated(self, step: ConflateResult) -> None: ...
 
@@ -149,7 +147,7 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
         observer.weights_learned(weights)
         with observer.training(options.epochs, folding.k) as progress:
             result = train.run(workdir, options.train_options(folding.k), progress)
-        trained = Training(result, folding.k)
+        trained = TrainStep(result, folding.k)
         observer.trained(trained)
     conflated = _conflate(workdir, collected.budget, bool(weights.learned.weights["hard"].any()))
     observer.conflated(conflated)
@@ -158,12 +156,13 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     test = held_out(workdir, [standing.chosen.name if standing else decoded_name(method, decoding.name),
                               Method.NETWORK.value])
     proposal, files = _label_next(workdir, collected.collected, standing)
-    return Fitted(exported, standing, test, collected, binarized, folding, formulas, weights, trained, conflated,
-                  proposal, files)
+    return Fitted(exported=exported, standing=standing, test=test, collected=collected, binarized=binarized,
+                  folding=folding, formulas=formulas, weights=weights, trained=trained, conflated=conflated,
+                  proposal=proposal, proposal_files=files)
 
 
-def _elsewhere(collected: Collecting, workdir: Path, options: FitOptions, observer: Observer
-               ) -> tuple[Binarizing, Folding, Formulating, Weighing, Training]:
+def _elsewhere(collected: CollectStep, workdir: Path, options: FitOptions, observer: Observer
+               ) -> tuple[BinarizeStep, FoldStep, FormulasStep, WeightsStep, TrainStep]:
     """The logic and the networks as jobs of ``options.executor`` (pipeline/parts.py), side by side; the observer
     hears each stage once both have finished, in the order a local run says them."""
     folding = _folds(collected.collected, options.folds)
@@ -202,13 +201,13 @@ def run_part(part: str, workdir: str) -> None:
     parts.write_result(Path(workdir), part, result)
 
 
-def _restored(result: TrainResult, k: int, config: object, state: dict) -> Training:
+def _restored(result: TrainResult, k: int, config: object, state: dict) -> TrainStep:
     """The network part's result with its torch module built again from its weights."""
     from mlnseq.networks.classifier import SequenceClassifier
 
     model = SequenceClassifier(config)
     model.load_state_dict(state)
-    return Training(replace(result, trained=replace(result.trained, model=model)), k)
+    return TrainStep(replace(result, trained=replace(result.trained, model=model)), k)
 
 
 def _label_next(workdir: Path, collected: Collected,
@@ -239,28 +238,29 @@ def _label_next(workdir: Path, collected: Collected,
     return proposal, label_next.write(workdir, proposal)
 
 
-def _collect(source: CollectOptions, workdir: Path, options: FitOptions) -> Collecting:
+def _collect(source: CollectOptions, workdir: Path, options: FitOptions) -> CollectStep:
     """collect, then the budget at the recordings' rate (a --latency the rate cannot say is refused here)."""
     from mlnseq import collect
 
     path, collected = collect.run(workdir, source)
     rate = latency.rate_of(collected.meta)
-    return Collecting(path, collected, rate, latency.fit_budget(options.lag, options.latency, options.offline, rate))
+    return CollectStep(path, collected, rate, latency.fit_budget(options.lag, options.latency, options.offline, rate))
 
 
-def _binarize(workdir: Path, options: FitOptions) -> Binarizing:
+def _binarize(workdir: Path, options: FitOptions) -> BinarizeStep:
     from mlnseq import binarize
+    from mlnseq.catalog import artifacts
     from mlnseq.learning.learned_files import formulas_path
 
-    suggested = None if options.spec is not None else workdir / SUGGESTED_SPEC
+    suggested = None if options.spec is not None else workdir / artifacts.LEARNED_SPEC
     path, binarized = binarize.run(workdir, binarize.BinarizeOptions(spec=options.spec, suggest=suggested,
                                                                      replace=options.force))
     learned = binarized.meta.get("learned") or None
     spec = suggested if suggested is not None else Path(options.spec)
-    return Binarizing(path, binarized, spec, learned, formulas_path(spec) if learned else None)
+    return BinarizeStep(path, binarized, spec, learned, formulas_path(spec) if learned else None)
 
 
-def _folds(collected: Collected, asked: int | None) -> Folding:
+def _folds(collected: Collected, asked: int | None) -> FoldStep:
     """K folds of the training split: as asked, else one per training episode (at most 5; blocks of frames where
     there is one episode), 0 where it is too small for 2."""
     from mlnseq.catalog import artifacts
@@ -268,12 +268,12 @@ def _folds(collected: Collected, asked: int | None) -> Folding:
 
     frames = artifacts.labelled(collected.frames)  # recordings without labels are in no fold
     episodes, splits, labels = (frames[c].to_numpy() for c in ("episode", "split", "label"))
-    k = asked if asked is not None else folding.suggested(episodes, splits, MOST_FOLDS, labels)
+    k = asked if asked is not None else folding.suggested(episodes, splits, labels=labels)
     cut = folding.assign(episodes, splits, labels, k) if k else None
-    return Folding(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
+    return FoldStep(k, cut, asked, frames.filter(frames["split"] == "train")["episode"].n_unique())
 
 
-def _formulas(workdir: Path, options: FitOptions, binarized: Binarizing) -> Formulating:
+def _formulas(workdir: Path, options: FitOptions, binarized: BinarizeStep) -> FormulasStep:
     from mlnseq import formulas
 
     if options.formulas is not None:
@@ -282,15 +282,15 @@ def _formulas(workdir: Path, options: FitOptions, binarized: Binarizing) -> Form
         spec, origin = binarized.learned_formulas, FormulasFrom.LEARNED
     else:
         spec, origin = TEMPLATE, FormulasFrom.TEMPLATE
-    return Formulating(formulas.run(workdir, formulas.FormulasOptions(spec=spec)), spec, origin)
+    return FormulasStep(formulas.run(workdir, formulas.FormulasOptions(spec=spec)), spec, origin)
 
 
-def _weights(workdir: Path, formulas: Formulating, k: int) -> Weighing:
+def _weights(workdir: Path, formulas: FormulasStep, k: int) -> WeightsStep:
     from mlnseq import learn_weights
     from mlnseq.catalog import artifacts
 
     _, learned = learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=formulas.written.path, folds=k))
-    return Weighing(learned, workdir / artifacts.LEARNED_MLN, k)
+    return WeightsStep(learned, workdir / artifacts.LEARNED_MLN, k)
 
 
 def _conflate(workdir: Path, budget: int | None, hard_rules: bool) -> ConflateResult:

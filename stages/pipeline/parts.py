@@ -60,7 +60,7 @@ class Executor(enum.Enum):
 
 def check(executor: Executor, profile: Path | None) -> None:
     """What can be checked before any work: Snakemake (and its SLURM executor) installed, the profile readable."""
-    from mlnseq import sweep
+    from mlnseq.pipeline import sweep
     from mlnseq.catalog import errors
 
     if executor is Executor.LOCAL:

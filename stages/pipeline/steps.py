@@ -1,5 +1,6 @@
-"""What ``fit`` returns and tells its observer: each stage's typed result with the line it is said in (plain text,
-paths as the workdir was given), and ``Fitted``, the model file with the choice said back."""
+"""What ``fit`` returns and tells its observer: each stage's typed result (``CollectStep`` ... ``TrainStep``) with
+the line it is said in (plain text, paths as the workdir was given), and ``Fitted``, the model file with the choice
+said back."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from typing import TYPE_CHECKING
 from mlnseq.catalog.decoders import Decoder, Decoding
 from mlnseq.catalog.methods import decoded_name
 from mlnseq.catalog.notes import counted
+from mlnseq.choosing.cross_validation import figures_said
+from mlnseq.choosing.folds import MOST_FOLDS
 from mlnseq.choosing.latency import Standing
 
 if TYPE_CHECKING:
@@ -37,7 +40,7 @@ class FormulasFrom(enum.Enum):
 
 
 @dataclass(frozen=True)
-class Collecting:
+class CollectStep:
     path: Path  # frames.parquet
     collected: Collected
     rate_hz: float | None  # the recordings' frame rate, where known
@@ -60,7 +63,7 @@ class Collecting:
 
 
 @dataclass(frozen=True)
-class Binarizing:
+class BinarizeStep:
     path: Path  # predicates.parquet
     binarized: Binarized
     spec: Path  # the spec binarized with: yours, or the learned one
@@ -76,7 +79,7 @@ class Binarizing:
 
 
 @dataclass(frozen=True)
-class Folding:
+class FoldStep:
     k: int  # 0: none
     folds: Folds | None  # how the training split was cut
     asked: int | None  # FitOptions.folds (None: fit's default)
@@ -92,12 +95,12 @@ class Folding:
         if self.folds is None:
             return f"none ({self.why_none}): nothing is chosen by cross-validation"
         return (f"{self.folds.describe()} ({counted(self.training_episodes, 'training episode')}"
-                + ("" if self.asked is not None else "; fit's default: one per episode, at most 5")
+                + ("" if self.asked is not None else f"; fit's default: one per episode, at most {MOST_FOLDS}")
                 + "): cross-validation chooses the network's weight and the method")
 
 
 @dataclass(frozen=True)
-class Formulating:
+class FormulasStep:
     written: WrittenFormulas  # WORKDIR/formulas.mln
     spec: Path  # the formulas file it was written from
     origin: FormulasFrom
@@ -109,7 +112,7 @@ class Formulating:
 
 
 @dataclass(frozen=True)
-class Weighing:
+class WeightsStep:
     learned: Learned
     learned_mln: Path  # every expanded formula with its weight
     folds: int
@@ -122,7 +125,7 @@ class Weighing:
 
 
 @dataclass(frozen=True)
-class Training:
+class TrainStep:
     result: TrainResult
     folds: int
 
@@ -145,12 +148,12 @@ class Fitted:
     exported: Exported  # the model file's path and manifest (its chosen_by_cross_validation: the choice's record)
     standing: Standing | None  # the choice, runner-up and network alone, cross-validated; None without folds
     test: dict[str, TestFigures]  # the choice's and the network alone's on the test split (empty: no test split)
-    collected: Collecting
-    binarized: Binarizing
-    folding: Folding
-    formulas: Formulating
-    weights: Weighing
-    trained: Training
+    collected: CollectStep
+    binarized: BinarizeStep
+    folding: FoldStep
+    formulas: FormulasStep
+    weights: WeightsStep
+    trained: TrainStep
     conflated: ConflateResult
     proposal: Proposal | None = None  # the unlabelled recordings ranked (label_next.csv), None without any
     proposal_files: tuple[Path, ...] = ()  # label_next.csv and the predicted phases
@@ -185,10 +188,8 @@ class Fitted:
                  (standing.network_alone, "network alone"), (standing.steadier, "steadier")) if standing else ()
         for candidate, role in roles:
             if candidate is not None:
-                f = candidate.figures
-                lines.append(f"  {role + ':':<15}{candidate.name:<24} cross-validated {f['segment_accuracy']:5.1f} / "
-                             f"{f['frame_accuracy']:5.1f} / {f['edit']:5.1f} (segment / frame / edit), mean "
-                             f"{candidate.score[0]:5.1f}")
+                lines.append(f"  {role + ':':<15}{candidate.name:<24} "
+                             + figures_said(candidate.figures, candidate.score[0]))
         if standing:
             lines.append(f"chose {standing.chosen.name} of {standing.among} candidates within the budget by "
                          f"{self.folding.k}-fold cross-validation on the training split: {RULE}")

@@ -1,5 +1,5 @@
 """A model trained on ROS topics, fed live messages: `LiveRecognizer` puts each topic's messages on the
-model's clock as collect put the bags on it (stages/sources/rostopic.py's `HoldLast`) and runs the same
+model's clock as collect put the bags on it (stages/recognition/rostopic.py's `HoldLast`) and runs the same
 `Recognizer` as predict and stream on every tick. `mlnseq stream` (`rostopic echo -p` on stdin), the ROS 1
 node (`mlnseq ros`) and a ROS 2 node all call it.
 
@@ -26,7 +26,7 @@ import numpy as np
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.recognition.recognizer import Prediction, Recognizer
-from mlnseq.sources import rostopic
+from mlnseq.recognition import rostopic
 from mlnseq.sources.holds import MAX_HOLD_S
 
 RATE_PROBE = 20  # messages of the clock topic whose median period gives the feed's rate

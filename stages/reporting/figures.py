@@ -7,6 +7,7 @@ import polars as pl
 
 from mlnseq.reporting.loading import NETWORKS, PAPER_DATASETS, Run, present
 from mlnseq.reporting.tables import METHOD_NAMES, confusion_matrix, log_epoch_stats, lookup, method_stats
+from mlnseq.timeline.sequences import run_starts
 
 FIGURES = {  # figure key -> its file name beside REPORT.md
     "fig7": "fig7_test_accuracy.png",
@@ -144,7 +145,7 @@ def figure_timeline(rows: pl.DataFrame, classes: list[str], title: str):
     fig, ax = plt.subplots(figsize=(12, 0.65 * len(names) + 1.8))
     for i, name in enumerate(names):
         values = rows[name].to_numpy()
-        starts = np.flatnonzero(np.r_[True, values[1:] != values[:-1]])
+        starts = run_starts(values)
         stops = np.r_[starts[1:], len(values)]
         for start, stop in zip(starts, stops):
             ax.broken_barh([(frames[start], frames[stop - 1] - frames[start] + 1)], (i - 0.4, 0.8),

@@ -86,10 +86,8 @@ class LabelsFile:
             if str(interval.label) not in classes:
                 raise BadInput(f"{interval.where}: label {interval.label!r} is not a class of the model "
                                f"({', '.join(classes)})")
-            frames = interval.unit == "frames"
-            key = np.arange(len(time), dtype=np.float64) if frames else np.asarray(time, dtype=float)
-            inside = (key >= interval.start) & ((key <= interval.end) if frames else (key < interval.end))
-            labels[inside] = classes.index(str(interval.label))
+            key = np.arange(len(time), dtype=np.float64) if interval.unit == "frames" else np.asarray(time, dtype=float)
+            labels[interval.covers(key, interval.unit)] = classes.index(str(interval.label))
         return labels
 
     def put(self, episode: str, time: np.ndarray, names: list[str]) -> int:

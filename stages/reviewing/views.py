@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mlnseq.timeline import sequences
+
 BUCKETS = 1000  # a channel is drawn from at most 2 points (its min and max) per bucket: a plot's width in pixels
 
 
@@ -55,11 +57,7 @@ def decimated(values: np.ndarray, buckets: int = BUCKETS) -> np.ndarray:
 def runs(classes: np.ndarray) -> list[list[int]]:
     """The runs of one class as [first row, last row, class] (class -1: no label there)."""
     classes = np.asarray(classes)
-    if not len(classes):
-        return []
-    change = np.flatnonzero(classes[1:] != classes[:-1]) + 1
-    starts, ends = np.r_[0, change], np.r_[change, len(classes)] - 1
-    return [[int(a), int(b), int(classes[a])] for a, b in zip(starts, ends)]
+    return [[run.start, run.stop - 1, int(classes[run.start])] for run in sequences.runs(classes)]
 
 
 def table(recordings: list[Decided], ranks: dict[str, tuple[int, str]], saved: set[str]) -> list[dict]:

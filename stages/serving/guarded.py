@@ -22,6 +22,7 @@ from typing import Any, Protocol
 from urllib.parse import parse_qs, urlsplit
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.stopping import stop_on_signals
 
 BODY_LIMIT = 1 << 20  # bytes: a recording's corrections are a few KB
 HEADERS = {
@@ -205,29 +206,15 @@ class GuardedHandler(BaseHTTPRequestHandler):
 def serve(server: GuardedServer) -> str:
     """Serve until SIGINT or SIGTERM (from the main thread), then stop answering, close the socket and return the
     signal's name; outside the main thread, until ``server.shutdown()``."""
-    import signal
-
-    heard: list[str] = []
-    done = threading.Event()
-
-    def stop(signum: int, frame: Any) -> None:
-        heard.append(signal.Signals(signum).name)
-        done.set()
-
-    try:
-        previous = {signum: signal.signal(signum, stop) for signum in (signal.SIGINT, signal.SIGTERM)}
-    except ValueError:  # not the main thread: the caller stops it
-        previous = None
-    worker = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
-    worker.start()
-    try:
-        if previous is None:
-            worker.join()
-        while previous is not None and not done.wait(0.5):
-            pass
-    finally:
-        server.shutdown()
-        server.server_close()
-        for signum, handler in (previous or {}).items():
-            signal.signal(signum, handler)
-    return heard[0] if heard else "shutdown"
+    with stop_on_signals() as heard:
+        worker = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
+        worker.start()
+        try:
+            if not heard.listening:  # not the main thread: the caller stops it
+                worker.join()
+            while heard.listening and not heard.stop.wait(0.5):
+                pass
+        finally:
+            server.shutdown()
+            server.server_close()
+    return heard.signal or "shutdown"

@@ -15,13 +15,13 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import polars as pl
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources.recording import Recording
+from mlnseq.timeline.sequences import runs
 
 COLUMNS = ("episode", "start", "end", "label")
 POINT_COLUMNS = {"frame": "frames", "time": "seconds"}  # a click's column, and its unit unless --labels-unit says
@@ -38,6 +38,11 @@ class Interval:
     unit: str | None = None  # its own: a click's column's, the file's unit column's or --labels-unit; None: default
     click: bool = False  # a click (start == end): one frame said to be in this phase
 
+    def covers(self, key: np.ndarray, unit: str) -> np.ndarray:
+        """bool [len(key)]: the frames (positions or times ``key`` in ``unit``) this interval holds: frames
+        inclusive, seconds ``start <= t < end``."""
+        return (key >= self.start) & ((key <= self.end) if unit == "frames" else (key < self.end))
+
 
 def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
     """The intervals and clicks of ``path`` by episode id (as text), in start order; overlaps, reversed ends and two
@@ -47,7 +52,7 @@ def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
         files = sorted(p for p in path.iterdir() if p.suffix.lower() == ".txt")
         if not files:
             raise BadInput(f"--labels {path} holds no .txt file of start end label lines")
-        return {p.stem: checked(transcription(p)) for p in files}
+        return {p.stem: in_order(transcription(p)) for p in files}
     if not path.is_file():
         raise BadInput(f"--labels {path} not found")
     try:
@@ -79,7 +84,7 @@ def read(path: Path, unit: str | None = None) -> dict[str, list[Interval]]:
     by_episode: dict[str, list[Interval]] = {}
     for line, row in enumerate(table.iter_rows(named=True), start=2):
         by_episode.setdefault(str(row["episode"]), []).append(_row(row, point, spans, unit, f"{path}:{line}"))
-    return {episode: checked(found) for episode, found in by_episode.items()}
+    return {episode: in_order(found) for episode, found in by_episode.items()}
 
 
 def _unit(row: dict, given: str | None, where: str) -> str | None:
@@ -135,7 +140,9 @@ def transcription(path: Path, first_frame: int = 0) -> list[Interval]:
     return found
 
 
-def checked(found: list[Interval]) -> list[Interval]:
+def in_order(found: list[Interval]) -> list[Interval]:
+    """An episode's intervals in time order, or its clicks (``clicks_in_order``); a reversed interval, clicks beside
+    intervals, two units in one episode and overlapping intervals refused."""
     for interval in found:
         if interval.end < interval.start:
             raise BadInput(f"{interval.where}: ends ({interval.end:g}) before it starts ({interval.start:g})")
@@ -148,17 +155,17 @@ def checked(found: list[Interval]) -> list[Interval]:
         raise BadInput(f"{other.where}: in {other.unit or 'the default unit'}, unlike {found[0].where} "
                        f"({found[0].unit or 'the default unit'}); give an episode's rows one unit")
     if clicks:
-        return checked_clicks(clicks)
-    ordered = sorted(found, key=lambda i: i.start)
-    for before, after in zip(ordered, ordered[1:]):
+        return clicks_in_order(clicks)
+    by_start = sorted(found, key=lambda i: i.start)
+    for before, after in zip(by_start, by_start[1:]):
         if after.start < before.end:
             raise BadInput(f"{after.where}: overlaps the interval of {before.where}; intervals may touch, not overlap")
-    return ordered
+    return by_start
 
 
 # ---- clicks: one label per phase, each boundary halfway until labelling/clicks.py learns it ---------------
 
-def checked_clicks(found: list[Interval]) -> list[Interval]:
+def clicks_in_order(found: list[Interval]) -> list[Interval]:
     """An episode's clicks in time order, a repeated one once; two labels at one frame refused."""
     ordered = sorted(found, key=lambda i: i.start)
     kept = ordered[:1]
@@ -284,22 +291,6 @@ def apply(recordings: list[Recording], intervals: dict[str, list[Interval]], uni
     return found_parts
 
 
-def given(recordings: list[Recording], table: pl.DataFrame, order: np.ndarray, names: list) -> dict[str, Any]:
-    """What a labels file gave ``recordings`` (``apply``'s), as frames.parquet's metadata keeps it (``table``: its
-    frames in the recordings' order taken by ``order``; ``names``: its episodes' ids): the episodes it labelled
-    (``labels_file_episodes``) and its clicks (``clicks``: episode, frame, class; the rest filled from them)."""
-    given: dict[str, Any] = {}
-    by_file = {str(e) for r in recordings if r.resolved.get("labels_file") for e in r.episode.unique().to_list()}
-    if by_file:
-        given["labels_file_episodes"] = [name for name in names if str(name) in by_file]
-    clicked = np.concatenate([np.isin(np.arange(r.features.height), r.resolved.get("clicks", []))
-                              for r in recordings])[order]
-    if clicked.any():  # one click per phase: which labels were given, the rest filled
-        given["clicks"] = [list(map(int, row)) for row in table.filter(pl.Series(clicked))
-                           .select("episode", "frame", "label").rows()]
-    return given
-
-
 def _some(names: list[str]) -> str:
     return ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
 
@@ -327,7 +318,7 @@ def _label_from_intervals(key: np.ndarray, found: list[Interval], unit: str, row
                    keep: np.ndarray, what: str) -> None:
     last = key[-1] if unit == "frames" else key[-1] + (np.median(np.diff(key)) if len(key) > 1 else 0.0)
     for interval in found:
-        inside = (key >= interval.start) & ((key <= interval.end) if unit == "frames" else (key < interval.end))
+        inside = interval.covers(key, unit)
         if interval.start < key[0] or interval.end > last + 1e-9 or not inside.any():
             raise BadInput(f"{interval.where}: interval {interval.start:g}..{interval.end:g} falls outside {what} "
                            f"({key[0]:g}..{last:g} {unit})")
@@ -344,9 +335,8 @@ def segments(episodes: list, positions: np.ndarray, times: np.ndarray, classes: 
     rows: dict[str, list] = {"episode": [], "start": [], "end": [], "label": []}
     ids = np.asarray(episodes, dtype=object)
     labels = np.asarray(classes, dtype=object)
-    change = np.flatnonzero((ids[1:] != ids[:-1]) | (labels[1:] != labels[:-1])) + 1
-    starts, ends = np.r_[0, change], np.r_[change, len(ids)]
-    for a, b in zip(starts, ends):
+    for run in runs(ids, labels):
+        a, b = run.start, run.stop
         rows["episode"].append(str(ids[a]))
         rows["label"].append(labels[a])
         if unit == "frames":

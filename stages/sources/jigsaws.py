@@ -64,7 +64,7 @@ def read(source: Path, columns: TableColumns, options, label: Labels = Labels.RE
             if not transcript.is_file():
                 raise BadInput(f"{path}: no transcription {transcript}; label every trial, or leave it out")
             found = intervals.transcription(transcript, first_frame=1)
-            recording = intervals.apply([recording], {path.stem: intervals.checked(found)}, "frames",
+            recording = intervals.apply([recording], {path.stem: intervals.in_order(found)}, "frames",
                                         options.unlabelled)[0]
         recordings.append(recording)
     return recordings

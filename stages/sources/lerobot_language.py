@@ -18,6 +18,7 @@ import polars as pl
 import pyarrow as pa
 
 from mlnseq.catalog.errors import BadInput
+from mlnseq.timeline.sequences import run_starts
 
 PERSISTENT, EVENTS = "language_persistent", "language_events"
 LANGUAGE = "language"  # the dtype info.json gives both columns
@@ -89,9 +90,8 @@ def _of_style(rows: pl.DataFrame, style: str) -> pl.DataFrame:
 def rows_of(classes: list[str], timestamps: np.ndarray) -> list[dict[str, Any]]:
     """One episode's classes frame by frame as subtask rows: one per run, at its first frame's timestamp."""
     labels = np.asarray(classes, dtype=object)
-    starts = np.r_[0, np.flatnonzero(labels[1:] != labels[:-1]) + 1] if len(labels) else np.zeros(0, int)
     return [{"role": ROLE, "content": str(labels[k]), "style": SUBTASK, "timestamp": float(timestamps[k]),
-             "camera": None, "tool_calls": None} for k in starts]
+             "camera": None, "tool_calls": None} for k in run_starts(labels)]
 
 
 def merged(own: list[dict[str, Any]] | None, subtasks: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -86,6 +86,23 @@ def clicked_episodes(clicks: Iterable[Iterable[int]]) -> list[int]:
     return list(dict.fromkeys(int(episode) for episode, _, _ in sorted(map(tuple, clicks))))
 
 
+def given(recordings: list[Recording], table: pl.DataFrame, order: np.ndarray, names: list) -> dict[str, Any]:
+    """What a labels file gave ``recordings`` (``intervals.apply``'s), as frames.parquet's metadata keeps it
+    (``table``: its frames in the recordings' order taken by ``order``; ``names``: its episodes' ids): the episodes
+    it labelled (``labels_file_episodes``) and its clicks (``clicks``: episode, frame, class; the rest filled from
+    them)."""
+    given: dict[str, Any] = {}
+    by_file = {str(e) for r in recordings if r.resolved.get("labels_file") for e in r.episode.unique().to_list()}
+    if by_file:
+        given["labels_file_episodes"] = [name for name in names if str(name) in by_file]
+    clicked = np.concatenate([np.isin(np.arange(r.features.height), r.resolved.get("clicks", []))
+                              for r in recordings])[order]
+    if clicked.any():  # one click per phase: which labels were given, the rest filled
+        given["clicks"] = [list(map(int, row)) for row in table.filter(pl.Series(clicked))
+                           .select("episode", "frame", "label").rows()]
+    return given
+
+
 def split_by_position(n_frames: int, train_frames: int) -> np.ndarray:
     """The first ``train_frames`` frames train, the rest test."""
     return np.where(np.arange(n_frames) < train_frames, "train", "test")

@@ -12,6 +12,7 @@ import numpy as np
 import polars as pl
 
 from mlnseq.catalog import artifacts
+from mlnseq.timeline.sequences import run_starts
 
 
 def _send_segments(recording, entity: str, names: np.ndarray, times: np.ndarray, frames: np.ndarray) -> None:
@@ -20,7 +21,7 @@ def _send_segments(recording, entity: str, names: np.ndarray, times: np.ndarray,
     import rerun as rr
 
     labels = np.asarray(names, dtype=object)
-    starts = np.r_[0, np.flatnonzero(labels[1:] != labels[:-1]) + 1]
+    starts = run_starts(labels)
     step = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
     index = [rr.TimeColumn("time", duration=np.r_[times[starts], times[-1] + step]),
              rr.TimeColumn("frame", sequence=np.r_[frames[starts], frames[-1] + 1])]

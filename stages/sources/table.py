@@ -23,8 +23,7 @@ import pyarrow.parquet as pq
 from mlnseq.catalog import artifacts
 from mlnseq.catalog.errors import BadInput
 from mlnseq.catalog.parts import Part
-from mlnseq.sources import intervals
-from mlnseq.sources.recording import Labels, Recording, TableColumns
+from mlnseq.sources.recording import Labels, Recording, TableColumns, given
 from mlnseq.sources.splits import Holdout, split_of
 
 TABLE_SUFFIXES = (".csv", ".parquet")
@@ -265,6 +264,7 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_want
     enough, every frame test)."""
     for_prediction = labels_wanted is Labels.OPTIONAL
     _check_recordings(recordings, for_prediction)
+    files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
     feature_names = recordings[0].features.columns
     with_labels = [r for r in recordings if r.label is not None]
     episode_ids = _common_dtype([r.episode for r in recordings])
@@ -304,14 +304,13 @@ def _assemble(recordings: list[Recording], classes: tuple[str, ...], labels_want
         table = table.with_columns(label=pl.when(pl.Series(has_label)).then(pl.col("label")))
     order = np.lexsort((within, episode_index))
     table = table[order]
-    files = list(dict.fromkeys(str(f) for r in recordings for f in _files_of(r.path.resolve())))
     meta = {"source": "table", "source_files": files, "classes": names, "features": list(feature_names),
             "labelled": bool(with_labels), "episode_names": ids.to_list()}
     unlabelled = ids.filter(ids.is_in(frames["episode"].filter(pl.Series(~has_label)).implode())).to_list()
     if unlabelled and not for_prediction:
         meta["unlabelled_episodes"] = unlabelled
     if not for_prediction:
-        meta.update(intervals.given(recordings, table, order, ids.to_list()))
+        meta.update(given(recordings, table, order, ids.to_list()))
     return table, meta, frames["time"].to_numpy()[order]
 
 
@@ -384,10 +383,3 @@ def _label_indices(frames: pl.DataFrame, classes: tuple[str, ...], at,
     if len(set(indices.tolist())) < min_classes:
         raise BadInput(f"the labels hold a single class ({names[int(indices[0])]!r}); mlnseq needs two or more")
     return indices.astype(np.int16), names
-
-
-def reading_record(env: str, columns: TableColumns, **options: Any) -> dict[str, Any]:
-    """How recordings were read, as a model remembers it for ``predict``: the env, the key columns, the
-    source's own options (JSON-ready)."""
-    return {"env": env, "label_column": columns.label, "episode_column": columns.episode,
-            "time_column": columns.time, **{k: (str(v) if isinstance(v, Path) else v) for k, v in options.items()}}

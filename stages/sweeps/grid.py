@@ -39,8 +39,8 @@ STAGES = ("train", "conflate", "export")
 class StageOptions(dict):
     """The options dataclass of each stage in STAGES (each with a default for every field and validate() raising
     BadInput), and in ``flags`` the fields its command takes as options: a grid key is one of those, since the
-    workflow runs the commands. Given by the caller (the command line wires the stages: a library imports no
-    stage)."""
+    workflow runs the commands. Given by the caller (pipeline/sweep.py's SWEPT: the one library that may import the
+    stages)."""
 
     def __init__(self, options: Mapping[str, type], flags: Mapping[str, Iterable[str]]) -> None:
         super().__init__(options)

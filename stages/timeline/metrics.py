@@ -84,7 +84,7 @@ def edit_scores(predicted: np.ndarray, truth: np.ndarray, episodes: np.ndarray) 
     p, t = _runs_array(predicted, episodes), _runs_array(truth, episodes)
     if not len(p):
         return []
-    first = np.flatnonzero(np.r_[True, np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]])
+    first = sequences.run_starts(episodes)
     scored: dict[tuple[tuple[int, ...], tuple[int, ...]], float] = {}
     out = []
     for pair in zip(_by_episode(p, first), _by_episode(t, first)):
@@ -107,10 +107,7 @@ def _runs_array(labels: np.ndarray, episodes: np.ndarray | None = None) -> np.nd
     labels = np.asarray(labels)
     if not len(labels):
         return np.zeros((0, 3), dtype=np.int64)
-    change = labels[1:] != labels[:-1]
-    if episodes is not None:
-        change |= np.asarray(episodes)[1:] != np.asarray(episodes)[:-1]
-    starts = np.flatnonzero(np.r_[True, change])
+    starts = sequences.run_starts(labels, *([] if episodes is None else [episodes]))
     stops = np.r_[starts[1:], len(labels)]
     return np.stack([labels[starts].astype(np.int64), starts, stops], axis=1).astype(np.int64)
 

@@ -16,18 +16,22 @@ import numpy as np
 MODES = ("segment", "stream")
 
 
-def runs(*keys: np.ndarray) -> list[slice]:
-    """Maximal runs of consecutive rows on which every key array is constant."""
+def run_starts(*keys: np.ndarray) -> np.ndarray:
+    """The first row of each maximal run of consecutive rows on which every key array is constant (a run of one
+    class, of one episode and class, ...): the one place runs are found."""
     n = len(keys[0])
-    if n == 0:
-        return []
     change = np.zeros(n, dtype=bool)
-    change[0] = True
+    change[:1] = True
     for key in keys:
         key = np.asarray(key)
         change[1:] |= key[1:] != key[:-1]
-    starts = np.flatnonzero(change)
-    stops = np.append(starts[1:], n)
+    return np.flatnonzero(change)
+
+
+def runs(*keys: np.ndarray) -> list[slice]:
+    """Maximal runs of consecutive rows on which every key array is constant."""
+    starts = run_starts(*keys)
+    stops = np.append(starts[1:], len(keys[0]))
     return [slice(int(a), int(b)) for a, b in zip(starts, stops)]
 
 

@@ -1,7 +1,7 @@
 """`mlnseq fit` on a user's folder of 6 ROS 2 bags with a /phase topic (the real DESK trials, tests/desk_bags.py):
 one command to a model file with no spec written by hand (predicates and formulas learned from the training split),
 on a held-out bag no worse than the paper's hand-written predicates (at 3 epochs here; the full-size figures are
-benchmarks/bench_first_day.py's, in docs/first-day.md); the learned files read back as they are."""
+benchmarks/bench_first_day.py's, in docs/benchmarks.md); the learned files read back as they are."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ import desk_bags  # noqa: E402  (tests/desk_bags.py)
 from choice_rule import expected_choice  # noqa: E402  (tests/choice_rule.py)
 from mlnseq_cli.main import app  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
-from mlnseq.pipeline.fit import SUGGESTED_SPEC as SUGGESTED  # noqa: E402
 
 runner = CliRunner()
 
@@ -78,7 +77,7 @@ def test_fit_makes_a_model_from_bags_without_a_spec_and_says_what_it_chose(bags,
     online = {n: f for n, f in cross["figures"].items() if "@" not in n or n.endswith("@0")}  # lag 0: fit's budget
     assert chosen[1] == expected_choice(online, cross["fold_frame_accuracy"])
     assert "runner-up:" in said and re.search(r"(chose|runner-up|network alone): +lstm ", said)
-    spec = (workdir / SUGGESTED).read_text()
+    spec = (workdir / artifacts.LEARNED_SPEC).read_text()
     assert "[[predicate]]" in spec and "% of training frames;" in spec
     for stage_file in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.WEIGHTS, artifacts.FOLD_WEIGHTS,
                        artifacts.PREDICTIONS, artifacts.METRICS):
@@ -191,9 +190,9 @@ def test_learn_weights_says_which_folds_it_cut(fitted, tmp_path):
 
 def test_fit_keeps_a_suggested_spec_edited_by_hand(bags, fitted, tmp_path):
     workdir, _ = fitted
-    for name in (artifacts.FRAMES, artifacts.PREDICATES, SUGGESTED):
+    for name in (artifacts.FRAMES, artifacts.PREDICATES, artifacts.LEARNED_SPEC):
         (tmp_path / name).write_bytes((workdir / name).read_bytes())
-    spec = tmp_path / SUGGESTED
+    spec = tmp_path / artifacts.LEARNED_SPEC
     spec.write_text(spec.read_text() + "# my edit\n")
     folder, _ = bags
     result = runner.invoke(app, ["fit", "--env", "rosbag", "--source", str(folder), "--label-topic", "/phase",
@@ -206,7 +205,7 @@ def test_fit_keeps_a_suggested_spec_edited_by_hand(bags, fitted, tmp_path):
 def test_the_learned_files_read_back_with_identical_predicates_and_weights(fitted, tmp_path):
     workdir, _ = fitted
     (tmp_path / artifacts.FRAMES).write_bytes((workdir / artifacts.FRAMES).read_bytes())
-    for command in (["binarize", "--spec", str(workdir / SUGGESTED)], ["formulas", "--spec", str(workdir / "learned.mln")],
+    for command in (["binarize", "--spec", str(workdir / artifacts.LEARNED_SPEC)], ["formulas", "--spec", str(workdir / "learned.mln")],
                     ["learn-weights"]):
         result = runner.invoke(app, [*command, "-w", str(tmp_path)])
         assert result.exit_code == 0, result.output
@@ -222,7 +221,7 @@ def test_binarize_table_after_a_bag_fit_shows_its_predicates_and_rewrites_nothin
     workdir, _ = fitted
     before = (workdir / artifacts.PREDICATES).read_bytes()
     result = runner.invoke(app, ["binarize", "--table", "-w", str(workdir)])
-    assert result.exit_code == 0 and f"{workdir / SUGGESTED}" in " ".join(result.output.split()), result.output
+    assert result.exit_code == 0 and f"{workdir / artifacts.LEARNED_SPEC}" in " ".join(result.output.split()), result.output
     assert "marks each class" in result.output and (workdir / artifacts.PREDICATES).read_bytes() == before
 
 

@@ -101,8 +101,23 @@ def test_one_recording_is_split_by_its_frames_as_the_pages_say(repo_root, desk_t
     assert train.max() < test.min()  # by position: the first frames train
 
 
+def test_a_sweep_sets_exactly_the_options_the_stages_commands_take():
+    """The sweep's table of options (mlnseq.pipeline.sweep, no command line imported) against the commands' flags."""
+    import inspect
+    from dataclasses import fields
+
+    from mlnseq_cli.conflate import conflate
+    from mlnseq_cli.export import export
+    from mlnseq_cli.train import train
+    from mlnseq.pipeline.sweep import SWEPT
+
+    for name, command in (("train", train), ("conflate", conflate), ("export", export)):
+        flags = set(inspect.signature(command).parameters) - {"workdir"}
+        assert SWEPT.flags[name] == flags & {f.name for f in fields(SWEPT[name])}, name
+
+
 def test_sweeps_md_offers_as_grid_choices_only_options_a_stage_takes(repo_root):
-    from mlnseq_cli.sweep import STAGES
+    from mlnseq.pipeline.sweep import SWEPT as STAGES
 
     intro = " ".join((repo_root / "docs" / "sweeps.md").read_text().split("\n\n")[1].split())
     named = {"network type": "cell", "training window": "window", "epochs": "epochs", "MLN mode": "mln_mode",

@@ -31,7 +31,7 @@ bash hello.sh
 frame accuracy ... test 64.1%
 ```
 
-The test figure is 64.1 %<!-- figure: test {{}}% -->, the block took 30 s<!-- figure: wall ~ 1000x -->.
+The test figure is 64.1 %<!-- figure: test {{}}% -->.
 
 <!-- exit: 2 -->
 ```bash
@@ -59,14 +59,14 @@ def runs(tmp_path: Path, test: str) -> tuple[doc_pages.Runs, list[doc_pages.Step
 def test_a_page_that_says_what_its_run_prints(tmp_path):
     found, steps = runs(tmp_path, "64.1")
     assert [(s.kind, s.line) for s in steps] == [("block", 4), ("block", 13), ("output", 18), ("block", 25),
-                                                 ("block", 29), ("block", 33), ("figure", 22), ("figure", 22)]
+                                                 ("block", 29), ("block", 33), ("figure", 22)]
     outcomes = [found.outcome(step) for step in steps]
     assert isinstance(outcomes[0], SkipTest) and str(outcomes[0]) == "a robot's live feed"
     assert outcomes[1] is None and outcomes[2] is None and outcomes[3] is None  # the exit status shown, 2
     assert isinstance(outcomes[4], AssertionError) and "exit status 1, not 0" in str(outcomes[4])
     assert "docs test: this command failed: false" in str(outcomes[4])
     assert isinstance(outcomes[5], SkipTest) and "an earlier block of the page failed" in str(outcomes[5])
-    assert outcomes[6] is None and outcomes[7] is None
+    assert outcomes[6] is None
     assert (found.runs["page.md"].folder / "hello.sh").is_file()  # the file block saved, not run
 
 

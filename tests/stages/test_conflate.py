@@ -14,17 +14,6 @@ from mlnseq.fusion import fuse
 from mlnseq.catalog.errors import BadInput, MissingArtifact
 
 
-def test_conflation_is_equation_16():
-    p_lstm = np.array([[0.7, 0.2, 0.1]])
-    p_mln = np.array([[0.4, 0.4, 0.2]])
-    # by hand: 0.28 / (0.28 + 0.3*0.6), 0.08 / (0.08 + 0.8*0.6), 0.02 / (0.02 + 0.9*0.8)
-    expected = [[0.28 / 0.46, 0.08 / 0.56, 0.02 / 0.74]]
-    np.testing.assert_allclose(fuse.conflation(p_lstm, p_mln), expected, rtol=1e-6)
-    # two sources agreeing on a class strengthen it; a certain zero stays (near) zero
-    assert fuse.conflation([[0.6, 0.4]], [[0.6, 0.4]])[0, 0] > 0.6
-    assert fuse.conflation([[1.0, 0.0]], [[0.0, 1.0]]).max() <= 0.5 + 1e-9
-
-
 @pytest.fixture(scope="module")
 def predicted(tmp_path_factory, desk_mln_workdir):
     workdir = tmp_path_factory.mktemp("conflate")
@@ -148,3 +137,11 @@ def test_a_frame_that_breaks_a_hard_rule_restarts_the_chain_with_a_note(tmp_path
         assert [n.text for n in result.notes if n.text.startswith(f"{name}: the chain restarted at 1 frame(s)")] == [
             f"{name}: the chain restarted at 1 frame(s) that no allowed transition reaches (a missed episode boundary, "
             f"or evidence that breaks a hard rule): episode 11 frame {own_data_glitch['frame']}"]
+
+
+def test_the_command_lines_decoders_bring_their_lags_and_lags_are_given_once():
+    assert conflate.options_from("paper", "smooth-legal@5,conflation+lagviterbi@2").lags == (5, 2)
+    both = conflate.options_from("exact", "all", "0,5", "2.5")
+    assert both.lags == (0, 5) and "viterbi" in both.decode and both.network_weight == 2.5
+    with pytest.raises(BadInput, match="give the lags once"):
+        conflate.options_from("paper", "smooth@5", "1,2")

@@ -14,7 +14,8 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from mlnseq import echo  # noqa: E402
 from mlnseq.dds.types import MessageTypes  # noqa: E402
-from mlnseq.sources import rosbag, rostopic  # noqa: E402
+from mlnseq.recognition import rostopic  # noqa: E402
+from mlnseq.sources import rosbag  # noqa: E402
 from mlnseq.sources.recording import Labels, TableColumns  # noqa: E402
 from mlnseq.sources import SourceOptions  # noqa: E402
 

@@ -81,11 +81,11 @@ def test_no_library_imports_a_stage_and_no_stage_imports_another():
     assert not crossings, "\n".join(crossings)
 
 
-def test_only_the_command_line_and_the_packages_fit_import_the_pipeline():
+def test_only_the_command_line_and_the_packages_fit_and_sweep_import_the_pipeline():
     importers = {module for module, path in {**modules(), **modules(REPO / "mlnseq_cli", "mlnseq_cli")}.items()
                  if library_of(module) != COMPOSER
                  and any(library_of(name) == COMPOSER for name in imported_modules(ast.parse(path.read_text())))}
-    assert importers == {"mlnseq", "mlnseq_cli.fit"}
+    assert importers == {"mlnseq", "mlnseq_cli.fit", "mlnseq_cli.sweep"}
     assert COMPOSER in LIBRARIES
 
 
@@ -195,6 +195,28 @@ def test_the_import_rule_sees_each_form_of_import():
     assert {stage_of(name) for name in imported_modules(tree)} >= {"train", "formulas", "report", "export"}
 
 
+# --- the tests' layout, as docs/layout.md says it ---------------------------------------------------------------
+
+TESTS = REPO / "tests"
+WHOLE_PRODUCT = ("bad_inputs", "benchmarks", "desk_bags", "determinism", "examples", "hostile", "interruption",
+                 "properties", "reproduce", "stage_server", "wheel")  # the tests directly in tests/
+
+
+def test_the_tests_mirror_the_library():
+    """A test folder per library folder; directly in tests/stages/ only the stages' own tests (test_STAGE*.py) and
+    this one; directly in tests/ only the whole product's."""
+    untested = [folder for folder in LIBRARIES if folder != "specs"
+                and not list((TESTS / "stages" / folder).glob("test_*.py"))]
+    assert untested == []
+    stray = [path.name for path in (TESTS / "stages").glob("test_*.py") if path.stem != "test_layout" and not any(
+        path.stem == f"test_{stage}" or path.stem.startswith(f"test_{stage}_") for stage in STAGE_FILES)]
+    assert stray == []
+    assert [path.name for path in TESTS.glob("test_*.py") if not path.stem.removeprefix("test_").startswith(
+        WHOLE_PRODUCT)] == []
+    assert {path.name for path in TESTS.iterdir() if path.is_dir() and not path.name.startswith((".", "__"))} >= {
+        "stages", "cli", "docs"}
+
+
 # --- the plan kept true: docs/layout.md's floors and modules, the Makefile's stage sources ----------------------
 
 LAYOUT_PAGE = REPO / "docs" / "layout.md"
@@ -216,6 +238,34 @@ def documented_floors(page: str) -> dict[str, int]:
 def imports_up(floors: dict[str, int], imports: dict[str, set[str]]) -> list[str]:
     return sorted(f"{source}/ (floor {floors[source]}) imports {dest}/ (floor {floors[dest]})"
                   for source, targets in imports.items() for dest in targets if floors[dest] >= floors[source])
+
+
+def documented_imports(page: str) -> dict[str, set[str]]:
+    """Each library folder's imports as the folders table of docs/layout.md lists them ("the stages": stage files)."""
+    found = {}
+    for line in page.splitlines():
+        cells = [cell.strip() for cell in line.split("|")]
+        if line.startswith("| `") and len(cells) == 5 and (folder := cells[1].strip("`").rstrip("/")) in LIBRARIES:
+            found[folder] = {word.strip() for word in cells[3].split(",")} - {"—", ""}
+    return found
+
+
+def code_imports() -> dict[str, set[str]]:
+    """Each library folder's imports as its code makes them: other folders, and "the stages" where it imports one."""
+    found = {folder: set(targets) for folder, targets in folder_imports().items()}
+    for module, targets in module_graph().items():
+        if (folder := library_of(module)) and any(stage_of(target) for target in targets):
+            found.setdefault(folder, set()).add("the stages")
+    return {folder: found.get(folder, set()) for folder in LIBRARIES if folder != "specs"}
+
+
+def test_the_imports_column_lists_what_each_folder_imports():
+    assert documented_imports(LAYOUT_PAGE.read_text()) == code_imports()
+
+
+def test_the_imports_rule_finds_a_folder_left_out():
+    page = LAYOUT_PAGE.read_text().replace("| catalog, timeline, predicates, mln, fusion |", "| catalog, mln, fusion |")
+    assert documented_imports(page)["explaining"] != code_imports()["explaining"]
 
 
 def test_every_library_folder_stands_on_a_documented_floor():
@@ -299,6 +349,45 @@ def test_the_makefile_stage_sources_follow_the_imports():
         if folders != (needed := imported_libraries(start)):
             wrong[name] = f"has {sorted(folders)}, its stage imports {sorted(needed)}"
     assert wrong == {}
+
+
+def table_rows(page: str, heading: str) -> list[list[str]]:
+    """The body rows of the first table under ``heading`` in ``page``, as cells."""
+    section = page.split(heading, 1)[1]
+    rows = [line for line in section.split("\n\n#", 1)[0].splitlines() if line.startswith("|")]
+    return [[cell.strip() for cell in row.strip("|").split("|")] for row in rows[2:]]
+
+
+def named(cell: str) -> list[str]:
+    return [word.strip("`/ ") for word in cell.split(",") if word.strip("`/ ")]
+
+
+def test_the_source_and_network_tables_are_the_registries():
+    from mlnseq import networks, sources
+
+    page = LAYOUT_PAGE.read_text()
+    documented = {env: module for env, module, *_ in table_rows(page, "## The source table")}
+    assert documented == {f"`{s.name}`": f"`{s.module.rsplit('.', 1)[1]}.py`" for s in sources.SOURCES}
+    cells = {name: named(module)[0] for names, module, _ in table_rows(page, "## Networks") for name in named(names)}
+    assert cells == {t.name: f"{t.module.rsplit('.', 1)[1]}.py" for t in networks.TYPES.values()}
+
+
+def test_where_a_change_goes_names_every_library_folder():
+    folders = {folder for _, goes in table_rows(LAYOUT_PAGE.read_text(), "## Where a change goes")
+               for folder in named(goes.split(";")[0]) + named(goes.split(";")[1].split(":")[1] if ";" in goes else "")}
+    assert folders == set(LIBRARIES) - {"specs"}
+
+
+def test_each_command_is_a_small_face_over_the_library():
+    """Every command's module of mlnseq_cli/ is under 110 lines (config.py, the project file's machinery as well as
+    `mlnseq config`, apart); nothing but mlnseq and mlnseq_cli is installed at the top level."""
+    import tomllib
+
+    modules = {command.module for command in COMMANDS.values()} - {"config"}
+    long = {m: n for m in modules if (n := len((REPO / "mlnseq_cli" / f"{m}.py").read_text().splitlines())) >= 110}
+    assert long == {}
+    assert set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]) == {
+        "mlnseq", "mlnseq_cli"}
 
 
 def test_the_wheel_packages_every_library_folder():

@@ -133,7 +133,8 @@ def test_two_topics_on_the_clock_as_collect_reads_their_bag(joint_state_model, t
     from rosbags.typesys import Stores, get_typestore
 
     from mlnseq import sources
-    from mlnseq.sources import SourceOptions, rostopic
+    from mlnseq.recognition import rostopic
+    from mlnseq.sources import SourceOptions
     from mlnseq.sources.recording import Labels, TableColumns
 
     rows = joint_state_model["live"][:200]

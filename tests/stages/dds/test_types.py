@@ -14,7 +14,7 @@ from rosbags.typesys.store import Nodetype  # noqa: E402
 
 from mlnseq.catalog.errors import BadInput  # noqa: E402
 from mlnseq.dds import types  # noqa: E402
-from mlnseq.sources import rostopic  # noqa: E402
+from mlnseq.recognition import rostopic  # noqa: E402
 
 DTYPES = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8, "int16": np.int16,
           "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64, "uint64": np.uint64,

@@ -62,6 +62,8 @@ def test_clicks_label_every_frame_keeping_the_clicked_ones(arm):
     assert found.frames.height == arm["truth"].frames.height and found.frames["label"].null_count() == 0
     given = found.meta["clicks"]
     assert len(given) == 4 * 5 and found.meta["clicks_filled"]["boundaries"] == 4 * 4
+    assert clicks.filled_said(found.meta["clicks_filled"]).startswith("clicks: 20 clicks, one label each; 16 "
+                                                                      "boundaries between them learned (change point")
     frames = found.frames
     for episode, frame, label in given:
         row = frames.filter((pl.col("episode") == episode) & (pl.col("frame") == frame))
@@ -88,7 +90,7 @@ def change_points_alone(collected: collect.Collected, aligned: bool = False) -> 
     spans = [(np.flatnonzero((episodes == s.episode) & (positions >= s.first) & (positions <= s.last)), s.before,
               s.after) for s in clicks.free_spans(collected.meta["clicks"])]
     cuts = [clicks.change_point(z[rows]) for rows, _, _ in spans]
-    for (rows, before, after), t in zip(spans, clicks.aligned(z, episodes, spans, cuts) if aligned else cuts):
+    for (rows, before, after), t in zip(spans, clicks.moved_to_their_kind(z, episodes, spans, cuts) if aligned else cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
     return labels
 
@@ -123,7 +125,7 @@ def aligned_change_points(frames: pl.DataFrame, given: list[list[int]], labels: 
     z, episodes, labels = (z - z.mean(axis=0)) / z.std(axis=0), frames["episode"].to_numpy(), labels.copy()
     spans = [(np.flatnonzero(episodes == s.episode)[s.first:s.last + 1], s.before, s.after)
              for s in clicks.free_spans(given)]
-    cuts = clicks.aligned(z, episodes, spans, [clicks.change_point(z[rows]) for rows, _, _ in spans])
+    cuts = clicks.moved_to_their_kind(z, episodes, spans, [clicks.change_point(z[rows]) for rows, _, _ in spans])
     for (rows, before, after), t in zip(spans, cuts):
         labels[rows[:t]], labels[rows[t:]] = before, after
     return labels
@@ -134,7 +136,7 @@ def test_the_other_recordings_clicks_and_labels_aligned_in_time_place_boundaries
     for robot in ("panda", "iiwa", "xarm7"):
         for seed in (5300, 5400):
             frames, given, truth = random_clicks(robot, seed)
-            filled, record = clicks.fill(frames, given)
+            filled, record = clicks.fill(frames, given, artifacts.feature_columns(frames))
             assert record["boundaries"] == 6 * 4 and "agreed" in record["method"]
             learned.append(np.mean(filled["label"].to_numpy() == truth))
             alone.append(np.mean(aligned_change_points(frames, given, truth) == truth))
@@ -149,16 +151,18 @@ def test_a_recording_labelled_on_every_frame_says_where_the_clicked_ones_phases_
         frames, given, truth = random_clicks(robot, 5500)
         clicked = [c for c in given if c[0] != 0]
         rest = frames["episode"].to_numpy() != 0
-        filled, record = clicks.fill(frames, clicked)  # episode 0: split train, its /phase labels on every frame
+        # episode 0: split train, its /phase labels on every frame
+        filled, record = clicks.fill(frames, clicked, artifacts.feature_columns(frames))
         assert record["labelled"] == 1 and "labelled on every frame" in record["method"]
         labels = filled["label"].to_numpy()
         assert all(labels[np.flatnonzero(frames["episode"].to_numpy() == e)[f]] == c for e, f, c in clicked)
         beside.append(np.mean(labels[rest] == truth[rest]))
-        without, record = clicks.fill(frames.filter(pl.Series(rest)), clicked)
+        without, record = clicks.fill(frames.filter(pl.Series(rest)), clicked, artifacts.feature_columns(frames))
         assert "labelled" not in record
         alone.append(np.mean(without["label"].to_numpy() == truth[rest]))
         tested = np.where(rest | (frames["frame"].to_numpy() < 100), "train", "test")  # its end a test split
-        assert "labelled" not in clicks.fill(frames.with_columns(split=pl.Series(tested)), clicked)[1]
+        assert "labelled" not in clicks.fill(frames.with_columns(split=pl.Series(tested)), clicked,
+                                               artifacts.feature_columns(frames))[1]
     assert np.mean(beside) > 0.97 and np.mean(beside) > np.mean(alone) + 0.01, (beside, alone)
 
 

@@ -20,7 +20,7 @@ import mlnseq  # noqa: E402
 from mlnseq import export  # noqa: E402
 from mlnseq.catalog import artifacts  # noqa: E402
 from mlnseq.collect import CollectOptions, SourceOptions  # noqa: E402
-from mlnseq.pipeline.fit import SUGGESTED_SPEC, Observer  # noqa: E402
+from mlnseq.pipeline.fit import Observer  # noqa: E402
 
 EPOCHS = 2
 
@@ -122,7 +122,7 @@ def test_the_observer_hears_each_stage_as_it_finishes(fitted):
     assert 1 <= kept <= EPOCHS and heard.epochs == list(range(1, kept + 1))
     assert not any(note.code == "missing-input" for note in result.conflated.notes)  # no "run train --method
     # priorlayer": fit has no option for it
-    assert result.binarized.spec == workdir / SUGGESTED_SPEC
+    assert result.binarized.spec == workdir / artifacts.LEARNED_SPEC
     assert result.formulas.spec == workdir / "learned.formulas.mln"  # as the workdir was given
 
 
@@ -142,9 +142,9 @@ def test_force_overwrites_the_model_and_a_learned_spec_edited_by_hand(bags, fitt
     workdir, result, _ = fitted
     model = tmp_path / "arm.mlnseq"
     model.write_bytes(result.path.read_bytes())
-    spec = tmp_path / "w" / SUGGESTED_SPEC
+    spec = tmp_path / "w" / artifacts.LEARNED_SPEC
     spec.parent.mkdir()
-    spec.write_text((workdir / SUGGESTED_SPEC).read_text() + "# my edit\n")
+    spec.write_text((workdir / artifacts.LEARNED_SPEC).read_text() + "# my edit\n")
     with pytest.raises(mlnseq.BadInput, match="was edited since it was learned"):
         mlnseq.fit(source(bags[0]), tmp_path / "w", mlnseq.FitOptions(epochs=1, folds=0))
     before = model.read_bytes()

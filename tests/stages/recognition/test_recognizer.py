@@ -36,15 +36,15 @@ def models(tmp_path_factory, desk_stream_workdir) -> dict[str, Path]:
 
 
 @pytest.fixture(scope="module")
-def test_split(desk_stream_workdir) -> tuple[pl.DataFrame, pl.DataFrame]:
+def desk_test_frames(desk_stream_workdir) -> tuple[pl.DataFrame, pl.DataFrame]:
     frames = pl.read_parquet(desk_stream_workdir / artifacts.FRAMES).filter(pl.col("split") == "test")
     predictions = pl.read_parquet(desk_stream_workdir / artifacts.PREDICTIONS).filter(pl.col("split") == "test")
     return frames, predictions
 
 
 @pytest.mark.parametrize("method", NAMES)
-def test_a_model_file_recognises_the_test_recording_as_conflate_did(models, test_split, method):
-    frames, predictions = test_split
+def test_a_model_file_recognises_the_test_recording_as_conflate_did(models, desk_test_frames, method):
+    frames, predictions = desk_test_frames
     model = Recognizer.load(models[method])
     if method.endswith("+viterbi"):  # offline only: a step filters, checked with the +filter model
         probabilities, predicted = model.predict(frames.select(model.features).to_numpy())
@@ -62,8 +62,8 @@ def test_a_model_file_recognises_the_test_recording_as_conflate_did(models, test
     assert stepped[-1].frame == STEPPED_FRAMES - 1 and stepped[0].name == model.classes[stepped[0].label]
 
 
-def test_reset_starts_a_new_episode_and_frames_may_be_mappings(models, test_split):
-    frames, _ = test_split
+def test_reset_starts_a_new_episode_and_frames_may_be_mappings(models, desk_test_frames):
+    frames, _ = desk_test_frames
     model = Recognizer.load(models["combined"])
     rows = frames.select(model.features).to_dicts()[:20]
     first = [model.step(row).probabilities for row in rows]

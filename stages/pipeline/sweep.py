@@ -1,6 +1,9 @@
-"""sweep: a grid of train/conflate/export options times seeds on one dataset, run as a Snakemake workflow.
+"""A sweep: a grid of train/conflate/export options times seeds on one dataset, run as a Snakemake workflow of the
+stage commands, callable from Python (``mlnseq.sweep``) as from the command line.
 
-:func:`plan` reads and checks the sweep file, the dataset's inputs and the cluster profile (nothing runs);
+``SWEPT`` is the stages a grid sets: their options dataclasses and the fields their commands take as options (a
+grid key is one of those, since the workflow runs the commands). :func:`plan` reads and checks the sweep file, the
+dataset's inputs and the cluster profile (nothing runs);
 :func:`run` writes OUT/Snakefile and OUT/sweep.json, runs Snakemake (locally, or through its SLURM executor
 with a profile; its own output to OUT/sweep.log, the progress to a callback) and gathers OUT/results.parquet.
 Snakemake's bookkeeping makes a rerun do only what is missing or stale, and an interrupted sweep resume. A job that
@@ -16,17 +19,22 @@ import os
 import shutil
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import polars as pl
 
+from mlnseq import conflate, export, train
 from mlnseq.catalog import artifacts, errors
 from mlnseq.catalog.errors import BadInput, MlnseqError
 from mlnseq.sweeps import grid, results, running, workflow
 
 PROFILE_FILES = ("config.v9+.yaml", "config.v8+.yaml", "config.yaml")  # the names Snakemake looks for
+OPTIONS = {"train": train.TrainOptions, "conflate": conflate.ConflateOptions, "export": export.ExportOptions}
+NOT_COMMAND_OPTIONS = {"train": ("hidden_size", "learning_rate", "val_fraction")}  # fields no command flag sets
+SWEPT = grid.StageOptions(OPTIONS, {stage: [f.name for f in fields(options) if f.name not in
+                                            NOT_COMMAND_OPTIONS.get(stage, ())] for stage, options in OPTIONS.items()})
 
 
 class Executor(enum.Enum):
@@ -80,7 +88,7 @@ class Progress:
     starting: bool = False  # before Snakemake runs: ``done`` are the configs finished by an earlier run
 
 
-def plan(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions) -> grid.Sweep:
+def plan(sweep_file: Path, options: SweepOptions = SweepOptions(), stages: grid.StageOptions = SWEPT) -> grid.Sweep:
     """The sweep file read and checked against the stages' options (``stages``: train, conflate and export's
     dataclasses), with the dataset's inputs and the profile: any error comes before anything runs."""
     options.validate()
@@ -146,28 +154,28 @@ def installed(module: str) -> bool:
         return False
 
 
-def run(sweep_file: Path, options: SweepOptions, stages: grid.StageOptions,
-        progress: Callable[[Progress], None] = lambda _: None) -> Swept:
+def sweep(sweep_file: Path, options: SweepOptions = SweepOptions(),
+          progress: Callable[[Progress], None] = lambda _: None, stages: grid.StageOptions = SWEPT) -> Swept:
     """Run the sweep (only what is missing or stale) and gather OUT/results.parquet, the failed configs marked."""
-    sweep = plan(sweep_file, options, stages)
+    planned = plan(sweep_file, options, stages)
     if not installed("snakemake"):
         raise BadInput("mlnseq sweep runs on Snakemake, which is not installed: "
                        f"{errors.install_hint('sweep')} (make setup installs it)")
     if options.executor is Executor.SLURM and not installed("snakemake_executor_plugin_slurm"):
         raise BadInput(f"--executor slurm needs Snakemake's SLURM executor: {errors.install_hint('sweep')}")
-    out = options.out_dir(sweep)
-    snakefile = workflow.write(sweep, out, mlnseq_command())
-    done = Counting(sweep, out, progress)
+    out = options.out_dir(planned)
+    snakefile = workflow.write(planned, out, mlnseq_command())
+    done = Counting(planned, out, progress)
     ran = running.run_snakemake(snakemake_command(snakefile, out, options), out / running.LOG, done.heard)
     done.heard(ran, finished=True)
     if ran.code != 0 and not ran.errors:  # Snakemake itself failed: no job to blame
         last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
         raise MlnseqError(f"the sweep's workflow failed (snakemake exit {ran.code}): {last}; see {out / running.LOG}"
                           f"{'' if ran.log_error is None else f' ({ran.log_error})'}; rerun `mlnseq sweep` to resume")
-    table, failures = results.gather(sweep, out, ran.errors)
+    table, failures = results.gather(planned, out, ran.errors)
     path, write_error = None, None
     try:
-        path = results.write(table, sweep, out)
+        path = results.write(table, planned, out)
     except BadInput as error:  # the disk is full (or the folder not writable): nothing half-written
         write_error = str(error).replace("; choose a writable --workdir", ": nothing of it was written")
     return Swept(path, table, results.best(table), failures, out / running.LOG, ran.log_error, write_error)

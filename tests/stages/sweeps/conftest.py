@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 TEST_FRAMES = 1500  # the DESK test split's first frames kept (all 1,405 training frames are)
 
 

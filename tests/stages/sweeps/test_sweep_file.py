@@ -11,7 +11,7 @@ from mlnseq.sweeps import grid
 from typer.testing import CliRunner
 
 from mlnseq_cli.main import app
-from mlnseq_cli.sweep import STAGES
+from mlnseq.pipeline.sweep import SWEPT as STAGES
 from sweep_files import refused, write_sweep
 
 runner = CliRunner()
@@ -101,10 +101,23 @@ def test_a_slurm_profile_that_does_not_parse_submits_nothing(tmp_path, tiny_desk
     assert not (tmp_path / "sweep").exists()
 
 
-def test_the_example_profile_parses():
-    from mlnseq.sweep import check_profile
+def test_a_sweep_is_planned_from_python_without_the_command_line(tmp_path, tiny_desk_workdir):
+    """``mlnseq.sweep``'s plan in a fresh Python: the grid read against the stages' options, no command line loaded."""
+    import subprocess
+    import sys
 
-    settings = check_profile(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "slurm-profile")
+    path = write_sweep(tmp_path, tiny_desk_workdir, 'cell = ["lstm", "gru"]\nepochs = [3]\n', seeds="[3]")
+    code = ("import sys, mlnseq; from mlnseq.pipeline.sweep import plan; "
+            f"print([c.name for c in plan({str(path)!r}).configs], "
+            "sorted(m for m in sys.modules if m.split('.')[0] in ('typer', 'mlnseq_cli')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["['cell-lstm',", "'cell-gru']", "[]"]
+
+
+def test_the_example_profile_parses():
+    from mlnseq.pipeline.sweep import check_profile
+
+    settings = check_profile(Path(__file__).resolve().parents[3] / "examples" / "sweep" / "slurm-profile")
     assert settings["executor"] == "slurm" and settings["slurm-status-command"] == "squeue"
 
 
@@ -116,7 +129,7 @@ def test_a_formulas_key_names_configs_by_the_files_stem(tmp_path, tiny_desk_work
 
 
 def test_the_example_sweep_file_reads():
-    sweep = grid.read(Path(__file__).resolve().parents[2] / "examples" / "sweep" / "sweep.toml", STAGES)
+    sweep = grid.read(Path(__file__).resolve().parents[3] / "examples" / "sweep" / "sweep.toml", STAGES)
     assert [c.name for c in sweep.configs] == ["cell-lstm", "cell-tcn"]
     assert sweep.seeds == (0, 1) and sweep.workdir.name == "mlnseq-work"
 
