@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -37,15 +38,16 @@ def refused(result, *words: str) -> str:
 REPO = Path(__file__).resolve().parents[1]
 
 
-def kill_a_job(group: int, config: str, stages: tuple[str, ...] = ("train", "conflate"), timeout: float = 600) -> str:
+def kill_a_job(group: int, config: str, stages: tuple[str, ...] = ("train", "conflate"), timeout: float = 600,
+               running: Callable[[], bool] = lambda: True) -> str:
     """SIGKILL the first `mlnseq STAGE ... --workdir runs/CONFIG/...` of the process group ``group`` (a sweep started
-    in a session of its own: only its jobs) once it runs; its command line."""
+    in a session of its own: only its jobs) once it runs, while ``running()``; its command line."""
     import os
     import signal
     import time
 
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and running():
         for pid in filter(str.isdigit, os.listdir("/proc")):
             try:
                 words = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
@@ -58,4 +60,4 @@ def kill_a_job(group: int, config: str, stages: tuple[str, ...] = ("train", "con
                 os.kill(int(pid), signal.SIGKILL)
                 return " ".join(words)
         time.sleep(0.02)
-    raise TimeoutError(f"no {' or '.join(stages)} job of {config} ran within {timeout:g} s")
+    raise TimeoutError(f"no {' or '.join(stages)} job of {config} ran within {timeout:g} s, or before the sweep ended")

@@ -60,12 +60,14 @@ def local_sweep(tmp_path_factory, tiny_desk_workdir) -> dict:
                     f"{process.communicate()[1][-3000:]}")
     os.killpg(process.pid, signal.SIGINT)
     interrupted_out, interrupted_err = process.communicate(timeout=120)
+    if process.returncode == 0:
+        pytest.fail("the sweep ran to its end: Ctrl-C reached it after its last job")
     finished = {out / p: (out / p).stat().st_mtime_ns for p in finished_trainings(out)}
     started = time.monotonic()
     resumed = subprocess.Popen(command, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                start_new_session=True)
     try:
-        killed_job = kill_a_job(resumed.pid, "cell-tcn")
+        killed_job = kill_a_job(resumed.pid, "cell-tcn", running=lambda: resumed.poll() is None)
     finally:
         killed_out, killed_err = resumed.communicate(timeout=600)
     killed = {"code": resumed.returncode, "stdout": killed_out, "stderr": killed_err, "job": killed_job,
