@@ -16,10 +16,8 @@ from mlnseq_cli.binarize import print_learned
 from mlnseq_cli.conflate import summary
 from mlnseq_cli.console import DEFAULT, WorkdirOption, console, reported_errors
 from mlnseq_cli.progress import epoch_progress
-from mlnseq.catalog.errors import BadInput
 from mlnseq.conflate import ConflateResult
 from mlnseq.pipeline import fit as pipeline
-
 
 SEED_HELP = "Seed of the networks' initial weights and batch order (and fetch's resets and action noise)."
 
@@ -43,29 +41,18 @@ def fit_options(
 
 def fit(**flags: Any) -> None:
     """Recordings to a model file in one command: collect (the same source options), binarize (predicates and formulas
-    learned from the training split by cross-validation, or --spec), formulas (or --formulas), learn-weights and train
-    in stream mode with K folds, conflate with every decoder within the latency budget, export --method auto into
-    MODEL; prints what it chose and why. Recordings without labels in --source are labelled by aligning them in time
-    to the labelled ones, and ranked in WORKDIR/label_next.csv by what labelling each would teach (where every
-    recording is labelled by clicks, the clicked ones, to label one on every frame). Every stage's files stay in
-    WORKDIR, so any stage can be rerun on its own."""
+    learned from the training split by cross-validation, or --spec), formulas (or --formulas), learn-weights, train in
+    stream mode with K folds, conflate with every decoder within the latency budget, export --method auto into MODEL;
+    prints what it chose and why. Recordings without labels in --source are labelled by aligning them to the labelled
+    ones, and ranked in WORKDIR/label_next.csv by what labelling each would teach. Every stage's files stay in WORKDIR."""
     own = {name: flags.pop(name) for name in inspect.signature(fit_options).parameters}
     workdir = own.pop("workdir")
     with reported_errors():
-        own["executor"] = executor_of(own["executor"])
         source = collect_cli.collect_options(**{k: v for k, v in flags.items() if k != "workdir"})
         fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own, seed=source.seed), Printed())
     for line in fitted.said:
         say(line)
     say(f"[green]fit[/]: {fitted.wrote}")
-
-
-def executor_of(text: str) -> pipeline.Executor:
-    try:
-        return pipeline.Executor(text)
-    except ValueError:
-        raise BadInput(f"unknown --executor {text!r}: choose one of "
-                       f"{', '.join(e.value for e in pipeline.Executor)}") from None
 
 
 def say(line: str, warnings: tuple[str, ...] = ()) -> None:

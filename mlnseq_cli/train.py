@@ -40,14 +40,11 @@ HELP = {
              "in stream mode with --select none, the K of the MLN's fold weights when `mlnseq learn-weights --folds "
              "K` wrote them, else 0 (none).",
     "smoothing": "tcn: weight of MS-TCN's truncated-MSE smoothing loss (MS-TCN uses 0.15); 0: none.",
-    "optimizer": "sgd: plain SGD at a fixed rate for --epochs, the last kept (the authors', the reproduction's); "
-                 "averaged (what `mlnseq fit` trains) or adam: the same SGD steps, or Adam's, over a budget of "
-                 "updates, the weights' moving average kept; with folds the fold networks train first, and the network stops "
-                 "at the epoch where their out-of-fold predictions score best.",
-    "members": "Networks fitted side by side per seed and averaged into the one kept (one network of their type, "
-               "wider: the same predictions as their mean); fit trains 3.",
-    "updates": "adam: at most this many updates (--batch-size sequences each), however large the training split; 0: "
-               "--epochs alone decide.",
+    "optimizer": "sgd: plain SGD at a fixed rate for --epochs, the last kept (the authors'); averaged (fit's) or adam: "
+                 "SGD's or Adam's steps over a budget of updates, their moving average kept; with folds, the fold "
+                 "networks train first and the network stops where their out-of-fold predictions score best.",
+    "members": "Networks trained side by side per seed, merged into one that predicts their mean; fit trains 3.",
+    "updates": "averaged and adam: at most this many updates (--batch-size sequences each); 0: --epochs alone decide.",
     "paper_floor": "How the authors' code made the MLN's per-class sums non-negative (PriorLayer's paper input, "
                    "conflate's mln-mode paper): clamp (negative sums to 0, their DESK code) or shift (by each frame's "
                    "minimum, their Fetch code). Default: shift for --env fetch recordings, else clamp. Recorded in the "
@@ -80,11 +77,10 @@ def train(
     """Read WORKDIR/frames.parquet (priorlayer: also predicates.parquet and weights.parquet); write
     WORKDIR/models/METHOD.pt (the network with its configuration) and WORKDIR/models/METHOD.log.parquet (epoch,
     split, accuracy, loss: after the last epoch, or every epoch with --measure every-epoch)."""
-    options = stage.TrainOptions(
-        method=method, seed=seed[0], epochs=epochs, mode=mode, cell=cell, prior=prior, select=select, measure=measure,
-        folds=folds, device=device, train_fraction=train_fraction, batch_size=batch_size, window=window,
-        smoothing=smoothing, paper_floor=paper_floor, optimizer=optimizer, members=members, updates=updates,
-    )
+    options = stage.TrainOptions(method=method, seed=seed[0], epochs=epochs, mode=mode, cell=cell, prior=prior,
+                                 select=select, measure=measure, folds=folds, device=device, window=window,
+                                 train_fraction=train_fraction, batch_size=batch_size, smoothing=smoothing,
+                                 paper_floor=paper_floor, optimizer=optimizer, members=members, updates=updates)
     with reported_errors():
         options.validate()
         what = options.cell if options.method == "lstm" else str(options.method)  # the network alone: its cell
@@ -100,8 +96,7 @@ def train(
         console.print(
             f"[green]train[/]: wrote {result.checkpoint} ({what}, {counted(trained.n_train_units, 'training sequence')}, "
             f"kept epoch {trained.kept_epoch}, frame accuracy {shown}; {result.device}) and {result.log}"
-            + out_of_fold_said(result.checkpoint, folds is not None)
-        )
+            + out_of_fold_said(result.checkpoint, folds is not None))
 
 
 def _then_folds(workdir, options: stage.TrainOptions) -> str:
@@ -109,8 +104,6 @@ def _then_folds(workdir, options: stage.TrainOptions) -> str:
     from mlnseq.choosing.folds import train_folds
 
     k = train_folds(options.folds, options.mode, options.select, workdir)
-    if not k:
-        return ""
-    if options.optimizer == "sgd":
-        return f", then {k} {FOLD_NETWORKS}"
-    return f", stopped where its {k} networks without a fold score best on it (those first)"
+    then = f", then {k} {FOLD_NETWORKS}" if options.optimizer == "sgd" else \
+        f", stopped where its {k} networks without a fold score best on it (those first)"
+    return then if k else ""

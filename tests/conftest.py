@@ -13,6 +13,17 @@ REPO = Path(__file__).resolve().parents[1]
 
 FETCH_TEST_EPISODES = 4
 FETCH_TEST_SEED = 0
+# The files that take minutes, the longest first: `make test` hands whole files to its two workers in the order
+# collected, and a long one started last leaves the other worker idle at the end.
+LONGEST_FIRST = ("tests/test_benchmarks.py", "tests/docs/test_docs_run.py", "tests/stages/sweeps/test_sweep_slurm.py",
+                 "tests/cli/test_review_day.py", "tests/test_reproduce.py", "tests/stages/sweeps/test_sweep_local.py",
+                 "tests/stages/pipeline/test_fit_parts.py", "tests/cli/test_glossary_words.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files of ``LONGEST_FIRST`` first, in its order; the rest as collected."""
+    rank = {path: k for k, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
 
 
 @pytest.fixture(scope="session")

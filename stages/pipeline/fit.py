@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from mlnseq.catalog.errors import BadInput
+from mlnseq.catalog.errors import BadInput, check_choice
 from mlnseq.catalog.methods import Method, decoded_name
 from mlnseq.catalog.notes import MISSING_INPUT
 from mlnseq.choosing import latency
@@ -67,6 +67,7 @@ class FitOptions:
             if isinstance(getattr(self, name), str):
                 object.__setattr__(self, name, Path(getattr(self, name)))
         if isinstance(self.executor, str):
+            check_choice("executor", self.executor, [e.value for e in Executor])
             object.__setattr__(self, "executor", Executor(self.executor))
 
     def validate(self) -> None:
