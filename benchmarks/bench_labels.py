@@ -17,8 +17,8 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
 ``BENCH_LABELS_ARMS``: robot:seed pairs (default panda:83,iiwa:89,xarm7:97: seeds never used while developing);
 ``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each cell
 the mean over them, with its range); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
-recordings, 1 held out, 2 epochs, 1 labelled only, seed 0, only the first ranked labelled next (for
-tests/test_benchmarks.py).
+recordings, 1 held out, 2 epochs, seed 0, the columns all, 1 + unlabelled, clicks, next and clicks next, only the
+first ranked labelled next (for tests/test_benchmarks.py).
 """
 
 from __future__ import annotations
@@ -142,19 +142,22 @@ def beside_clicked(data: dict, epochs: str, candidate: str) -> float:
 def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
     data = bags(root, robot, seed, config["episodes"], config["heldout"])
     epochs, row = config["epochs"], {}
+    quick = config["quick"]  # the columns the others repeat with other inputs are left out
     everything = source(data, data["names"], False, "src-all")
     row["all"] = held_out(fit(everything, root / "w-all", epochs), data)
-    row["all train"] = held_out(fit(everything, root / "w-all-train", epochs, "--holdout", "none"), data)
+    if not quick:
+        row["all train"] = held_out(fit(everything, root / "w-all-train", epochs, "--holdout", "none"), data)
     for count in config["labelled"]:
         for others, column, name in ((False, "alone", "alone"), (True, "+ unlabelled", "with-unlabelled")):
-            folder = source(data, data["names"][:count], others, f"src-{count}-{name}")
-            row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{name}", epochs), data)
+            if others or not quick:
+                folder = source(data, data["names"][:count], others, f"src-{count}-{name}")
+                row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{name}", epochs), data)
     clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
     row["clicks"] = held_out(clicks, data)
-    mixed = fit(data["root"] / "bare", root / "w-1-clicks", epochs, "--labels", str(data["root"] / "mixed.csv"),
-                "--labels-unit", "frames")
-    row["1 + clicks"] = held_out(mixed, data)
-    quick = config["quick"]
+    if not quick:
+        mixed = fit(data["root"] / "bare", root / "w-1-clicks", epochs, "--labels", str(data["root"] / "mixed.csv"),
+                    "--labels-unit", "frames")
+        row["1 + clicks"] = held_out(mixed, data)
     unlabelled, clicked = partial(beside_unlabelled, data, epochs), partial(beside_clicked, data, epochs)
     row["next"], row["any"], row["next reason"] = first_against_any(root / "w-1-with-unlabelled", quick, unlabelled)
     row["clicks next"], row["clicks any"], _ = first_against_any(root / "w-clicks", quick, clicked)
@@ -170,8 +173,9 @@ def main() -> None:
                 row = measure(robot, seed, seeded(config, network_seed), Path(tmp) / f"{robot}-{seed}-{network_seed}")
                 runs.setdefault(f"{robot}:{seed}", []).append(row)
                 print(f"{robot}:{seed}, networks' seed {network_seed}: {row}", flush=True)
-    columns = ["all", "all train", *[f"{c} {w}" for c in config["labelled"] for w in ("alone", "+ unlabelled")],
-               "clicks", "1 + clicks", "next", "any", "clicks next", "clicks any"]
+    columns = [c for c in ["all", "all train", *[f"{k} {w}" for k in config["labelled"] for w in ("alone",
+               "+ unlabelled")], "clicks", "1 + clicks", "next", "any", "clicks next", "clicks any"]
+               if all(c in row for rows in runs.values() for row in rows)]
     rows = {name: {c: float(np.mean([r[c] for r in seeds])) for c in columns} for name, seeds in runs.items()}
     print(f"\nlabels: frame accuracy (%) on {config['heldout']} held-out recordings per arm, fit --epochs "
           f"{config['epochs']}, {config['episodes']} recordings to learn from; each the mean over the networks' seeds "
