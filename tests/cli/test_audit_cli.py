@@ -8,7 +8,6 @@ from its workdir or says what to rerun; bad input is one line. Figures at full s
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 from pathlib import Path
@@ -160,17 +159,6 @@ def test_a_folder_partly_labelled_is_audited_as_predict_reads_it(fitted, tmp_pat
     assert verdicts == {"episode_1": "ok", f"clean_{SEED + 100}": "ok", f"miss_{SEED + 100}": "suspect"}
     refused("audit", fitted["model"], "--source", folder, "--decode", "viterbi", "-o", tmp_path / "x.csv",
             needles=("--decode",))
-
-
-@pytest.fixture
-def needs_browser() -> None:
-    import review_browser
-
-    why = review_browser.missing()
-    if why is not None:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(why)
-        pytest.skip(why)
 
 
 AUDIT_ROW = 71  # the bands' audit row, in CSS pixels from the canvas's top (review.js's ROWS.audit)

@@ -19,7 +19,6 @@ import numpy as np
 import polars as pl
 import pytest
 
-import review_browser
 from mlnseq.catalog import artifacts
 from review_browser import browser, opened, request, served, until
 
@@ -28,16 +27,6 @@ REPO = Path(__file__).resolve().parents[2]
 TRIALS = (9, 10, 11)  # the last three trials; 11 holds the glitch of own_data_glitch (a restarted chain)
 CLASSES = ["approach", "grasp", "lift", "release"]
 FIGURE = REPO / "docs" / "figures" / "review.png"  # made by `make docs-figures`
-
-
-@pytest.fixture
-def needs_browser() -> None:
-    """Skip, saying why, where chromium or Playwright is missing; under CI (CI=true), fail instead."""
-    why = review_browser.missing()
-    if why is not None:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(why)
-        pytest.skip(why)
 
 
 @pytest.fixture(scope="module")

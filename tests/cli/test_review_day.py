@@ -8,7 +8,6 @@ whole and two ticks or more on every axis."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,22 +16,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-import review_browser
 from mlnseq.catalog import artifacts
 from review_browser import browser, opened, served, until
 
 pytestmark = pytest.mark.slow
 SEED = 7300  # bags 7300..7305 to learn from (the first with /phase), 7400..7401 held out
 EPOCHS = 5  # few: the test is about the day's flow, not the network; fit's figures still come from its folds
-
-
-@pytest.fixture
-def needs_browser() -> None:
-    why = review_browser.missing()
-    if why is not None:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(why)
-        pytest.skip(why)
 
 
 def mlnseq(*args: str | Path, cwd: Path) -> str:
