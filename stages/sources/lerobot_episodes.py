@@ -5,7 +5,6 @@ values, row groups and compression, the new columns after them. The source is on
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ import pyarrow.parquet as pq
 
 from mlnseq.catalog.errors import BadInput
 from mlnseq.sources import lerobot
-from mlnseq.sources.lerobot_writer import CODECS, VERSION
+from mlnseq.sources.lerobot_writer import CODECS, VERSION, copy_dataset
 
 
 def episode_files(source: Path) -> list[Path]:
@@ -35,7 +34,7 @@ def write(folder: Path, source: Path, columns: dict[str, dict[int, Any]]) -> int
     files = episode_files(source)
     if not files:
         raise BadInput(f"--write-lerobot: {source} has no meta/episodes/chunk-*/file-*.parquet to add columns to")
-    _copy(source, folder, set(files))
+    copy_dataset(source, folder, set(files))
     seen: set[int] = set()
     for path in files:
         seen |= _rewrite(path, folder / path.relative_to(source), columns)
@@ -44,16 +43,6 @@ def write(folder: Path, source: Path, columns: dict[str, dict[int, Any]]) -> int
         raise BadInput(f"--write-lerobot: episode {sorted(wanted - seen)[0]} was audited but is in no episodes file "
                        f"of {source}")
     return len(seen)
-
-
-def _copy(source: Path, folder: Path, skipped: set[Path]) -> None:
-    """Every file of ``source`` but ``skipped`` copied into ``folder``, its bytes only; links followed."""
-    for where, _, names in os.walk(source, followlinks=True):
-        into = folder / Path(where).relative_to(source)
-        into.mkdir(exist_ok=True)
-        for name in names:
-            if Path(where) / name not in skipped:
-                shutil.copyfile(Path(where) / name, into / name)
 
 
 def _rewrite(path: Path, target: Path, columns: dict[str, dict[int, Any]]) -> set[int]:

@@ -87,7 +87,7 @@ def write(folder: Path, source: Path, predicted: Predicted, replace: bool | froz
                        f"subtask annotations from {VERSION} ones: convert it with LeRobot's "
                        "convert_dataset_v21_to_v30 first")
     files = lerobot.data_files(source, info)
-    _copy(source, folder, {source / "meta" / "info.json", *files})
+    copy_dataset(source, folder, {source / "meta" / "info.json", *files})
     spans = _spans(predicted.episodes)
     seen: set = set()
     kept = 0
@@ -101,7 +101,7 @@ def write(folder: Path, source: Path, predicted: Predicted, replace: bool | froz
     return Written(predicted=len(spans) - kept, kept=kept)
 
 
-def _copy(source: Path, folder: Path, skipped: set[Path]) -> None:
+def copy_dataset(source: Path, folder: Path, skipped: set[Path]) -> None:
     """Every file of ``source`` but ``skipped`` copied into ``folder``, its bytes only (a read-only source gives a
     copy its user may change); links followed."""
     for where, _, names in os.walk(source, followlinks=True):
