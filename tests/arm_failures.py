@@ -121,12 +121,19 @@ def emptied(parts: list[Part], robot: Robot) -> list[Part]:
     return out
 
 
-def drop(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
-    before, after = split(parts[CARRY], rng.uniform(0.25, 0.75))
+def let_go(robot: Robot, parts: list[Part], during: int, at: float, empty_from: int, phase: str
+           ) -> tuple[list[Part], str]:
+    """The object lost at ``at`` of part ``during`` (of the phase ``phase``, where the recording goes wrong): the
+    fingers close on nothing from there, and the parts from ``empty_from`` to the opening carry nothing."""
+    before, after = split(parts[during], at)
     width = parts[HELD].width[-1]
     positions, closing = moving_gripper(after.positions, gripper(robot, width, EMPTY))
-    slipping = Part(positions, closing, np.zeros(len(positions)), "transport")
-    return parts[:CARRY] + [before, slipping] + emptied(parts[LOWER:OPEN + 1], robot) + parts[RETREAT:], "transport"
+    slipping = Part(positions, closing, np.zeros(len(positions)), phase)
+    return parts[:during] + [before, slipping] + emptied(parts[empty_from:OPEN + 1], robot) + parts[RETREAT:], phase
+
+
+def drop(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
+    return let_go(robot, parts, CARRY, rng.uniform(0.25, 0.75), LOWER, "transport")
 
 
 def miss(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
@@ -203,11 +210,7 @@ def reach(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[li
 
 
 def slip(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
-    before, after = split(parts[LOWER], rng.uniform(0.2, 0.6))
-    width = parts[HELD].width[-1]
-    positions, closing = moving_gripper(after.positions, gripper(robot, width, EMPTY))
-    slipping = Part(positions, closing, np.zeros(len(positions)), "place")
-    return parts[:LOWER] + [before, slipping] + emptied(parts[SETTLE:OPEN + 1], robot) + parts[RETREAT:], "place"
+    return let_go(robot, parts, LOWER, rng.uniform(0.2, 0.6), SETTLE, "place")
 
 
 def bump(robot: Robot, parts: list[Part], rng: np.random.Generator) -> tuple[list[Part], str]:
