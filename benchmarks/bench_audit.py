@@ -15,7 +15,7 @@ one's first reason in the phase where it went wrong, and `stream --monitor` aler
 
 ``BENCH_AUDIT`` names the rows (dev, panda, iiwa, xarm7, panda-2, iiwa-2, xarm7-2, panda-3, iiwa-3, xarm7-3, desk,
 speed; default all); ``BENCH_SEEDS`` the networks' seeds (0,1,2); ``BENCH_EPOCHS`` fit's epochs (100);
-``BENCH_QUICK=1``: the dev row, 4 bags, 3 epochs, seed 0, fewer recordings, a 50-recording speed row.
+``BENCH_QUICK=1``: the dev row, 4 bags, 3 epochs, seed 0, fewer recordings, a 12-recording speed row.
 """
 
 from __future__ import annotations
@@ -310,7 +310,7 @@ def speed_row(root: Path, model: Path) -> dict:
 
     import arm_failures
 
-    count = 50 if quick() else 1000
+    count = 12 if quick() else 1000
     kinds = ("clean", *KINDS)
     made = arm_failures.failures("panda", kinds, list(range(900_000, 900_000 + count // len(kinds) + 1)))[:count]
     for recording in made:  # each 600 frames: cut, or its last frame held

@@ -20,7 +20,7 @@ Datasets (each built here, or read from ../shared/data):
 ``BENCH_FIRST_DAY`` names the datasets to run (comma-separated; default all); ``BENCH_EPOCHS`` fit's epochs (100);
 ``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each figure the mean over them, with its range;
 fetch's seed also draws its episodes); ``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only
-``arm-panda-dev``, 4 bags and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets of issue
+``arm-panda-dev``, 4 bags at 15 Hz and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets of issue
 45 (on the means).
 """
 
@@ -63,10 +63,10 @@ def arm(root: Path, robot: str, seed: int, note: str, name: str) -> Dataset:
     import arm_bags
 
     quick = os.environ.get("BENCH_QUICK") == "1"
-    episodes, held = (4, 1) if quick else (6, int(os.environ.get("BENCH_HELDOUT", "12")))
-    folder, heldout = arm_bags.write_folders(root / f"{robot}-{seed}", robot, seed, episodes, held)
+    episodes, held, rate = (4, 1, 15.0) if quick else (6, int(os.environ.get("BENCH_HELDOUT", "12")), None)
+    folder, heldout = arm_bags.write_folders(root / f"{robot}-{seed}", robot, seed, episodes, held, rate)
     return Dataset(name, ["--env", "rosbag", "--source", str(folder), "--label-topic", "/phase"],
-                   ["--source", str(heldout)], arm_bags.hand_spec(robot), note)
+                   ["--source", str(heldout)], arm_bags.hand_spec(robot, rate), note)
 
 
 def desk(root: Path) -> Dataset:

@@ -8,7 +8,8 @@ DESK; and networks fitted side by side (one batched network, as `train` fits fol
 against one after another: the 5 fold networks of a TCN and of an LSTM, and 5 LSTM seeds in segment mode.
 Per-frame streaming recognition: bench_recognize.
 
-``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames).
+``BENCH_FETCH_EPISODES`` sets the Fetch collection's size (all of it used as training frames); ``BENCH_QUICK=1``:
+each timing once, and 2 epochs where 20 are timed (for tests/test_benchmarks.py).
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ from mlnseq.networks.classifier import SequenceClassifier
 from mlnseq.networks.recurrent import Config as ModelConfig
 
 DESK_SOURCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "desk-taurus"
-REPEATS = 3
+QUICK = os.environ.get("BENCH_QUICK") == "1"
+REPEATS = 1 if QUICK else 3
+EPOCHS = 2 if QUICK else 20  # of the fold networks and seeds timed
 
 
 def baseline_epoch(model: SequenceClassifier, segments: list[tuple[list, list]]) -> float:
@@ -93,7 +96,7 @@ def compare(name: str, data: train.FrameData) -> None:
           f"{base_one / ours_wide:.1f}x)")
 
 
-def fold_training(frames_path: Path, epochs: int = 20) -> None:
+def fold_training(frames_path: Path, epochs: int = EPOCHS) -> None:
     """`train --mode stream` with no folds against --folds 5, on the same frames, timed side by side."""
     import shutil
     import tempfile
@@ -109,7 +112,7 @@ def fold_training(frames_path: Path, epochs: int = 20) -> None:
           f"networks (--folds 5) {seconds[5]:.1f} s ({seconds[5] / seconds[0]:.1f}x one network's time)")
 
 
-def side_by_side(data: train.FrameData, epochs: int = 20) -> None:
+def side_by_side(data: train.FrameData, epochs: int = EPOCHS) -> None:
     """Networks fitted one after another against side by side (fitting.fit_together), the same networks from the same
     start, timed alternately: the 5 fold networks of `train --mode stream --folds 5` (TCN and LSTM), and 5 seeds of
     `train --mode segment --seed 0 ... --seed 4`."""

@@ -270,8 +270,11 @@ def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: i
 # effort in two bins (loaded: halfway between the arm alone at the table and the arm lifting the lightest payload)
 # and joint 1's change (turning to the object, to the place, or home; a dead band a twentieth of its typical motion
 # per frame) and its side (the object's side of the cell or the place's).
-def hand_spec(robot: str = "panda") -> str:
-    arm = ROBOTS[robot]
+def hand_spec(robot: str = "panda", rate: float | None = None) -> str:
+    """The hand spec for ``robot``'s bags (at ``rate``, where another than the robot's)."""
+    from dataclasses import replace
+
+    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
     joint1, joint2 = arm.joints[0], arm.joints[1]
     bent = np.array([0.0, 0.475, 0.0, 0.285, 0.0, -0.1425, 0.0])  # to the table, on average; lifted: half of it
     table, lifted = ((np.array(arm.home) + share * bent)[None] for share in (1.0, 0.5))

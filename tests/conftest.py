@@ -26,6 +26,25 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
 
 
+# Files whose tests share a costly session fixture (the interrupted local sweep the SLURM sweep is compared with):
+# one worker takes them together, so the fixture is built once.
+ONE_WORKER = {"tests/stages/sweeps/test_sweep_local.py": "tests/stages/sweeps/test_sweep_slurm.py"}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """Under ``--dist loadfile``: whole files to a worker, the files of ``ONE_WORKER`` to the same one."""
+    if config.getoption("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedFixtures(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            scope = super()._split_scope(nodeid)
+            return ONE_WORKER.get(scope, scope)
+
+    return SharedFixtures(config, log)
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     """The repository root."""

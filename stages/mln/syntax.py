@@ -8,6 +8,7 @@ parentheses, `+var` template variables, and quoted or capitalised constants.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field
@@ -238,6 +239,7 @@ _DOMAIN = re.compile(r"^\s*([a-z_]\w*)\s*=\s*\{(.*)\}\s*$")
 _WEIGHT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)(?=\s)")
 
 
+@functools.lru_cache(maxsize=4096)  # a weights table's formulas are parsed again at every read (frozen: shared safely)
 def parse_formula(text: str, where: str = "<formula>", line: int = 1, column0: int = 0) -> Formula:
     """Parse one formula (no weight, no trailing '.')."""
     parser = _Parser(text, where, line, column0)
