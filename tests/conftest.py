@@ -28,7 +28,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 # Files whose tests share a costly session fixture (the interrupted local sweep the SLURM sweep is compared with):
 # one worker takes them together, so the fixture is built once.
-ONE_WORKER = {"tests/stages/sweeps/test_sweep_local.py": "tests/stages/sweeps/test_sweep_slurm.py"}
+# And fit's parts side by side and fit through SLURM, both compared with one local fit (``arm_fit``).
+ONE_WORKER = {"tests/stages/sweeps/test_sweep_local.py": "tests/stages/sweeps/test_sweep_slurm.py",
+              "tests/stages/pipeline/test_fit_parts.py": "tests/stages/sweeps/test_sweep_slurm.py"}
 
 
 def pytest_xdist_make_scheduler(config, log):
@@ -43,6 +45,25 @@ def pytest_xdist_make_scheduler(config, log):
             return ONE_WORKER.get(scope, scope)
 
     return SharedFixtures(config, log)
+
+
+@pytest.fixture(scope="session")
+def arm_fit(tmp_path_factory) -> dict:
+    """`mlnseq fit` run locally (``-w local``) on six short episodes of the generated arm (tests/arm_bags.py, 15 Hz)
+    for 2 epochs: the model fit's parts and fit through SLURM must write alike; read-only. {args: fit's arguments
+    but -w, folder: where it ran, workdir, stdout}."""
+    import subprocess
+    import sys
+
+    import arm_bags
+
+    folder = tmp_path_factory.mktemp("arm-fit")
+    table = arm_bags.write_table(folder / "arm.parquet", seed=9, episodes=6, rate=15.0)
+    args = ["fit", "--env", "table", "--source", str(table), "--epochs", "2"]
+    done = subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *args, "-w", "local"], cwd=folder,
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return {"args": args, "folder": folder, "workdir": folder / "local", "stdout": done.stdout}
 
 
 @pytest.fixture(scope="session")

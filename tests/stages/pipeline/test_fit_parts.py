@@ -1,6 +1,6 @@
 """``fit --executor processes``: the logic (binarize, formulas, learn-weights) and the networks (train) as two
-processes side by side through Snakemake, on eight short episodes of the generated arm (tests/arm_bags.py, 15 Hz)
-fitted for 2 epochs, write the model a local run writes (the same predicates, weights, network and predictions) and
+processes side by side through Snakemake, on six short episodes of the generated arm (tests/arm_bags.py, 15 Hz)
+fitted for 2 epochs, write the model a local run writes (``arm_fit``, tests/conftest.py) (the same predicates, weights, network and predictions) and
 say the same lines; a part that fails names itself and its log; --executor and --profile are checked first.
 The same through a one-node SLURM cluster: tests/sweeps/test_sweep_slurm.py (one cluster per test file)."""
 
@@ -16,11 +16,6 @@ import pytest
 
 pytest.importorskip("torch", reason="the [train] extra is not installed")
 pytest.importorskip("snakemake", reason="the [sweep] extra is not installed")
-
-import arm_bags  # noqa: E402  (tests/arm_bags.py)
-
-EPOCHS = "2"
-
 
 def mlnseq(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *args], cwd=cwd, capture_output=True,
@@ -45,22 +40,18 @@ def same_model(one: Path, other: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def arm_table(tmp_path_factory) -> Path:
-    return arm_bags.write_table(tmp_path_factory.mktemp("arm") / "arm.parquet", seed=9, episodes=8, rate=15.0)
+def arm_table(arm_fit) -> Path:
+    return Path(arm_fit["args"][arm_fit["args"].index("--source") + 1])
 
 
-def test_the_parts_side_by_side_write_the_model_a_local_run_writes(arm_table, tmp_path):
-    local = mlnseq("fit", "--env", "table", "--source", str(arm_table), "-w", "local", "--epochs", EPOCHS,
-                   cwd=tmp_path)
-    assert local.returncode == 0, local.stderr[-3000:]
-    apart = mlnseq("fit", "--env", "table", "--source", str(arm_table), "-w", "apart", "--epochs", EPOCHS,
-                   "--executor", "processes", cwd=tmp_path)
+def test_the_parts_side_by_side_write_the_model_a_local_run_writes(arm_fit, tmp_path):
+    apart = mlnseq(*arm_fit["args"], "-w", "apart", "--executor", "processes", cwd=tmp_path)
     assert apart.returncode == 0, apart.stderr[-3000:]
-    same_model(tmp_path / "local", tmp_path / "apart")
+    same_model(arm_fit["workdir"], tmp_path / "apart")
     said = [line.replace("apart", "local") for line in apart.stdout.splitlines()]
     assert said[2].startswith("binarize, formulas and learn-weights, and train, as processes side by side "
                               "(their logs: local/.fit/logs)")
-    assert said[:2] + said[3:] == [line for line in local.stdout.splitlines() if not line.startswith("training")]
+    assert said[:2] + said[3:] == [line for line in arm_fit["stdout"].splitlines() if not line.startswith("training")]
     logs = tmp_path / "apart" / ".fit" / "logs"
     assert sorted(p.name for p in logs.iterdir()) == ["logic.log", "network.log"]
     assert not list((tmp_path / "apart" / ".fit").glob("*.pickle"))  # the results, read, are gone

@@ -2,7 +2,8 @@
 example profile's settings): one of cell-tcn's jobs cancelled with scancel as it runs fails that config alone, in one
 line naming it and its log, the rest finishing; the rerun submits only what is missing, and gives the same results
 table as the same sweep run locally. And `mlnseq fit --executor slurm` on six short episodes of the generated arm:
-its logic and its networks as two cluster jobs, the model the local run writes (here, one cluster per test file).
+its logic and its networks as two cluster jobs, the model the local run writes (``arm_fit``, tests/conftest.py; here,
+one cluster per test file).
 
 In `make test`, and alone in `make test-slurm` (about a minute on a free machine, several when loaded: the
 executor's status checks wait 2 s, then 10 s more at a time while no job has finished; marker slurm). Without
@@ -103,29 +104,23 @@ def test_the_tiny_sweep_through_slurm_fails_a_cancelled_config_alone_and_the_rer
         local_sweep["result"].stdout.strip().splitlines()[-1].split("; deploy it")[0]
 
 
-def test_fit_through_slurm_writes_the_model_a_local_run_writes(cluster, tmp_path):
+def test_fit_through_slurm_writes_the_model_a_local_run_writes(cluster, arm_fit, tmp_path):
     import zipfile
 
-    import arm_bags
-
-    table = arm_bags.write_table(tmp_path / "arm.parquet", seed=7, episodes=6, rate=15.0)
     profile = tmp_path / "profile"
     profile.mkdir()
     (profile / "config.yaml").write_text(PROFILE)
-    fit = ["fit", "--env", "table", "--source", str(table), "--epochs", "1"]
-    local = mlnseq(*fit, "-w", "local", cwd=tmp_path, env=cluster, timeout=900)
-    assert local.returncode == 0, local.stderr[-3000:]
-    done = mlnseq(*fit, "-w", "cluster", "--executor", "slurm", "--profile", str(profile), cwd=tmp_path, env=cluster,
-                  timeout=900)
+    local = arm_fit["workdir"]
+    done = mlnseq(*arm_fit["args"], "-w", "cluster", "--executor", "slurm", "--profile", str(profile), cwd=tmp_path,
+                  env=cluster, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
     jobs = {p.parts[-2] for p in (tmp_path / "cluster" / ".fit" / ".snakemake" / "slurm_logs").glob("rule_*/*.log")}
     assert jobs == {"rule_logic", "rule_network"}
     for name in ("predicates.parquet", "weights.parquet", "predictions.parquet", "models/lstm.oof.parquet"):
-        assert pl.read_parquet(tmp_path / "local" / name).equals(pl.read_parquet(tmp_path / "cluster" / name)), name
-    with zipfile.ZipFile(tmp_path / "local" / "model.mlnseq") as a, \
-            zipfile.ZipFile(tmp_path / "cluster" / "model.mlnseq") as b:
+        assert pl.read_parquet(local / name).equals(pl.read_parquet(tmp_path / "cluster" / name)), name
+    with zipfile.ZipFile(local / "model.mlnseq") as a, zipfile.ZipFile(tmp_path / "cluster" / "model.mlnseq") as b:
         assert a.read("network.npz") == b.read("network.npz") and a.read("binarize.toml") == b.read("binarize.toml")
-    assert done.stdout.splitlines()[-1].replace("cluster", "local") == local.stdout.splitlines()[-1]
+    assert done.stdout.splitlines()[-1].replace("cluster", "local") == arm_fit["stdout"].splitlines()[-1]
 
 
 def test_the_example_profile_is_the_one_tested():
