@@ -26,9 +26,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
 
 
-# Files whose tests share a costly session fixture (the interrupted local sweep the SLURM sweep is compared with):
-# one worker takes them together, so the fixture is built once.
-# And fit's parts side by side and fit through SLURM, both compared with one local fit (``arm_fit``).
+# Files whose tests compare with one costly run of a session fixture: the interrupted local sweep (the SLURM sweep's
+# reference) and one local fit (``arm_fit``: fit's parts side by side, fit through SLURM). One worker takes them
+# together, so each run is made once.
 ONE_WORKER = {"tests/stages/sweeps/test_sweep_local.py": "tests/stages/sweeps/test_sweep_slurm.py",
               "tests/stages/pipeline/test_fit_parts.py": "tests/stages/sweeps/test_sweep_slurm.py"}
 
