@@ -15,7 +15,7 @@ one's first reason in the phase where it went wrong, and `stream --monitor` aler
 
 ``BENCH_AUDIT`` names the rows (dev, panda, iiwa, xarm7, panda-2, iiwa-2, xarm7-2, panda-3, iiwa-3, xarm7-3, desk,
 speed; default all); ``BENCH_SEEDS`` the networks' seeds (0,1,2); ``BENCH_EPOCHS`` fit's epochs (100);
-``BENCH_QUICK=1``: the dev row, 4 bags, 3 epochs, seed 0, fewer recordings, a 12-recording speed row.
+``BENCH_QUICK=1``: the dev row, 4 bags at 15 Hz, 3 epochs, seed 0, fewer recordings, a 12-recording speed row.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,6 +48,9 @@ ROUNDS = {"second": ("panda-2", "iiwa-2", "xarm7-2"), "third": ("panda-3", "iiwa
 METHODS = ("audit", "length", "short", "confidence", "order")
 ORDER_RUN_S = 0.5  # the phase-order rule leaves out runs shorter than this (the decoder's flicker)
 TARGETS = {"auroc": 0.97, "top_k": 0.90, "clean": 1 / 30}
+
+
+QUICK_RATE = 15.0  # Hz: the quick run's arm recordings (fewer frames to fit and audit than the robots' own rates)
 
 
 def quick() -> bool:
@@ -92,15 +95,17 @@ def arm_recordings(root: Path, robot: str, seed: int) -> tuple[list[str], Record
     import arm_bags
     import arm_failures
 
-    bags, _ = arm_bags.write_folders(root / "bags", robot, seed, 4 if quick() else 6, 0)
+    rate = QUICK_RATE if quick() else None
+    bags, _ = arm_bags.write_folders(root / "bags", robot, seed, 4 if quick() else 6, 0, rate)
     clean, failed, odd = (4, 2, 2) if quick() else (30, 6, 10)
     seeds_ = [seed * 1000 + 500 + k for k in range(clean)]
-    made = (arm_failures.failures(robot, ("clean",), seeds_)
-            + arm_failures.failures(robot, KINDS, seeds_[:failed])
-            + arm_failures.failures(robot, ("slow", "hesitant"), seeds_[:odd]))
+    made = (arm_failures.failures(robot, ("clean",), seeds_, rate)
+            + arm_failures.failures(robot, KINDS, seeds_[:failed], rate)
+            + arm_failures.failures(robot, ("slow", "hesitant"), seeds_[:odd], rate))
     names = [f"{r.kind}_{r.seed}" for r in made]
-    arm_failures.table(made, robot, names).write_parquet(root / "recordings.parquet")
-    lengths = [len(arm_bags.episode_signals(arm_bags.ROBOTS[robot], seed * 1000 + k)["phase"]) for k in range(6)]
+    arm_failures.table(made, robot, names, rate).write_parquet(root / "recordings.parquet")
+    arm = arm_bags.ROBOTS[robot] if rate is None else replace(arm_bags.ROBOTS[robot], rate=rate)
+    lengths = [len(arm_bags.episode_signals(arm, seed * 1000 + k)["phase"]) for k in range(6)]
     source = ["--env", "rosbag", "--source", str(bags), "--label-topic", "/phase"]
     return source, Recordings(["--env", "table", "--source", str(root / "recordings.parquet"), "--episode-column",
                                "episode", "--time-column", "time"], dict(zip(names, (r.kind for r in made))),
@@ -312,13 +317,14 @@ def speed_row(root: Path, model: Path) -> dict:
 
     count = 12 if quick() else 1000
     kinds = ("clean", *KINDS)
-    made = arm_failures.failures("panda", kinds, list(range(900_000, 900_000 + count // len(kinds) + 1)))[:count]
+    rate = QUICK_RATE if quick() else None  # the dev row's model's
+    made = arm_failures.failures("panda", kinds, list(range(900_000, 900_000 + count // len(kinds) + 1)), rate)[:count]
     for recording in made:  # each 600 frames: cut, or its last frame held
         for key, values in recording.signals.items():
             extra = max(600 - len(values), 0)
             recording.signals[key] = np.concatenate([values[:600], values[-1:].repeat(extra, axis=0)])
     names = [f"r{k}" for k in range(len(made))]
-    arm_failures.table(made, "panda", names).write_parquet(root / "speed.parquet")
+    arm_failures.table(made, "panda", names, rate).write_parquet(root / "speed.parquet")
     reading = ["--env", "table", "--source", root / "speed.parquet", "--episode-column", "episode", "--time-column",
                "time"]
     out = {"recordings": len(made), "frames": 600 * len(made)}

@@ -319,9 +319,11 @@ def failure(robot: Robot, kind: str, seed: int) -> Failure:
 FAILED_SEED = {kind: k + 1 for k, kind in enumerate(KINDS)}
 
 
-def failures(robot: str, kinds: tuple[str, ...], seeds: range | list[int]) -> list[Failure]:
-    """Every kind at every seed, for ``robot`` (a name of arm_bags.ROBOTS)."""
-    arm = ROBOTS[robot]
+def failures(robot: str, kinds: tuple[str, ...], seeds: range | list[int], rate: float | None = None) -> list[Failure]:
+    """Every kind at every seed, for ``robot`` (a name of arm_bags.ROBOTS; ``rate``: another frame rate than its)."""
+    from dataclasses import replace
+
+    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
     return [failure(arm, kind, seed) for kind in kinds for seed in seeds]
 
 
@@ -332,12 +334,13 @@ def frames_columns(robot: str) -> list[str]:
             + ["/gripper/width/data"])
 
 
-def table(recordings: list[Failure], robot: str, names: list[str] | None = None):
+def table(recordings: list[Failure], robot: str, names: list[str] | None = None, rate: float | None = None):
     """The recordings as one table an audit reads with --env table: an ``episode`` column (KIND_SEED, or ``names``),
-    a ``time`` column in seconds and the bags' feature names."""
+    a ``time`` column in seconds (at ``rate``, where they were drawn at another than the robot's) and the bags'
+    feature names."""
     import polars as pl
 
-    rate = ROBOTS[robot].rate
+    rate = rate or ROBOTS[robot].rate
     columns = frames_columns(robot)
     parts = []
     for k, recording in enumerate(recordings):
