@@ -17,8 +17,8 @@ to learn from and held-out recordings of later seeds no stage reads, by frame ac
 ``BENCH_LABELS_ARMS``: robot:seed pairs (default panda:83,iiwa:89,xarm7:97: seeds never used while developing);
 ``BENCH_EPOCHS`` fit's epochs (100); ``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each cell
 the mean over them, with its range); ``BENCH_HELDOUT`` held-out bags per arm (6); ``BENCH_QUICK=1``: panda:0, 3
-recordings at 15 Hz, 1 held out, 2 epochs, seed 0, the columns 1 + unlabelled, clicks, next and clicks next, only the
-first ranked labelled next (for tests/test_benchmarks.py).
+recordings at 15 Hz, 1 held out, 2 epochs, seed 0, the columns 1 + unlabelled and next (the clicks' columns repeat
+them with clicks), only the first ranked labelled next (for tests/test_benchmarks.py).
 """
 
 from __future__ import annotations
@@ -157,15 +157,16 @@ def measure(robot: str, seed: int, config: dict, root: Path) -> dict:
             if others or not quick:
                 folder = source(data, data["names"][:count], others, f"src-{count}-{name}")
                 row[f"{count} {column}"] = held_out(fit(folder, root / f"w-{count}-{name}", epochs), data)
-    clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
-    row["clicks"] = held_out(clicks, data)
     if not quick:
+        clicks = fit(data["root"] / "bare", root / "w-clicks", epochs, "--labels", str(data["root"] / "clicks.csv"))
+        row["clicks"] = held_out(clicks, data)
         mixed = fit(data["root"] / "bare", root / "w-1-clicks", epochs, "--labels", str(data["root"] / "mixed.csv"),
                     "--labels-unit", "frames")
         row["1 + clicks"] = held_out(mixed, data)
     unlabelled, clicked = partial(beside_unlabelled, data, epochs), partial(beside_clicked, data, epochs)
     row["next"], row["any"], row["next reason"] = first_against_any(root / "w-1-with-unlabelled", quick, unlabelled)
-    row["clicks next"], row["clicks any"], _ = first_against_any(root / "w-clicks", quick, clicked)
+    if not quick:
+        row["clicks next"], row["clicks any"], _ = first_against_any(root / "w-clicks", quick, clicked)
     return row
 
 
@@ -194,6 +195,8 @@ def main() -> None:
     said = []
     for first, mean, what in (("next", "any", "label_next's first"), ("clicks next", "clicks any", "all clicked, "
                                                                       "label_next's first labelled on every frame")):
+        if first not in columns:
+            continue
         gains = [row[first] - row[mean] for row in rows.values()]
         said.append(f"{what} against the mean of any: {np.mean(gains):+.1f} points (per arm "
                     f"{', '.join(f'{g:+.1f}' for g in gains)})")
