@@ -48,22 +48,27 @@ def pytest_xdist_make_scheduler(config, log):
 
 
 @pytest.fixture(scope="session")
-def arm_fit(tmp_path_factory) -> dict:
-    """`mlnseq fit` run locally (``-w local``) on six short episodes of the generated arm (tests/arm_bags.py, 15 Hz)
-    for 2 epochs: the model fit's parts and fit through SLURM must write alike; read-only. {args: fit's arguments
-    but -w, folder: where it ran, workdir, stdout}."""
+def arm_fit_args(tmp_path_factory) -> list[str]:
+    """`mlnseq fit`'s arguments but -w for six short episodes of the generated arm (tests/arm_bags.py, 15 Hz) as one
+    table, 2 epochs: what ``arm_fit`` runs, and fit's parts and fit through SLURM run again."""
+    import arm_bags
+
+    table = arm_bags.write_table(tmp_path_factory.mktemp("arm-table") / "arm.parquet", seed=9, episodes=6, rate=15.0)
+    return ["fit", "--env", "table", "--source", str(table), "--epochs", "2"]
+
+
+@pytest.fixture(scope="session")
+def arm_fit(tmp_path_factory, arm_fit_args) -> dict:
+    """``arm_fit_args`` run locally as ``-w local``: the model fit's parts and fit through SLURM must write alike;
+    read-only. {workdir, stdout}."""
     import subprocess
     import sys
 
-    import arm_bags
-
     folder = tmp_path_factory.mktemp("arm-fit")
-    table = arm_bags.write_table(folder / "arm.parquet", seed=9, episodes=6, rate=15.0)
-    args = ["fit", "--env", "table", "--source", str(table), "--epochs", "2"]
-    done = subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *args, "-w", "local"], cwd=folder,
+    done = subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *arm_fit_args, "-w", "local"], cwd=folder,
                           capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
-    return {"args": args, "folder": folder, "workdir": folder / "local", "stdout": done.stdout}
+    return {"workdir": folder / "local", "stdout": done.stdout}
 
 
 @pytest.fixture(scope="session")

@@ -40,12 +40,12 @@ def same_model(one: Path, other: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def arm_table(arm_fit) -> Path:
-    return Path(arm_fit["args"][arm_fit["args"].index("--source") + 1])
+def arm_table(arm_fit_args) -> Path:
+    return Path(arm_fit_args[arm_fit_args.index("--source") + 1])
 
 
-def test_the_parts_side_by_side_write_the_model_a_local_run_writes(arm_fit, tmp_path):
-    apart = mlnseq(*arm_fit["args"], "-w", "apart", "--executor", "processes", cwd=tmp_path)
+def test_the_parts_side_by_side_write_the_model_a_local_run_writes(arm_fit_args, arm_fit, tmp_path):
+    apart = mlnseq(*arm_fit_args, "-w", "apart", "--executor", "processes", cwd=tmp_path)
     assert apart.returncode == 0, apart.stderr[-3000:]
     same_model(arm_fit["workdir"], tmp_path / "apart")
     said = [line.replace("apart", "local") for line in apart.stdout.splitlines()]

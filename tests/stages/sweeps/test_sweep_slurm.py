@@ -67,20 +67,27 @@ def cancel_a_job(env: dict[str, str], config: str, rules: tuple[str, ...] = ("tr
     raise TimeoutError(f"no {' or '.join(rules)} job of {config} ran on the cluster within {timeout:g} s")
 
 
+def started(command: list[str], folder: Path, env: dict[str, str]) -> subprocess.Popen:
+    """``command`` running in ``folder``, its output to out.txt and err.txt there."""
+    with open(folder / "out.txt", "w") as out, open(folder / "err.txt", "w") as err:
+        return subprocess.Popen(command, cwd=folder, env=env, stdout=out, stderr=err, text=True)
+
+
 def test_the_tiny_sweep_through_slurm_fails_a_cancelled_config_alone_and_the_rerun_gives_the_local_table(
-        cluster, local_sweep, tiny_desk_workdir, tmp_path):
+        cluster, tiny_desk_workdir, request, tmp_path):
     path = write_sweep(tmp_path, tiny_desk_workdir, TINY_GRID)
     profile = tmp_path / "profile"
     profile.mkdir()
     (profile / "config.yaml").write_text(PROFILE)
     command = [str(Path(sys.executable).with_name("mlnseq")), "sweep", str(path), "--executor", "slurm", "--profile",
                str(profile)]
-    sweep = subprocess.Popen(command, cwd=tmp_path, env=cluster, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)
+    sweep = started(command, tmp_path, cluster)
     try:
         job, rule = cancel_a_job(cluster, "cell-tcn", ("conflate", "eval"))
+        local_sweep = request.getfixturevalue("local_sweep")  # run while the executor waits between status checks
     finally:
-        out, err = sweep.communicate(timeout=900)
+        sweep.wait(timeout=900)
+    err = (tmp_path / "err.txt").read_text()
     assert sweep.returncode == 1, err[-3000:]
     errors = [line for line in err.splitlines() if line.startswith("error: config")]
     assert len(errors) == 1 and errors[0].startswith(f"error: config cell-tcn failed: {rule} of seed "), err
@@ -104,23 +111,28 @@ def test_the_tiny_sweep_through_slurm_fails_a_cancelled_config_alone_and_the_rer
         local_sweep["result"].stdout.strip().splitlines()[-1].split("; deploy it")[0]
 
 
-def test_fit_through_slurm_writes_the_model_a_local_run_writes(cluster, arm_fit, tmp_path):
+def test_fit_through_slurm_writes_the_model_a_local_run_writes(cluster, arm_fit_args, request, tmp_path):
     import zipfile
 
     profile = tmp_path / "profile"
     profile.mkdir()
     (profile / "config.yaml").write_text(PROFILE)
+    done = started([str(Path(sys.executable).with_name("mlnseq")), *arm_fit_args, "-w", "cluster", "--executor",
+                    "slurm", "--profile", str(profile)], tmp_path, cluster)
+    try:
+        arm_fit = request.getfixturevalue("arm_fit")  # run while the executor waits between status checks
+    finally:
+        done.wait(timeout=900)
+    assert done.returncode == 0, (tmp_path / "err.txt").read_text()[-3000:]
     local = arm_fit["workdir"]
-    done = mlnseq(*arm_fit["args"], "-w", "cluster", "--executor", "slurm", "--profile", str(profile), cwd=tmp_path,
-                  env=cluster, timeout=900)
-    assert done.returncode == 0, done.stderr[-3000:]
     jobs = {p.parts[-2] for p in (tmp_path / "cluster" / ".fit" / ".snakemake" / "slurm_logs").glob("rule_*/*.log")}
     assert jobs == {"rule_logic", "rule_network"}
     for name in ("predicates.parquet", "weights.parquet", "predictions.parquet", "models/lstm.oof.parquet"):
         assert pl.read_parquet(local / name).equals(pl.read_parquet(tmp_path / "cluster" / name)), name
     with zipfile.ZipFile(local / "model.mlnseq") as a, zipfile.ZipFile(tmp_path / "cluster" / "model.mlnseq") as b:
         assert a.read("network.npz") == b.read("network.npz") and a.read("binarize.toml") == b.read("binarize.toml")
-    assert done.stdout.splitlines()[-1].replace("cluster", "local") == arm_fit["stdout"].splitlines()[-1]
+    said = (tmp_path / "out.txt").read_text()
+    assert said.splitlines()[-1].replace("cluster", "local") == arm_fit["stdout"].splitlines()[-1]
 
 
 def test_the_example_profile_is_the_one_tested():
