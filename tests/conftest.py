@@ -27,10 +27,11 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 # Files whose tests compare with one costly run of a session fixture: the interrupted local sweep (the SLURM sweep's
-# reference) and one local fit (``arm_fit``: fit's parts side by side, fit through SLURM). One worker takes them
-# together, so each run is made once.
-ONE_WORKER = {"tests/stages/sweeps/test_sweep_local.py": "tests/stages/sweeps/test_sweep_slurm.py",
-              "tests/stages/pipeline/test_fit_parts.py": "tests/stages/sweeps/test_sweep_slurm.py"}
+# reference, and the full disk's) and one local fit (``arm_fit``: fit's parts side by side, fit through SLURM). One
+# worker takes them with the SLURM tests' file, so each run is made once.
+ONE_WORKER = {path: "tests/stages/sweeps/test_sweep_slurm.py" for path in (
+    "tests/stages/sweeps/test_sweep_local.py", "tests/stages/sweeps/test_sweep_disk.py",
+    "tests/stages/sweeps/test_sweep_file.py", "tests/stages/pipeline/test_fit_parts.py")}
 
 
 def pytest_xdist_make_scheduler(config, log):
