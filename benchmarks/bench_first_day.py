@@ -20,8 +20,8 @@ Datasets (each built here, or read from ../shared/data):
 ``BENCH_FIRST_DAY`` names the datasets to run (comma-separated; default all); ``BENCH_EPOCHS`` fit's epochs (100);
 ``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each figure the mean over them, with its range;
 fetch's seed also draws its episodes); ``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only
-``arm-panda-dev``, 4 bags at 15 Hz and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets of issue
-45 (on the means).
+``arm-panda-dev``, 4 bags at 15 Hz and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets
+of issue 45 (on the means).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """``fit --executor processes``: the logic (binarize, formulas, learn-weights) and the networks (train) as two
 processes side by side through Snakemake, on six short episodes of the generated arm (tests/arm_bags.py, 15 Hz)
-fitted for 2 epochs, write the model a local run writes (``arm_fit``, tests/conftest.py) (the same predicates, weights, network and predictions) and
-say the same lines; a part that fails names itself and its log; --executor and --profile are checked first.
+fitted for 2 epochs, write the model a local run writes (``arm_fit``, tests/conftest.py: the same predicates,
+weights, network and predictions) and say the same lines; a part that fails names itself and its log; --executor and
+--profile are checked first.
 The same through a one-node SLURM cluster: tests/sweeps/test_sweep_slurm.py (one cluster per test file)."""
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pytest
 
 pytest.importorskip("torch", reason="the [train] extra is not installed")
 pytest.importorskip("snakemake", reason="the [sweep] extra is not installed")
+
 
 def mlnseq(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *args], cwd=cwd, capture_output=True,
