@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,11 +50,13 @@ ORDER_RUN_S = 0.5  # the phase-order rule leaves out runs shorter than this (the
 TARGETS = {"auroc": 0.97, "top_k": 0.90, "clean": 1 / 30}
 
 
-QUICK_RATE = 15.0  # Hz: the quick run's arm recordings (fewer frames to fit and audit than the robots' own rates)
-
-
 def quick() -> bool:
     return os.environ.get("BENCH_QUICK") == "1"
+
+
+def arm_rate() -> float | None:
+    """The arm recordings' frame rate: 15 Hz in the quick run (fewer frames to fit and audit), else the robot's."""
+    return 15.0 if quick() else None
 
 
 def mlnseq(*args: object) -> subprocess.CompletedProcess:
@@ -95,7 +97,7 @@ def arm_recordings(root: Path, robot: str, seed: int) -> tuple[list[str], Record
     import arm_bags
     import arm_failures
 
-    rate = QUICK_RATE if quick() else None
+    rate = arm_rate()
     bags, _ = arm_bags.write_folders(root / "bags", robot, seed, 4 if quick() else 6, 0, rate)
     clean, failed, odd = (4, 2, 2) if quick() else (30, 6, 10)
     seeds_ = [seed * 1000 + 500 + k for k in range(clean)]
@@ -103,9 +105,8 @@ def arm_recordings(root: Path, robot: str, seed: int) -> tuple[list[str], Record
             + arm_failures.failures(robot, KINDS, seeds_[:failed], rate)
             + arm_failures.failures(robot, ("slow", "hesitant"), seeds_[:odd], rate))
     names = [f"{r.kind}_{r.seed}" for r in made]
-    arm_failures.table(made, robot, names, rate).write_parquet(root / "recordings.parquet")
-    arm = arm_bags.ROBOTS[robot] if rate is None else replace(arm_bags.ROBOTS[robot], rate=rate)
-    lengths = [len(arm_bags.episode_signals(arm, seed * 1000 + k)["phase"]) for k in range(6)]
+    arm_failures.table(made, robot, names).write_parquet(root / "recordings.parquet")
+    lengths = [len(arm_bags.episode_signals(arm_bags.at_rate(robot, rate), seed * 1000 + k)["phase"]) for k in range(6)]
     source = ["--env", "rosbag", "--source", str(bags), "--label-topic", "/phase"]
     return source, Recordings(["--env", "table", "--source", str(root / "recordings.parquet"), "--episode-column",
                                "episode", "--time-column", "time"], dict(zip(names, (r.kind for r in made))),
@@ -317,14 +318,14 @@ def speed_row(root: Path, model: Path) -> dict:
 
     count = 12 if quick() else 1000
     kinds = ("clean", *KINDS)
-    rate = QUICK_RATE if quick() else None  # the dev row's model's
-    made = arm_failures.failures("panda", kinds, list(range(900_000, 900_000 + count // len(kinds) + 1)), rate)[:count]
+    seeds = list(range(900_000, 900_000 + count // len(kinds) + 1))
+    made = arm_failures.failures("panda", kinds, seeds, arm_rate())[:count]  # at the dev row's model's rate
     for recording in made:  # each 600 frames: cut, or its last frame held
         for key, values in recording.signals.items():
             extra = max(600 - len(values), 0)
             recording.signals[key] = np.concatenate([values[:600], values[-1:].repeat(extra, axis=0)])
     names = [f"r{k}" for k in range(len(made))]
-    arm_failures.table(made, "panda", names, rate).write_parquet(root / "speed.parquet")
+    arm_failures.table(made, "panda", names).write_parquet(root / "speed.parquet")
     reading = ["--env", "table", "--source", root / "speed.parquet", "--episode-column", "episode", "--time-column",
                "time"]
     out = {"recordings": len(made), "frames": 600 * len(made)}

@@ -62,12 +62,9 @@ def spread(values: list[float]) -> str:
 def bags(root: Path, robot: str, seed: int, n: int, heldout: int, rate: float | None = None) -> dict:
     """``n`` bags with /phase (``all``), the same without it (``bare``), held-out ones, and one click per phase;
     ``rate``: another frame rate than the robot's."""
-    from dataclasses import replace
-
     import arm_bags
 
-    arm, rng = arm_bags.ROBOTS[robot], np.random.default_rng(seed)  # rng: where each click falls
-    arm = arm if rate is None else replace(arm, rate=rate)
+    arm, rng = arm_bags.at_rate(robot, rate), np.random.default_rng(seed)  # rng: where each click falls
     names = {f"episode_{k + 1}": seed * 1000 + k for k in range(n)}
     for name, s in names.items():
         arm_bags.write_bag(root / "all" / name, arm, s)

@@ -16,7 +16,6 @@ import statistics
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +33,7 @@ def arm_table(seeds: range, frames: int | None = None) -> pl.DataFrame:
     end as one recording of that many frames."""
     import arm_bags
 
-    robot = replace(arm_bags.ROBOTS["panda"], rate=RATE)
+    robot = arm_bags.at_rate("panda", RATE)
     tables, total = [], 0
     for k, seed in enumerate(seeds):
         signals = arm_bags.episode_signals(robot, seed)

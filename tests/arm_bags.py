@@ -18,7 +18,7 @@ into FOLDER and two held-out bags of other seeds into FOLDER-heldout.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +61,11 @@ ROBOTS = {
                    0.085, (0.02, 0.045), 0.04,
                    noise={"position": 1e-4, "velocity": 0.02, "effort": 0.4, "gripper": 1e-5}, friction=1.0),
 }
+
+
+def at_rate(robot: str, rate: float | None = None) -> Robot:
+    """The arm of ROBOTS named ``robot``, its topics at ``rate`` Hz where given (else at its own rate)."""
+    return ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
 
 
 def minimum_jerk(start: np.ndarray, end: np.ndarray, frames: int) -> np.ndarray:
@@ -231,11 +236,9 @@ def write_table(path: Path, robot: str = "xarm7", seed: int = 0, episodes: int =
     """``episodes`` episodes of ``robot`` (seeds seed*1000 + 0, 1, ...) as one Parquet table for `collect --env table`:
     episode (ep0, ep1, ...), frame, the 22 channels named by joint (joint1_position ... gripper_width) and label (the
     phase's name); ``rate``: another frame rate than the robot's."""
-    from dataclasses import replace
-
     import polars as pl
 
-    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
+    arm = at_rate(robot, rate)
     tables = []
     for k in range(episodes):
         signals = episode_signals(arm, seed * 1000 + k)
@@ -252,10 +255,7 @@ def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: i
                   rate: float | None = None) -> tuple[Path, Path]:
     """``episodes`` bags of ``robot`` (seeds seed*1000 + 0, 1, ...) in ``folder`` and ``heldout`` more (the next
     seeds) in FOLDER-heldout; ``rate``: another frame rate than the robot's (more frames per episode)."""
-    from dataclasses import replace
-
-    arm, other = ROBOTS[robot], folder.with_name(folder.name + "-heldout")
-    arm = arm if rate is None else replace(arm, rate=rate)
+    arm, other = at_rate(robot, rate), folder.with_name(folder.name + "-heldout")
     folder.mkdir(parents=True)
     other.mkdir(parents=True)
     for k in range(episodes + heldout):
@@ -272,9 +272,7 @@ def write_folders(folder: Path, robot: str = "panda", seed: int = 0, episodes: i
 # per frame) and its side (the object's side of the cell or the place's).
 def hand_spec(robot: str = "panda", rate: float | None = None) -> str:
     """The hand spec for ``robot``'s bags (at ``rate``, where another than the robot's)."""
-    from dataclasses import replace
-
-    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
+    arm = at_rate(robot, rate)
     joint1, joint2 = arm.joints[0], arm.joints[1]
     bent = np.array([0.0, 0.475, 0.0, 0.285, 0.0, -0.1425, 0.0])  # to the table, on average; lifted: half of it
     table, lifted = ((np.array(arm.home) + share * bent)[None] for share in (1.0, 0.5))

@@ -50,12 +50,14 @@ HOME, REACH, BEFORE, CLOSE, HELD, LIFT, CARRY, LOWER, SETTLE, OPEN, RETREAT, RES
 
 @dataclass(frozen=True)
 class Failure:
-    """One recording's channels (as arm_bags.episode_signals makes them), its kind and where it went wrong."""
+    """One recording's channels (as arm_bags.episode_signals makes them), its kind, where it went wrong and its
+    frame rate."""
 
     kind: str
     seed: int
     signals: dict
     wrong: str | None  # the phase where it went wrong; None: a clean recording
+    rate: float  # Hz, the arm's it was drawn for
 
     @property
     def failed(self) -> bool:
@@ -311,9 +313,9 @@ def failure(robot: Robot, kind: str, seed: int) -> Failure:
     rng = np.random.default_rng(seed)
     episode, _ = arm_bags.trajectory(robot, rng)
     if kind == "clean":
-        return Failure(kind, seed, arm_bags.signals_of(robot, episode, rng), None)
+        return Failure(kind, seed, arm_bags.signals_of(robot, episode, rng), None, robot.rate)
     changed, wrong = KINDS[kind](robot, parts_of(episode), np.random.default_rng([seed, FAILED_SEED[kind]]))
-    return Failure(kind, seed, arm_bags.signals_of(robot, episode_of(changed), rng), wrong)
+    return Failure(kind, seed, arm_bags.signals_of(robot, episode_of(changed), rng), wrong, robot.rate)
 
 
 FAILED_SEED = {kind: k + 1 for k, kind in enumerate(KINDS)}
@@ -321,9 +323,7 @@ FAILED_SEED = {kind: k + 1 for k, kind in enumerate(KINDS)}
 
 def failures(robot: str, kinds: tuple[str, ...], seeds: range | list[int], rate: float | None = None) -> list[Failure]:
     """Every kind at every seed, for ``robot`` (a name of arm_bags.ROBOTS; ``rate``: another frame rate than its)."""
-    from dataclasses import replace
-
-    arm = ROBOTS[robot] if rate is None else replace(ROBOTS[robot], rate=rate)
+    arm = arm_bags.at_rate(robot, rate)
     return [failure(arm, kind, seed) for kind in kinds for seed in seeds]
 
 
@@ -334,13 +334,11 @@ def frames_columns(robot: str) -> list[str]:
             + ["/gripper/width/data"])
 
 
-def table(recordings: list[Failure], robot: str, names: list[str] | None = None, rate: float | None = None):
+def table(recordings: list[Failure], robot: str, names: list[str] | None = None):
     """The recordings as one table an audit reads with --env table: an ``episode`` column (KIND_SEED, or ``names``),
-    a ``time`` column in seconds (at ``rate``, where they were drawn at another than the robot's) and the bags'
-    feature names."""
+    a ``time`` column in seconds (at each recording's rate) and the bags' feature names."""
     import polars as pl
 
-    rate = rate or ROBOTS[robot].rate
     columns = frames_columns(robot)
     parts = []
     for k, recording in enumerate(recordings):
@@ -349,7 +347,7 @@ def table(recordings: list[Failure], robot: str, names: list[str] | None = None,
         name = names[k] if names else f"{recording.kind}_{recording.seed}"
         frame = pl.DataFrame({c: values[:, i] for i, c in enumerate(columns)})
         parts.append(frame.with_columns(pl.lit(name).alias("episode"),
-                                        (pl.int_range(pl.len()) / rate).alias("time")))
+                                        (pl.int_range(pl.len()) / recording.rate).alias("time")))
     return pl.concat(parts).select("episode", "time", *columns)
 
 

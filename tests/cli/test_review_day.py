@@ -25,15 +25,6 @@ EPOCHS = 5  # few: the test is about the day's flow, not the network; fit's figu
 RATE = 15.0  # Hz, the bags' (the panda's own 50 Hz would only make every fit slower)
 
 
-def arm():
-    """The generated panda at RATE."""
-    from dataclasses import replace
-
-    import arm_bags
-
-    return replace(arm_bags.ROBOTS["panda"], rate=RATE)
-
-
 def mlnseq(*args: str | Path, cwd: Path) -> str:
     done = subprocess.run([sys.executable, "-m", "mlnseq_cli.main", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=600)
@@ -52,7 +43,8 @@ def truth_runs(seed: int) -> list[list[int]]:
     import arm_bags
 
     classes = sorted(arm_bags.PHASES)
-    phase = [classes.index(arm_bags.PHASES[k]) for k in arm_bags.episode_signals(arm(), seed)["phase"]]
+    signals = arm_bags.episode_signals(arm_bags.at_rate("panda", RATE), seed)
+    phase = [classes.index(arm_bags.PHASES[k]) for k in signals["phase"]]
     starts = [t for t in range(len(phase)) if t == 0 or phase[t] != phase[t - 1]]
     return [[a, b - 1, phase[a]] for a, b in zip(starts, [*starts[1:], len(phase)])]
 
@@ -106,7 +98,7 @@ def test_one_labelled_recording_the_first_ranked_corrected_in_the_page_then_fit_
     pytest.importorskip("torch")
     import arm_bags
 
-    robot = arm()
+    robot = arm_bags.at_rate("panda", RATE)
     for k in range(6):
         arm_bags.write_bag(tmp_path / "bags" / f"episode_{k + 1}", robot, SEED + k, phases=k == 0)
     for k in range(2):

@@ -134,11 +134,9 @@ def test_every_dead_band_window_and_cut_is_scored_as_coding_every_frame_with_it_
 def test_a_long_training_split_is_searched_on_whole_episodes_of_every_fold():
     """Beyond the frames the search reads, it draws whole episodes evenly from each of the folds `mlnseq fit` cuts on
     the whole split (its record, so each fold's predicates are learned without that fold's episodes) and says so."""
-    from dataclasses import replace
-
     import arm_bags
 
-    slow = replace(arm_bags.ROBOTS["xarm7"], rate=15.0)  # short episodes: about 160 frames
+    slow = arm_bags.at_rate("xarm7", 15.0)  # short episodes: about 160 frames
     signals = [arm_bags.episode_signals(slow, 400 + k) for k in range(12)]
     frames = arm_bags.frames_table(signals, ["train"] * 10 + ["test"] * 2)
     train = frames.filter(pl.col("split") == "train")

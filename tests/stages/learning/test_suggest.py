@@ -29,11 +29,9 @@ def kinematics(tmp_path_factory, shared_data) -> Path:
 
 def arm_frames(seed: int = 5, episodes: int = 4, rate: float = 20.0) -> tuple[pl.DataFrame, dict]:
     """The frames collect would make of ``episodes`` arm episodes (the last one the test split), at ``rate``."""
-    from dataclasses import replace
-
     import arm_bags
 
-    robot = replace(arm_bags.ROBOTS["panda"], rate=rate)
+    robot = arm_bags.at_rate("panda", rate)
     tables = []
     for k in range(episodes):
         signals = arm_bags.episode_signals(robot, seed * 100 + k)
