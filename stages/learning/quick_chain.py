@@ -86,7 +86,9 @@ def logistic(rows: np.ndarray, counts: np.ndarray, l2: float = L2) -> np.ndarray
         if np.abs(gradient).max() <= GTOL * frames:
             break
         spread = totals[:, None, None] * (p[:, :, None] * np.eye(c) - p[:, :, None] * p[:, None, :])
-        hessian = np.einsum("ri,rj,rkl->ikjl", x, x, spread).reshape(d * c, d * c) + l2 * np.eye(d * c)
+        pairs = (x[:, :, None] * x[:, None, :]).reshape(len(x), d * d)  # sum_r x_ri x_rj spread_rkl as one matmul
+        hessian = (pairs.T @ spread.reshape(len(x), c * c)).reshape(d, d, c, c).transpose(0, 2, 1, 3)
+        hessian = hessian.reshape(d * c, d * c) + l2 * np.eye(d * c)
         step = np.linalg.solve(hessian, gradient.ravel()).reshape(d, c)
         for _ in range(30):
             tried, tried_log_p = objective(w + step)
