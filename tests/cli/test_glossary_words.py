@@ -62,13 +62,14 @@ def run(*args) -> str:
 def printed(tmp_path_factory, desk_stream_workdir, desk_frames_workdir, desk_test_recording) -> str:
     """What the commands print on the docs' DESK examples, and the learned spec binarize --suggest writes."""
     folder = tmp_path_factory.mktemp("glossary")
+    stream = shutil.copytree(desk_stream_workdir, folder / "stream")  # eval writes metrics.parquet into its workdir
     model = folder / "combined+viterbi.mlnseq"
-    said = [run("export", "--method", "combined+viterbi", "-o", model, "-w", desk_stream_workdir),
+    said = [run("export", "--method", "combined+viterbi", "-o", model, "-w", stream),
             run("info", model),
             run("explain", model, "--source", desk_test_recording, "--frame", 5000),
             run("explain", model, "--source", desk_test_recording, "--segment", 3),
             run("predict", model, "--source", desk_test_recording, "--explain", 2, "-o", folder / "p.parquet"),
-            run("eval", "-w", desk_stream_workdir)]
+            run("eval", "-w", stream)]
     suggest = folder / "suggest"
     suggest.mkdir()
     shutil.copy(desk_frames_workdir / "frames.parquet", suggest / "frames.parquet")
