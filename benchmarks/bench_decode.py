@@ -6,11 +6,13 @@ the whole live path per frame (the MLN factors of one frame from their cache, th
 ``Filter.step`` with 10 classes. Batch: the three decoders over the 20,924 test frames (one chain), the
 median of a few runs, and per frame. Lagged and legal decoders (issue 24): per frame online, and batch, with
 the check that both give the same classes; and every decoding ``conflate --decode all`` scores, at once. Data:
-the authors' published DESK motion codes (paper predicates).
+the authors' published DESK motion codes (paper predicates). ``BENCH_QUICK=1``: the first 4,000 test frames, each
+timing once.
 """
 
 from __future__ import annotations
 
+import os
 import statistics
 import time
 from pathlib import Path
@@ -28,7 +30,9 @@ from mlnseq.mln.published_codes import desk_predicates
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TEMPORAL = Path(__file__).resolve().parents[1] / "examples" / "temporal.mln"
 TARGET_STEP_MS = 0.05
-REPEATS = 3
+QUICK = os.environ.get("BENCH_QUICK") == "1"
+REPEATS = 1 if QUICK else 3
+QUICK_FRAMES = 4_000
 
 
 def desk_factors() -> tuple[pl.DataFrame, list[str], np.ndarray, np.ndarray]:
@@ -52,6 +56,8 @@ def per_step_ms(unary: np.ndarray, pairwise: np.ndarray, link: np.ndarray) -> fl
 
 def main() -> None:
     weights, columns, evidence, starts = desk_factors()
+    if QUICK:
+        evidence, starts = evidence[:QUICK_FRAMES], starts[:QUICK_FRAMES]
     factors = MLNFactors.from_weights(weights, columns, 7).chain(evidence, starts)
     frames = len(evidence)
     step_ms = statistics.median(per_step_ms(factors.unary, factors.pairwise, factors.link) for _ in range(REPEATS))
@@ -82,7 +88,7 @@ def main() -> None:
             decode(factors)
             times.append(time.perf_counter() - started)
         seconds = statistics.median(times)
-        print(f"decode: {name:13s} over all {frames:,} DESK test frames: {seconds * 1000:7.1f} ms "
+        print(f"decode: {name:13s} over {'the first' if QUICK else 'all'} {frames:,} DESK test frames: {seconds * 1000:7.1f} ms "
               f"({seconds / frames * 1e6:.2f} us per frame)", flush=True)
     started = time.perf_counter()
     batch = chain.filtered(factors)

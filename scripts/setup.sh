@@ -19,6 +19,8 @@ PYTHON=${PYTHON:-python3}
   >/dev/null || true
 .venv/bin/uv pip install -q --compile-bytecode --python .venv/bin/python -e ".[all,test]" \
   || .venv/bin/python -m pip install -q -e ".[all,test]"
+# the editable checkout's own modules too (each mlnseq process would otherwise compile the 80-odd it imports)
+.venv/bin/python -m compileall -q -j 0 stages mlnseq_cli benchmarks tests >/dev/null || true
 # ROS 1 from Debian's own packages (`mlnseq ros` and its test against a real master): installed where apt-get is
 # and we are root (CI), then linked into .venv (scripts/link_ros1.py); elsewhere the ROS test skips, saying why.
 ROS_PACKAGES="python3-rosmaster python3-rostopic python3-rospy python3-sensor-msgs python3-std-msgs"
