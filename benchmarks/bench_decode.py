@@ -88,8 +88,8 @@ def main() -> None:
             decode(factors)
             times.append(time.perf_counter() - started)
         seconds = statistics.median(times)
-        print(f"decode: {name:13s} over {'the first' if QUICK else 'all'} {frames:,} DESK test frames: {seconds * 1000:7.1f} ms "
-              f"({seconds / frames * 1e6:.2f} us per frame)", flush=True)
+        print(f"decode: {name:13s} over {'the first' if QUICK else 'all'} {frames:,} DESK test frames: "
+              f"{seconds * 1000:7.1f} ms ({seconds / frames * 1e6:.2f} us per frame)", flush=True)
     started = time.perf_counter()
     batch = chain.filtered(factors)
     batch_s = time.perf_counter() - started

@@ -6,7 +6,7 @@
 # torch 2.13.0 goes first, through pip: on these machines it is a CPU wheel on local disk (uv does not look
 # there), while a looser requirement with nothing installed would download a multi-GB CUDA build. The rest goes
 # through uv (parallel downloads: about 15 s where pip takes a minute), or pip where uv fails. Bytecode is
-# compiled at install, on every core (a shell with PYTHONDONTWRITEBYTECODE set would otherwise compile at each start).
+# compiled at install, on every core (with PYTHONDONTWRITEBYTECODE set, each process would compile what it imports).
 set -euo pipefail
 cd "$(dirname "$(readlink -f "$0")")/.."  # the checkout itself, also when run through a link to scripts/
 PYTHON=${PYTHON:-python3}
@@ -14,9 +14,9 @@ PYTHON=${PYTHON:-python3}
 .venv/bin/python -m pip install -q --upgrade pip uv
 .venv/bin/python -m pip install -q --no-compile "torch==2.13.0" \
   || .venv/bin/python -m pip install -q --no-compile "torch>=2.2"
+TORCH_DIR=$(.venv/bin/python -c 'import importlib.util as u; print(u.find_spec("torch").submodule_search_locations[0])')
 # (one file of torch's own tests is Python 3.12 only: compileall reports it and exits 1, as pip would skip it)
-.venv/bin/python -m compileall -q -j 0 "$(.venv/bin/python -c 'import importlib.util as u; print(u.find_spec("torch").submodule_search_locations[0])')" \
-  >/dev/null || true
+.venv/bin/python -m compileall -q -j 0 "$TORCH_DIR" >/dev/null || true
 .venv/bin/uv pip install -q --compile-bytecode --python .venv/bin/python -e ".[all,test]" \
   || .venv/bin/python -m pip install -q -e ".[all,test]"
 # the editable checkout's own modules too (each mlnseq process would otherwise compile the 80-odd it imports)

@@ -252,12 +252,14 @@ def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
         spec.write_text((folder / "robot.mln").read_text() + '\nHas("hold_closed_free", p) => Topic("grasp", p).\n'
                         'Has("ee_z_static", p) ^ Has("hold_static_loaded", p) => Topic("release", p).\n')
         workdir = folder / "work"
-        columns = TableColumns(label="phase", episode="trial", time="t", classes=("approach", "grasp", "lift", "release"))
+        columns = TableColumns(label="phase", episode="trial", time="t",
+                               classes=("approach", "grasp", "lift", "release"))
         collect.run(workdir, collect.CollectOptions(env="table", source=csv, columns=columns))
         binarize.run(workdir, binarize.BinarizeOptions(spec=folder / "robot.binarize.toml"))
         formulas.run(workdir, formulas.FormulasOptions(spec=spec))
         learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=workdir / "formulas.mln"))
-        model = export.run(workdir, export.ExportOptions(method="mln", decode="filter", output=folder / "mln.mlnseq")).path
+        model = export.run(workdir, export.ExportOptions(method="mln", decode="filter",
+                                                         output=folder / "mln.mlnseq")).path
         frame = g2 - recordings.filter(pl.col("trial") == 11)["row"][0]
         return {"csv": csv, "workdir": workdir, "model": model, "frame": frame}
 
