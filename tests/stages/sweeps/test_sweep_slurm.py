@@ -84,7 +84,7 @@ def test_the_tiny_sweep_through_slurm_fails_a_cancelled_config_alone_and_the_rer
                str(profile)]
     sweep = started(command, tmp_path, cluster)
     try:
-        with ThreadPoolExecutor(1) as watcher:  # its last job, so that the rerun has one job to submit
+        with ThreadPoolExecutor(1) as watcher:  # cell-tcn's last job (eval): its rerun submits one job
             cancelled = watcher.submit(cancel_a_job, cluster, "cell-tcn", ("eval",))
             local_sweep = request.getfixturevalue("local_sweep")  # run while the executor waits between status checks
             job, rule = cancelled.result()
