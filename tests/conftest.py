@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import pickle
 import shutil
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
@@ -50,6 +55,27 @@ def pytest_xdist_make_scheduler(config, log):
     return SharedFixtures(config, log)
 
 
+Made = TypeVar("Made")
+
+
+def made_once(tmp_path_factory, name: str, make: Callable[[Path], Made]) -> Made:
+    """What ``make(folder)`` returns, made by the first of the run's workers (pytest-xdist) that asks and read back by
+    the others, who wait for it: a session fixture's workdir is made once per run, not once per worker. Its files are
+    read-only to every test, as each fixture says."""
+    root = tmp_path_factory.getbasetemp()
+    root = root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root  # the run's folder, above each worker's
+    folder, result = root / f"made-{name}", root / f"made-{name}.pickle"
+    with open(root / f"made-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not result.exists():
+            shutil.rmtree(folder, ignore_errors=True)  # what a worker that failed making it left
+            folder.mkdir()
+            made = make(folder)
+            result.write_bytes(pickle.dumps(made))
+            return made
+    return pickle.loads(result.read_bytes())
+
+
 @pytest.fixture(scope="session")
 def arm_fit_args(tmp_path_factory) -> list[str]:
     """`mlnseq fit`'s arguments but -w for six short episodes of the generated arm (tests/arm_bags.py, 15 Hz) as one
@@ -92,9 +118,11 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def desk_frames_workdir(tmp_path_factory, shared_data) -> Path:
     """A workdir whose frames.parquet is the DESK motion import (22,329 frames); treat it as read-only."""
-    workdir = tmp_path_factory.mktemp("desk")
-    collect.run(workdir, collect.CollectOptions(env="desk", source=shared_data / "desk-taurus"))
-    return workdir
+    def make(workdir: Path) -> Path:
+        collect.run(workdir, collect.CollectOptions(env="desk", source=shared_data / "desk-taurus"))
+        return workdir
+
+    return made_once(tmp_path_factory, "desk", make)
 
 
 @pytest.fixture(scope="session")
@@ -103,10 +131,11 @@ def fetch_frames_workdir(tmp_path_factory) -> Path:
 
     Tests using it need MuJoCo: mark them ``@pytest.mark.mujoco``.
     """
-    workdir = tmp_path_factory.mktemp("fetch")
-    options = collect.CollectOptions(env="fetch", episodes=FETCH_TEST_EPISODES, seed=FETCH_TEST_SEED)
-    collect.run(workdir, options)
-    return workdir
+    def make(workdir: Path) -> Path:
+        collect.run(workdir, collect.CollectOptions(env="fetch", episodes=FETCH_TEST_EPISODES, seed=FETCH_TEST_SEED))
+        return workdir
+
+    return made_once(tmp_path_factory, "fetch", make)
 
 
 @pytest.fixture(scope="session")
@@ -114,12 +143,14 @@ def desk_mln_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     """DESK frames + predicates + the paper's formulas + learned weights (bare options); read-only."""
     from mlnseq import binarize, formulas, learn_weights
 
-    workdir = tmp_path_factory.mktemp("desk-mln")
-    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
-    binarize.run(workdir, binarize.BinarizeOptions())
-    formulas.run(workdir, formulas.FormulasOptions())
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
-    return workdir
+    def make(workdir: Path) -> Path:
+        shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+        binarize.run(workdir, binarize.BinarizeOptions())
+        formulas.run(workdir, formulas.FormulasOptions())
+        learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
+        return workdir
+
+    return made_once(tmp_path_factory, "desk-mln", make)
 
 
 @pytest.fixture(scope="session")
@@ -127,13 +158,15 @@ def desk_full_workdir(tmp_path_factory, desk_mln_workdir) -> Path:
     """Every artifact of the bare DESK pipeline (lstm trained 2 epochs, conflated, evaluated); read-only."""
     from mlnseq import conflate, eval as evaluate, train
 
-    workdir = tmp_path_factory.mktemp("desk-full")
-    for path in desk_mln_workdir.iterdir():
-        shutil.copy(path, workdir / path.name)
-    train.run(workdir, train.TrainOptions(epochs=2))
-    conflate.run(workdir, conflate.ConflateOptions())
-    evaluate.run(workdir, evaluate.EvalOptions())
-    return workdir
+    def make(workdir: Path) -> Path:
+        for path in desk_mln_workdir.iterdir():
+            shutil.copy(path, workdir / path.name)
+        train.run(workdir, train.TrainOptions(epochs=2))
+        conflate.run(workdir, conflate.ConflateOptions())
+        evaluate.run(workdir, evaluate.EvalOptions())
+        return workdir
+
+    return made_once(tmp_path_factory, "desk-full", make)
 
 
 @pytest.fixture(scope="session")
@@ -142,15 +175,17 @@ def desk_stream_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     validation part held out) and conflated with every decoding: a model a live stream can use; read-only."""
     from mlnseq import binarize, conflate, formulas, learn_weights, train
 
-    workdir = tmp_path_factory.mktemp("desk-stream")
-    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
-    binarize.run(workdir, binarize.BinarizeOptions())
-    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
-    for method in ("lstm", "priorlayer"):
-        train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
-    conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
-    return workdir
+    def make(workdir: Path) -> Path:
+        shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+        binarize.run(workdir, binarize.BinarizeOptions())
+        formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
+        learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
+        for method in ("lstm", "priorlayer"):
+            train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=3, select="val_accuracy"))
+        conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
+        return workdir
+
+    return made_once(tmp_path_factory, "desk-stream", make)
 
 
 @pytest.fixture(scope="session")
@@ -160,15 +195,17 @@ def desk_folds_workdir(tmp_path_factory, desk_frames_workdir) -> Path:
     (the network factor's weight learned, every method cross-validated); read-only."""
     from mlnseq import binarize, conflate, formulas, learn_weights, train
 
-    workdir = tmp_path_factory.mktemp("desk-folds")
-    shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
-    binarize.run(workdir, binarize.BinarizeOptions())
-    formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
-    for method in ("lstm", "priorlayer"):
-        train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=2, folds=3))
-    conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
-    return workdir
+    def make(workdir: Path) -> Path:
+        shutil.copy(desk_frames_workdir / "frames.parquet", workdir / "frames.parquet")
+        binarize.run(workdir, binarize.BinarizeOptions())
+        formulas.run(workdir, formulas.FormulasOptions(spec=REPO / "examples" / "temporal.mln"))
+        learn_weights.run(workdir, learn_weights.LearnWeightsOptions(folds=3))
+        for method in ("lstm", "priorlayer"):
+            train.run(workdir, train.TrainOptions(method=method, mode="stream", epochs=2, folds=3))
+        conflate.run(workdir, conflate.ConflateOptions(decode=("none", "filter", "viterbi")))
+        return workdir
+
+    return made_once(tmp_path_factory, "desk-folds", make)
 
 
 @pytest.fixture(scope="session")
@@ -196,33 +233,37 @@ def own_data_glitch(tmp_path_factory) -> dict[str, Path]:
     from mlnseq import binarize, export, formulas, learn_weights
     from mlnseq.sources.recording import TableColumns
 
-    folder = tmp_path_factory.mktemp("own-data-glitch")
-    example = REPO / "examples" / "own-data"
-    for name in ("make_data.py", "robot.binarize.toml", "robot.mln"):
-        shutil.copy(example / name, folder / name)
-    subprocess.run([sys.executable, "make_data.py"], cwd=folder, check=True, capture_output=True)
-    recordings = pl.read_csv(folder / "recordings.csv").with_row_index("row")
-    lift = recordings.filter((pl.col("trial") == 11) & (pl.col("phase") == "lift"))["row"].to_list()
-    g0, g1, g2 = lift[5:8]
-    z = recordings["ee_z"][g0 - 1]
-    glitch = {g0: (z, 50.0, 3.0), g1: (z, 50.0, 3.0), g2: (z, 20.0, 0.0)}
-    rows = recordings["row"].to_list()
-    values = {name: [glitch[r][i] if r in glitch else v for r, v in zip(rows, recordings[name].to_list())]
-              for i, name in enumerate(("ee_z", "gripper_mm", "wrist_force"))}
-    csv = folder / "glitch.csv"
-    recordings.drop("row").with_columns(pl.Series(k, v) for k, v in values.items()).write_csv(csv)
-    spec = folder / "glitch.mln"
-    spec.write_text((folder / "robot.mln").read_text() + '\nHas("hold_closed_free", p) => Topic("grasp", p).\n'
-                    'Has("ee_z_static", p) ^ Has("hold_static_loaded", p) => Topic("release", p).\n')
-    workdir = folder / "work"
-    columns = TableColumns(label="phase", episode="trial", time="t", classes=("approach", "grasp", "lift", "release"))
-    collect.run(workdir, collect.CollectOptions(env="table", source=csv, columns=columns))
-    binarize.run(workdir, binarize.BinarizeOptions(spec=folder / "robot.binarize.toml"))
-    formulas.run(workdir, formulas.FormulasOptions(spec=spec))
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=workdir / "formulas.mln"))
-    model = export.run(workdir, export.ExportOptions(method="mln", decode="filter", output=folder / "mln.mlnseq")).path
-    frame = g2 - recordings.filter(pl.col("trial") == 11)["row"][0]
-    return {"csv": csv, "workdir": workdir, "model": model, "frame": frame}
+    def make(folder: Path):
+        example = REPO / "examples" / "own-data"
+        for name in ("make_data.py", "robot.binarize.toml", "robot.mln"):
+            shutil.copy(example / name, folder / name)
+        subprocess.run([sys.executable, "make_data.py"], cwd=folder, check=True, capture_output=True)
+        recordings = pl.read_csv(folder / "recordings.csv").with_row_index("row")
+        lift = recordings.filter((pl.col("trial") == 11) & (pl.col("phase") == "lift"))["row"].to_list()
+        g0, g1, g2 = lift[5:8]
+        z = recordings["ee_z"][g0 - 1]
+        glitch = {g0: (z, 50.0, 3.0), g1: (z, 50.0, 3.0), g2: (z, 20.0, 0.0)}
+        rows = recordings["row"].to_list()
+        values = {name: [glitch[r][i] if r in glitch else v for r, v in zip(rows, recordings[name].to_list())]
+                  for i, name in enumerate(("ee_z", "gripper_mm", "wrist_force"))}
+        csv = folder / "glitch.csv"
+        recordings.drop("row").with_columns(pl.Series(k, v) for k, v in values.items()).write_csv(csv)
+        spec = folder / "glitch.mln"
+        spec.write_text((folder / "robot.mln").read_text() + '\nHas("hold_closed_free", p) => Topic("grasp", p).\n'
+                        'Has("ee_z_static", p) ^ Has("hold_static_loaded", p) => Topic("release", p).\n')
+        workdir = folder / "work"
+        columns = TableColumns(label="phase", episode="trial", time="t",
+                               classes=("approach", "grasp", "lift", "release"))
+        collect.run(workdir, collect.CollectOptions(env="table", source=csv, columns=columns))
+        binarize.run(workdir, binarize.BinarizeOptions(spec=folder / "robot.binarize.toml"))
+        formulas.run(workdir, formulas.FormulasOptions(spec=spec))
+        learn_weights.run(workdir, learn_weights.LearnWeightsOptions(formulas=workdir / "formulas.mln"))
+        model = export.run(workdir, export.ExportOptions(method="mln", decode="filter",
+                                                         output=folder / "mln.mlnseq")).path
+        frame = g2 - recordings.filter(pl.col("trial") == 11)["row"][0]
+        return {"csv": csv, "workdir": workdir, "model": model, "frame": frame}
+
+    return made_once(tmp_path_factory, "own-data-glitch", make)
 
 
 @pytest.fixture(scope="session")
@@ -234,15 +275,17 @@ def joint_state_model(tmp_path_factory, shared_data) -> dict:
     from mlnseq import export, train
     from mlnseq.sources import SourceOptions
 
-    folder = tmp_path_factory.mktemp("joint-states")
-    rows = ros_episode.desk_rows(shared_data)
-    bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
-    workdir = folder / "work"
-    collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
-        topics=("/joint_states",), label_topic="/phase")))
-    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
-    model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
-    return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:], "workdir": workdir}
+    def make(folder: Path):
+        rows = ros_episode.desk_rows(shared_data)
+        bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
+        workdir = folder / "work"
+        collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
+            topics=("/joint_states",), label_topic="/phase")))
+        train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
+        model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
+        return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:], "workdir": workdir}
+
+    return made_once(tmp_path_factory, "joint-states", make)
 
 
 @pytest.fixture(scope="session")
@@ -251,12 +294,14 @@ def lagged_joint_state_model(tmp_path_factory, joint_state_model) -> Path:
     smooth at lag 5 and exported as lstm+smooth@5 (a live feed holds 5 frames back); read-only."""
     from mlnseq import binarize, conflate, export, formulas, learn_weights
 
-    folder = tmp_path_factory.mktemp("lagged-joint-states")
-    workdir = folder / "work"
-    shutil.copytree(joint_state_model["workdir"], workdir)
-    binarize.run(workdir, binarize.BinarizeOptions(suggest=workdir / "suggested.binarize.toml"))
-    formulas.run(workdir, formulas.FormulasOptions())
-    learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
-    conflate.run(workdir, conflate.ConflateOptions(decode=("smooth",), lags=(5,)))
-    return export.run(workdir, export.ExportOptions(method="lstm", decode="smooth", lag=5,
-                                                    output=folder / "lstm-smooth.mlnseq")).path
+    def make(folder: Path):
+        workdir = folder / "work"
+        shutil.copytree(joint_state_model["workdir"], workdir)
+        binarize.run(workdir, binarize.BinarizeOptions(suggest=workdir / "suggested.binarize.toml"))
+        formulas.run(workdir, formulas.FormulasOptions())
+        learn_weights.run(workdir, learn_weights.LearnWeightsOptions())
+        conflate.run(workdir, conflate.ConflateOptions(decode=("smooth",), lags=(5,)))
+        return export.run(workdir, export.ExportOptions(method="lstm", decode="smooth", lag=5,
+                                                        output=folder / "lstm-smooth.mlnseq")).path
+
+    return made_once(tmp_path_factory, "lagged-joint-states", make)
