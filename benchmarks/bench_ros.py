@@ -45,20 +45,6 @@ MESSAGES = 6_000 if os.environ.get("BENCH_QUICK") else 60_000
 TARGET_RT, TARGET_GROWTH_MB = 1.0, 10.0
 
 
-def build_model(folder: Path):
-    import ros_episode
-    from mlnseq import collect, export, train
-    from mlnseq.sources import SourceOptions
-
-    rows = ros_episode.desk_rows(SHARED)
-    bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
-    workdir = folder / "work"
-    collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
-        topics=("/joint_states",), label_topic="/phase")))
-    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
-    return export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path, rows
-
-
 def resident_mb() -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -239,8 +225,9 @@ def main() -> None:
     print(f"load average: {' '.join(Path('/proc/loadavg').read_text().split()[:3])} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        model, rows = build_model(folder)
         import ros_episode
+
+        model, rows, _ = ros_episode.trained_model(folder, SHARED)
 
         live = rows[ros_episode.TRAIN_FRAMES:]
         node_core(model, live)

@@ -1,7 +1,7 @@
 """Live on ROS 2 over DDS: 10^5 /joint_states messages (1,000 s of a 100 Hz feed) through the ROS 2 node, in its
 core and between real DDS processes.
 
-The model: the ROS tests' lstm (benchmarks/bench_ros.py's ``build_model``). Side by side in this run:
+The model: the ROS tests' lstm (tests/ros_episode.py's ``trained_model``). Side by side in this run:
 
 - node core: each message as its CDR bytes (rosbags' writer, a ROS 2 bag's bytes), then what `mlnseq ros --ros 2`
   does on receipt: the DDS type built from the typestore deserializes it, `MessageFeed.receive` puts it on the
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_ros import REPO, TARGET_GROWTH_MB, TARGET_RT, build_model, resident_mb
+from benchmarks.bench_ros import REPO, SHARED, TARGET_GROWTH_MB, TARGET_RT, resident_mb
 
 MESSAGES = 10_000 if os.environ.get("BENCH_QUICK") else 100_000
 SPEED = 20.0  # the real-DDS run sends the 100 Hz feed 20x faster: 2 kHz
@@ -138,7 +138,7 @@ def main() -> None:
     print(f"load average: {' '.join(Path('/proc/loadavg').read_text().split()[:3])} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        model, rows = build_model(folder)
+        model, rows, _ = ros_episode.trained_model(folder, SHARED)
         bag = ros2_episode.write_bag(folder / "feed", feed_rows(rows[ros_episode.TRAIN_FRAMES:]))
         node_core(model, rows, bag)
         real_dds(model, bag, folder)

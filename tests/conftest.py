@@ -272,17 +272,9 @@ def joint_state_model(tmp_path_factory, shared_data) -> dict:
     /joint_states at 100 Hz (the first 1,000 frames, tests/ros_episode.py) and exported: {model, live}, with
     ``live`` the other 405 frames' rows."""
     import ros_episode
-    from mlnseq import export, train
-    from mlnseq.sources import SourceOptions
 
     def make(folder: Path):
-        rows = ros_episode.desk_rows(shared_data)
-        bag = ros_episode.write_bag(folder / "train.bag", rows[:ros_episode.TRAIN_FRAMES])
-        workdir = folder / "work"
-        collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
-            topics=("/joint_states",), label_topic="/phase")))
-        train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
-        model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
+        model, rows, workdir = ros_episode.trained_model(folder, shared_data)
         return {"model": model, "live": rows[ros_episode.TRAIN_FRAMES:], "workdir": workdir}
 
     return made_once(tmp_path_factory, "joint-states", make)

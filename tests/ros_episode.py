@@ -45,6 +45,22 @@ def write_bag(path: Path, rows: np.ndarray, start: int = START) -> Path:
     return path
 
 
+def trained_model(folder: Path, shared_data: Path) -> tuple[Path, np.ndarray, Path]:
+    """An lstm (stream mode, 40 epochs) trained on a bag of the first TRAIN_FRAMES rows in ``folder`` and exported:
+    (the model file, every row, the workdir)."""
+    from mlnseq import collect, export, train
+    from mlnseq.sources import SourceOptions
+
+    rows = desk_rows(shared_data)
+    bag = write_bag(folder / "train.bag", rows[:TRAIN_FRAMES])
+    workdir = folder / "work"
+    collect.run(workdir, collect.CollectOptions(env="rosbag", source=bag, recordings=SourceOptions(
+        topics=("/joint_states",), label_topic="/phase")))
+    train.run(workdir, train.TrainOptions(method="lstm", mode="stream", epochs=40))
+    model = export.run(workdir, export.ExportOptions(method="lstm", output=folder / "lstm.mlnseq")).path
+    return model, rows, workdir
+
+
 def echo_csv(rows: np.ndarray, repeat: int = 1, start: int = START) -> list[str]:
     """The lines `rostopic echo -p /joint_states` prints for these messages, each sent ``repeat`` times evenly
     within its 10 ms (a 100·repeat Hz feed holding the 100 Hz signal); joints listed in reverse from row 7 on."""
