@@ -42,23 +42,28 @@ def cpu():
     own, jobs = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + jobs.ru_utime + jobs.ru_stime
 
-marks = [("start", cpu(), time.perf_counter())]
+def own_cpu():  # training runs in fit's own process (the logic may run beside it in another)
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    return own.ru_utime + own.ru_stime
+
+marks = [("start", cpu(), time.perf_counter(), own_cpu())]
 
 class Timed(pipeline.Observer):
     def __getattribute__(self, name):
         if name in ("collected", "binarized", "weights_learned", "trained", "conflated"):
-            return lambda step: marks.append((name, cpu(), time.perf_counter()))
+            return lambda step: marks.append((name, cpu(), time.perf_counter(), own_cpu()))
         return object.__getattribute__(self, name)
 
     @contextmanager
     def training(self, epochs, folds):
-        marks.append(("training", cpu(), time.perf_counter()))
+        marks.append(("training", cpu(), time.perf_counter(), own_cpu()))
         yield lambda done: None
+        marks.append(("training ended", cpu(), time.perf_counter(), own_cpu()))
 
 flags, workdir, own = json.loads(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
 source = CollectOptions(env=flags["env"], source=Path(flags["source"]), recordings=SourceOptions(**flags["recordings"]))
 fitted = pipeline.fit(source, workdir, pipeline.FitOptions(**own), Timed())
-marks.append(("end", cpu(), time.perf_counter()))
+marks.append(("end", cpu(), time.perf_counter(), own_cpu()))
 peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
 test = {name: figures.frame_accuracy for name, figures in fitted.test.items()}
 print(json.dumps({"marks": marks, "peak_mb": peak / 1024, "method": fitted.method, "test": test}))
@@ -77,8 +82,8 @@ def fit(python: str, source: dict, workdir: Path, epochs: int | None, executor: 
     if done.returncode:
         raise RuntimeError(f"fit of {workdir.name} failed:\n{done.stderr[-3000:]}")
     measured = json.loads(done.stdout.strip().splitlines()[-1])
-    marks = {name: (cpu, wall) for name, cpu, wall in measured["marks"]}
-    training = (marks["trained"][0] - marks["training"][0]) if "training" in marks else None
+    marks = {name: (cpu, wall, own) for name, cpu, wall, own in measured["marks"]}
+    training = (marks["training ended"][2] - marks["training"][2]) if "training" in marks else None
     return {**measured, "wall": time.perf_counter() - started, "cpu": marks["end"][0] - marks["start"][0],
             "training": training}
 

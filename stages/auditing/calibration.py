@@ -15,8 +15,10 @@ from typing import Any
 import numpy as np
 
 from mlnseq.auditing import chains, scoring
-from mlnseq.auditing.profile import Calibration, Profile, boundary_error, calibrated_as, learn
+from mlnseq.auditing.profile import (Calibration, Profile, boundary_error, calibrated_as, learn, profile_of,
+                                     recordings, without)
 from mlnseq.auditing.scoring import Check
+from mlnseq.catalog import artifacts
 from mlnseq.catalog.methods import Method, needs_mln, network_of
 from mlnseq.catalog.parts import Part
 from mlnseq.choosing.latency import rate_of
@@ -47,21 +49,20 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
         evidence = inputs.mln.predicates.select(recognizer.columns).to_numpy().astype(bool)
     columns, rate = predicate_columns(recognizer) if evidence is not None else [], rate_of(inputs.meta)
     episodes = [span for span in sequences.runs(data.episodes) if train[span].all()]
-    found = out_of_fold(inputs, recognizer)
+    found = out_of_fold(inputs, recognizer, learned_weights(Path(workdir), recognizer.method))
     how = "cross-validation" if found is not None else "in-sample"
     path, factors = found if found is not None else in_sample(recognizer, data.features, data.episodes)
     parts = [(span, path[span], _whole(factors, span)) for span in episodes]
     lows = [None if f is None else _lowest(rate or 1.0, chains.step_likelihood(f, p)) for _, p, f in parts]
     errors = [boundary_error(data.labels[span], own) for span, own, _ in parts]
+    rows = np.concatenate([np.arange(span.start, span.stop) for span in episodes]) if episodes else np.zeros(0, int)
+    recorded = recordings(data.labels[rows], data.episodes[rows], None if evidence is None else evidence[rows], rate)
     measures = []
     for k, (span, own, chained) in enumerate(parts):
-        others = np.zeros(len(data.labels), dtype=bool)
-        for j, other in enumerate(episodes):
-            others[other] |= j != k
-        if not others.any():
+        others, common = without(recorded, k)
+        if not others:
             continue
-        held = learn(data.labels[others], data.episodes[others], None if evidence is None else evidence[others],
-                     recognizer.classes, columns, rate)
+        held = profile_of(others, recognizer.classes, columns, rate, common)
         held = calibrated_as(held, {}, _floor([low for j, low in enumerate(lows) if j != k]), Calibration(),
                              _rms([e for j, own in enumerate(errors) if j != k for e in own], rate))
         measures.append(_measured(held, own, None if evidence is None else evidence[span], chained))
@@ -69,7 +70,6 @@ def calibrated(workdir: Path, recognizer: Any) -> Profile:
                     recognizer.classes, columns, rate)
     highest = {check.value: max((m.get(check.value, 0.0) for m in measures), default=0.0) for check in Check}
     flagged = sum(_flagged(m, [o for o in measures if o is not m]) for m in measures)
-    rows = np.concatenate([np.arange(span.start, span.stop) for span in episodes]) if episodes else np.zeros(0, int)
     accuracy = float(np.mean(path[rows] == data.labels[rows])) if len(rows) else None
     calibration = Calibration(len(measures), flagged, highest, how, accuracy)
     return calibrated_as(profile, _allowances(measures), _floor(lows), calibration,
@@ -134,9 +134,11 @@ def _whole(factors: dict[int, ChainFactors] | None, span: slice) -> ChainFactors
     return piece if piece is not None and len(piece.unary) == span.stop - span.start else None
 
 
-def out_of_fold(inputs: WorkdirInputs, recognizer: Any) -> tuple[np.ndarray, dict[int, ChainFactors] | None] | None:
+def out_of_fold(inputs: WorkdirInputs, recognizer: Any, weights: list[float] | None = None
+                ) -> tuple[np.ndarray, dict[int, ChainFactors] | None] | None:
     """Per row of the training split, its phases decoded (viterbi, or undecoded the argmax) from what was fitted
-    without its fold, and each training episode's chain (by its first row; None undecoded); None without folds."""
+    without its fold, and each training episode's chain (by its first row; None undecoded); None without folds.
+    ``weights``: each fold's network weight as conflate learned it (:func:`learned_weights`); None: learned here."""
     from mlnseq.choosing.cross_validation import weighted
     from mlnseq.fusion.fuse import chain_of
 
@@ -159,12 +161,27 @@ def out_of_fold(inputs: WorkdirInputs, recognizer: Any) -> tuple[np.ndarray, dic
                                           fold.start(data.labels, data.episodes, len(inputs.classes)))))
     path = np.full(len(data.labels), -1, dtype=np.int64)
     pieces: dict[int, ChainFactors] = {}
-    for rows, chained in weighted(parts, log_p, data.labels, None, []):
+    known = weights if weights is not None and len(weights) == len(parts) else None
+    for rows, chained in weighted(parts, log_p, data.labels, known, []):
         for span in sequences.runs(data.episodes[rows]):
             piece = chains.piece(chained, span)
             pieces[int(rows[span.start])] = piece
             path[rows[span]] = chains.decoded_path(piece)
     return path, pieces
+
+
+def learned_weights(workdir: Path, method: str) -> list[float] | None:
+    """Each fold's network weight for ``method`` as conflate learned it on the other folds' chains (the weights
+    :func:`out_of_fold` would learn again), or None where conflate kept none or was given one (--network-weight)."""
+    path = workdir / artifacts.PREDICTIONS
+    if not path.is_file():
+        return None
+    meta = artifacts.read_metadata(path, "predictions")
+    if meta.get("network_weight_option") is not None or not meta.get("cross_validation"):
+        return None
+    learned = meta["cross_validation"].get("fold_network_weights", {})
+    return next(([float(w) for w in weights] for name, weights in learned.items()
+                 if name.partition("+")[0] == method), None)
 
 
 def _undecoded(inputs: WorkdirInputs, recognizer: Any, log_p: np.ndarray | None) -> np.ndarray:

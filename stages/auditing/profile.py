@@ -163,29 +163,72 @@ def segments_of(labels: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(labels[s.start]), s.start, s.stop) for s in sequences.runs(labels)]
 
 
-def learn(labels: np.ndarray, episodes: np.ndarray, evidence: np.ndarray | None, classes: list[str],
-          columns: list[tuple[str, str]], rate: float | None) -> Profile:
-    """The profile of labelled recordings: ``labels`` (class index per frame, -1 unlabelled: left out), grouped by
-    ``episodes``; ``evidence`` [T, W] their predicate values (None: a model without predicates, no rules)."""
-    orders, durations, inner, per_second = [], [], [], rate or 1.0
+@dataclass(frozen=True)
+class Recording:
+    """One labelled recording as a profile reads it: its phases in order, each segment's duration, and per phase the
+    share of its inner frames on which each predicate column is true (none: a model without predicates)."""
+
+    order: tuple[int, ...]
+    durations: list[tuple[int, float]]  # (class, seconds) per segment
+    shares: dict[int, np.ndarray]  # class -> [W]
+    trues: np.ndarray | None  # [W] its frames on which each column is true
+    frames: int
+
+
+def recordings(labels: np.ndarray, episodes: np.ndarray, evidence: np.ndarray | None, rate: float | None
+               ) -> list[Recording]:
+    """The fully labelled recordings among ``labels`` (class index per frame, -1 unlabelled), grouped by
+    ``episodes``."""
+    out, per_second = [], rate or 1.0
     for span in sequences.runs(episodes):
         mine = labels[span]
         if (mine < 0).any():
             continue
         runs = segments_of(mine)
-        orders.append(tuple(c for c, _, _ in runs))
-        durations.append([(c, (stop - start) / per_second) for c, start, stop in runs])
-        inner.append([(c, span.start + start + _edge(stop - start), span.start + stop - _edge(stop - start))
-                      for c, start, stop in runs])
-    if not orders:
+        shares, trues = {}, None
+        if evidence is not None:
+            for c in dict.fromkeys(c for c, _, _ in runs):
+                rows = np.concatenate([np.arange(span.start + a + _edge(b - a), span.start + b - _edge(b - a))
+                                       for k, a, b in runs if k == c])
+                if rows.size:
+                    shares[c] = evidence[rows].mean(axis=0)
+            trues = evidence[span].sum(axis=0)
+        durations = [(c, (stop - start) / per_second) for c, start, stop in runs]
+        out.append(Recording(tuple(c for c, _, _ in runs), durations, shares, trues, span.stop - span.start))
+    return out
+
+
+def learn(labels: np.ndarray, episodes: np.ndarray, evidence: np.ndarray | None, classes: list[str],
+          columns: list[tuple[str, str]], rate: float | None) -> Profile:
+    """The profile of labelled recordings: ``labels`` (class index per frame, -1 unlabelled: left out), grouped by
+    ``episodes``; ``evidence`` [T, W] their predicate values (None: a model without predicates, no rules)."""
+    common = None if evidence is None else evidence.mean(axis=0) >= INFORMATIVE
+    return profile_of(recordings(labels, episodes, evidence, rate), classes, columns, rate, common)
+
+
+def profile_of(recorded: list[Recording], classes: list[str], columns: list[tuple[str, str]], rate: float | None,
+               common: np.ndarray | None) -> Profile:
+    """The profile of ``recorded`` (:func:`recordings`); ``common``: the columns true on INFORMATIVE of their frames
+    (None: no rules)."""
+    if not recorded:
         raise BadInput("no labelled recording to learn what the task looks like from")
     n, timed, rate = len(classes), rate is not None, rate or 1.0
+    durations = [r.durations for r in recorded]
     logs = [[math.log(d) for r in durations for c, d in r if c == k] for k in range(n)]
     means = [float(np.mean(v)) if v else None for v in logs]
     shortest = [min((d for r in durations for c, d in r if c == k), default=None) for k in range(n)]
-    rules = () if evidence is None else tuple(_rules(inner, evidence, n))
-    return Profile(tuple(classes), tuple(columns), float(rate), tuple(orders), tuple(means), tuple(shortest),
-                   tuple(_spreads(durations, means, n)), rules, timed=timed)
+    rules = () if common is None else tuple(_rules(recorded, common, n))
+    return Profile(tuple(classes), tuple(columns), float(rate), tuple(r.order for r in recorded), tuple(means),
+                   tuple(shortest), tuple(_spreads(durations, means, n)), rules, timed=timed)
+
+
+def without(recorded: list[Recording], k: int) -> tuple[list[Recording], np.ndarray | None]:
+    """The recordings but the ``k``-th, and the columns true on INFORMATIVE of their frames (as :func:`learn` finds
+    them on those recordings alone)."""
+    others = recorded[:k] + recorded[k + 1:]
+    if not others or others[0].trues is None:
+        return others, None
+    return others, sum(r.trues for r in others) / sum(r.frames for r in others) >= INFORMATIVE
 
 
 def _edge(length: int) -> int:
@@ -216,21 +259,15 @@ def _spreads(durations: list[list[tuple[int, float]]], means: list[float | None]
     return out
 
 
-def _rules(inner: list[list[tuple[int, int, int]]], evidence: np.ndarray, n: int) -> list[Rule]:
+def _rules(recorded: list[Recording], common: np.ndarray, n: int) -> list[Rule]:
     """The columns true (or never true) on at least HOLDS of each phase's inner frames in every recording that has
-    the phase; a "never" rule only for a column true on INFORMATIVE of all frames."""
-    shares: list[list[np.ndarray]] = [[] for _ in range(n)]
-    for recording in inner:
-        for c in range(n):
-            rows = np.concatenate([np.arange(a, b) for k, a, b in recording if k == c] or [np.zeros(0, np.int64)])
-            if rows.size:
-                shares[c].append(evidence[rows].mean(axis=0))
-    common = evidence.mean(axis=0) >= INFORMATIVE
+    the phase; a "never" rule only for a ``common`` column."""
     rules = []
     for c in range(n):
-        if not shares[c]:
+        shares = [r.shares[c] for r in recorded if c in r.shares]
+        if not shares:
             continue
-        share = np.stack(shares[c])
+        share = np.stack(shares)
         rules += [Rule(c, int(j), True) for j in np.flatnonzero(share.min(axis=0) >= HOLDS)]
         rules += [Rule(c, int(j), False) for j in np.flatnonzero((share.max(axis=0) <= 1 - HOLDS) & common)]
     return rules

@@ -124,15 +124,17 @@ def cross_validate(inputs: WorkdirInputs, mln_mode: str, decodes: Sequence[str],
 
 
 def weighted(parts: list[tuple[np.ndarray, ChainFactors]], log_p: np.ndarray | None, labels: np.ndarray,
-             fixed: float | None, said: list[list[float]]) -> list[tuple[np.ndarray, ChainFactors]]:
+             fixed: float | list[float] | None, said: list[list[float]]) -> list[tuple[np.ndarray, ChainFactors]]:
     """Each fold's chain with the network's log-probabilities at the weight learned on the other folds' chains (or
-    ``fixed``), each weight appended to every list of ``said``; the MLN alone (no network) as it is."""
+    ``fixed``: one for every fold, or each fold's as learned before), each weight appended to every list of
+    ``said``; the MLN alone (no network) as it is."""
     if log_p is None:
         return parts
     out = []
     for k, (rows, base) in enumerate(parts):
         others = [j for j in range(len(parts)) if j != k]
-        weight = fixed if fixed is not None else oof_weight([parts[j][1] for j in others],
+        known = fixed[k] if isinstance(fixed, list) else fixed
+        weight = known if known is not None else oof_weight([parts[j][1] for j in others],
                                                             [log_p[parts[j][0]] for j in others],
                                                             [labels[parts[j][0]] for j in others])
         for weights in said:

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
 CHECKS = 20  # the out-of-fold predictions are scored this many times over the budget
 PATIENCE = 5  # checks in a row without a lower out-of-fold NLL, for any seed, end the fitting
+ALONE_FRAMES = 20_000  # training frames from which each fold network is one network, not the mean of members
 
 
 @dataclass(frozen=True)
@@ -105,12 +106,12 @@ def fit_stopped(schedule: Schedule, networks: list[list[list[Fitting]]], parts: 
 
 def fit_folds(fold_data: list[FrameData], config: Any, options: Any, device: torch.device, seeds: tuple[int, ...],
               units: int, folds: Folds) -> tuple[list[list[SequenceClassifier]], list[HeldOut], list[int] | None]:
-    """Each seed's fold networks (each of ``options.members`` networks averaged), all side by side, each trained as
+    """Each seed's fold networks (each of :func:`fold_members` networks averaged), all side by side, each trained as
     the train stage trains without a validation part, nothing measured (their logs would not be kept): with SGD, the
     last epoch kept; with Adam (a budget of ``units`` fit units: the whole training split's), the epoch of the lowest
     out-of-fold NLL, also returned per seed. Returns them per seed and fold, and each fold's held-out part.
     ``options``: the train stage's."""
-    options = replace(options, select=Select.NONE)
+    options = replace(options, select=Select.NONE, members=fold_members(options.members, folds))
     rows = [Rows.of(data, options) for data in fold_data]
     networks = [[[part.start(data, config, replace(options, seed=member), device)
                   for member in member_seeds(seed, options.members)] for part, data in zip(rows, fold_data)]
@@ -124,3 +125,11 @@ def fit_folds(fold_data: list[FrameData], config: Any, options: Any, device: tor
     else:
         stop = fit_stopped(schedule, networks, parts, fold_data[0].labels, device)
     return [kept(per_seed) for per_seed in networks], parts, stop
+
+
+def fold_members(wanted: int, folds: Folds) -> int:
+    """The networks averaged into each fold network: the train stage's ``wanted`` on little data, where the mean
+    steadies networks fitted on a few recordings; one from ALONE_FRAMES training frames on, where a network fitted on
+    four fifths of them is steady alone and its out-of-fold predictions only score and stop (the network kept is
+    still the mean of ``wanted``)."""
+    return 1 if int((folds.fold >= 0).sum()) >= ALONE_FRAMES else wanted

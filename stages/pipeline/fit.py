@@ -137,6 +137,8 @@ def fit(source: CollectOptions, workdir: str | os.PathLike[str], options: FitOpt
     observer.collected(collected)
     if options.executor is not Executor.LOCAL:
         binarized, folding, formulas, weights, trained = _elsewhere(collected, workdir, options, observer)
+    elif parts.beside(collected.collected.frames):
+        binarized, folding, formulas, weights, trained = _beside(collected, workdir, options, observer)
     else:
         binarized = _binarize(workdir, options)
         observer.binarized(binarized)
@@ -179,6 +181,33 @@ def _elsewhere(collected: CollectStep, workdir: Path, options: FitOptions, obser
     return binarized, folding, formulas, weights, trained
 
 
+def _beside(collected: CollectStep, workdir: Path, options: FitOptions, observer: Observer
+            ) -> tuple[BinarizeStep, FoldStep, FormulasStep, WeightsStep, TrainStep]:
+    """The logic in a second process of this machine while this one trains the networks (``parts.beside``); the
+    observer hears the training as it goes, then the logic's stages and the training's end, in a local run's order."""
+    from mlnseq import train
+
+    folding = _folds(collected.collected, options.folds)
+    with parts.logic_beside(workdir, (options, folding.k)) as logic:
+        with observer.training(options.epochs, folding.k) as progress:
+            result = train.run(workdir, options.train_options(folding.k), progress)
+        binarized, formulas, weights = logic()
+    observer.binarized(binarized)
+    observer.folded(folding)
+    observer.formulas_written(formulas)
+    observer.weights_learned(weights)
+    trained = TrainStep(result, folding.k)
+    observer.trained(trained)
+    return binarized, folding, formulas, weights, trained
+
+
+def logic_part(workdir: Path, options: FitOptions, k: int) -> tuple[BinarizeStep, FormulasStep, WeightsStep]:
+    """fit's logic: binarize, formulas and learn-weights with ``k`` folds."""
+    binarized = _binarize(workdir, options)
+    formulas = _formulas(workdir, options, binarized)
+    return binarized, formulas, _weights(workdir, formulas, k)
+
+
 def run_part(part: str, workdir: str) -> None:
     """One of fit's parts as a job (pipeline/parts.py): the logic (binarize, formulas, learn-weights) or the network
     (train), by the plan in the workdir; its result written back for fit, or the error fit raises."""
@@ -188,9 +217,7 @@ def run_part(part: str, workdir: str) -> None:
     options, k = parts.read_plan(Path(workdir))
     try:
         if part == "logic":
-            binarized = _binarize(Path(workdir), options)
-            formulas = _formulas(Path(workdir), options, binarized)
-            result: object = (binarized, formulas, _weights(Path(workdir), formulas, k))
+            result: object = logic_part(Path(workdir), options, k)
         else:
             trained = train.run(Path(workdir), options.train_options(k))
             model = trained.trained.model  # torch's module travels as its weights (it holds its type's module)

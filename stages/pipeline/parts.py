@@ -1,6 +1,7 @@
 """Where ``fit`` runs its two independent parts: the **logic** (binarize, formulas, learn-weights) and the
 **network** (train: the network, then its fold networks) read only the collected frames and the folds, so they can
-run side by side. ``Executor.LOCAL`` runs them one after the other in fit's own process; ``PROCESSES`` and
+run side by side. ``Executor.LOCAL`` runs them in fit's own process, one after the other (from ``BESIDE_FRAMES``
+training frames on, with two cores, the logic in a second process while fit trains: ``beside``); ``PROCESSES`` and
 ``SLURM`` run them as the two jobs of a Snakemake workflow, on this machine's cores or as cluster jobs through
 Snakemake's SLURM executor (with a profile, as `mlnseq sweep --executor slurm` takes one). Each job is fit's own
 code (``mlnseq.pipeline.fit.run_part``) in a process of the same installation; what it returns comes back through
@@ -8,16 +9,20 @@ a file, so the model file is the one a local run writes.
 
 The workflow lives in ``WORKDIR/.fit/``: the plan (fit's options and folds, as the driver made them), the
 Snakefile, each part's result and each job's log (``logs/PART.log``), which stay there for reading; the plan and
-the results are removed once read. The workdir must be on a file system the cluster's nodes share.
+the results are removed once read. The workdir must be on a file system the cluster's nodes share. A local fit's
+logic beside it is the same job without Snakemake (``logic_beside``), its plan, result and log in the same folder.
 """
 
 from __future__ import annotations
 
 import enum
+import os
 import pickle
 import shlex
 import shutil
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -50,10 +55,13 @@ rule {part}:
 '''
 
 
+BESIDE_FRAMES = 20_000  # training frames from which a local fit runs the logic in a second process (two cores)
+
+
 class Executor(enum.Enum):
     """Where fit's parts run."""
 
-    LOCAL = "local"  # in fit's own process, one after the other
+    LOCAL = "local"  # in fit's own process, one after the other; from BESIDE_FRAMES on, the logic beside (``beside``)
     PROCESSES = "processes"  # side by side, as processes on this machine (Snakemake's local executor)
     SLURM = "slurm"  # as SLURM jobs (Snakemake's SLURM executor, with --profile)
 
@@ -77,6 +85,51 @@ def check(executor: Executor, profile: Path | None) -> None:
         raise BadInput(f"--executor slurm needs Snakemake's SLURM executor: {errors.install_hint('sweep')}")
     if profile is not None:
         sweep.check_profile(Path(profile))
+
+
+def beside(frames: Any) -> bool:
+    """Whether a local fit of ``frames`` (the collected table) runs its logic in a second process while it trains
+    the networks: from BESIDE_FRAMES training frames on, where the process has two cores or more. Smaller fits
+    take seconds, and a second process's start-up (about a second) and two parts slowing each other on shared cores
+    would eat what it gains."""
+    return len(os.sched_getaffinity(0)) >= 2 and int((frames["split"] == "train").sum()) >= BESIDE_FRAMES
+
+
+@contextmanager
+def logic_beside(workdir: Path, plan: Any) -> Iterator[Callable[[], Any]]:
+    """fit's logic part as a second process of this installation (``run_part``, by ``plan`` as ``write_plan`` keeps
+    it) while the caller trains; what it gives waits for the logic's result, or raises the error it stopped with.
+    The process is stopped on leaving, whatever it was doing."""
+    import subprocess
+
+    out = write_plan(workdir, plan)
+    log = out / "logs" / "logic.log"
+    with log.open("w") as said:
+        process = subprocess.Popen([sys.executable, "-c", "import sys; from mlnseq.pipeline.fit import run_part; "
+                                    "run_part(sys.argv[1], sys.argv[2])", "logic", str(workdir)],
+                                   stdout=said, stderr=subprocess.STDOUT)
+
+    def result() -> Any:
+        code = process.wait()
+        error = out / "logic.error.pickle"
+        if error.is_file():  # bad input, as a local run raises it
+            raise pickle.loads(error.read_bytes())
+        if code != 0:
+            last = next((line.strip() for line in reversed(log.read_text(errors="replace").splitlines())
+                         if line.strip()), "no output")
+            raise MlnseqError(f"fit's logic part failed (exit {code}): {last}; its log: {log}")
+        path = out / "logic.pickle"
+        done = pickle.loads(path.read_bytes())
+        path.unlink()
+        (out / PLAN).unlink(missing_ok=True)
+        return done
+
+    try:
+        yield result
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
 
 
 def folder(workdir: Path) -> Path:

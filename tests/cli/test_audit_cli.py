@@ -127,6 +127,38 @@ def test_a_model_exported_before_audit_learns_from_its_workdir_or_says_what_to_r
     assert not (tmp_path / "x.csv").exists()
 
 
+def test_calibration_reads_conflates_fold_weights_and_builds_each_held_out_profile_from_the_others(fitted):
+    """The profile export stores decodes each fold with the network weight conflate learned for it, read back, and
+    measures each recording against a profile of the other recordings made from their summaries: the same as
+    learning the weights again and each profile from the other recordings' frames."""
+    import numpy as np
+
+    from mlnseq.auditing import calibration, profile
+    from mlnseq.catalog.methods import Method, network_of
+    from mlnseq.choosing.workdir_inputs import read_workdir
+    from mlnseq.recognition.recognizer import Recognizer
+    from mlnseq.timeline import sequences
+
+    recognizer = Recognizer.load(fitted["model"])
+    inputs = read_workdir(fitted["work"], [str(network_of(recognizer.method) or Method.NETWORK)])
+    weights = calibration.learned_weights(fitted["work"], recognizer.method)
+    assert weights is not None and len(weights) == inputs.folds.folds.k
+    (read_back, chains), (learned, learned_chains) = (calibration.out_of_fold(inputs, recognizer, weights),
+                                                      calibration.out_of_fold(inputs, recognizer))
+    assert chains is not None and np.array_equal(read_back, learned)
+    assert all(np.array_equal(chains[k].unary, learned_chains[k].unary) for k in learned_chains)
+    data = inputs.data
+    evidence = inputs.mln.predicates.select(recognizer.columns).to_numpy().astype(bool)
+    spans = sequences.runs(data.episodes)
+    recorded = profile.recordings(data.labels, data.episodes, evidence, 30.0)
+    assert len(recorded) == len(spans) >= 6
+    for k in range(len(spans)):
+        rows = np.concatenate([np.arange(s.start, s.stop) for j, s in enumerate(spans) if j != k])
+        alone = profile.learn(data.labels[rows], data.episodes[rows], evidence[rows], recognizer.classes, [], 30.0)
+        others, common = profile.without(recorded, k)
+        assert profile.profile_of(others, recognizer.classes, [], 30.0, common) == alone and alone.rules
+
+
 def test_bad_input_is_one_line_and_writes_nothing(fitted, tmp_path):
     (tmp_path / "empty").mkdir()
     (tmp_path / "other.csv").write_text("a,b\n1,2\n3,4\n")

@@ -203,3 +203,15 @@ def test_export_takes_the_weight_conflate_learned_while_its_inputs_stand(desk_fo
                           artifacts.read_metadata(copy / artifacts.WEIGHTS))
     with pytest.raises(StaleArtifact, match="predictions.parquet was made from an older weights.parquet"):
         export.conflated_weight(copy, "conflation+filter")
+
+
+def test_fold_networks_are_the_mean_of_members_on_little_data_and_one_network_at_scale():
+    from mlnseq.choosing.fold_networks import ALONE_FRAMES, fold_members
+
+    episodes = np.repeat(np.arange(40), 630)  # 40 recordings of 630 frames, as the generated arm's
+    splits = np.where(episodes < 35, "train", "test")
+    labels = np.tile(np.repeat(np.arange(5), 126), 40)
+    big = folds.assign(episodes, splits, labels, 5)
+    assert (big.fold >= 0).sum() == 35 * 630 >= ALONE_FRAMES and fold_members(3, big) == 1
+    small = folds.assign(episodes[: 6 * 630], splits[: 6 * 630], labels[: 6 * 630], 5)
+    assert fold_members(3, small) == 3 and fold_members(1, small) == 1

@@ -139,3 +139,34 @@ def test_learned_transitions_decode_fetch_better_than_per_frame(fetch_frames_wor
     per_frame = max(accuracy["unary argmax"], accuracy["paper mln argmax"])
     assert accuracy["viterbi"] > per_frame + 0.05, accuracy
     assert accuracy["filter"] > per_frame, accuracy
+
+
+def test_metric_sample_draws_whole_chains_evenly() -> None:
+    starts = np.zeros(1000, dtype=bool)
+    starts[::50] = True  # 20 chains of 50 frames
+    assert cll.metric_sample(starts, most=1000) is None
+    rows = cll.metric_sample(starts, most=300)  # every 4th chain: 5 of them
+    chains = np.cumsum(starts) - 1
+    assert sorted(set(chains[rows].tolist())) == [0, 4, 8, 12, 16]
+    assert all(np.sum(chains[rows] == c) == 50 for c in (0, 4, 8, 12, 16))  # whole chains
+
+
+@pytest.mark.mujoco
+def test_a_sampled_metric_reaches_the_whole_datas_optimum(fetch_frames_workdir: Path) -> None:
+    """With the exact Hessian measured on a third of the chains, BFGS still stops at the optimum of all frames: the
+    Newton step there, by the Hessian of all frames, is as negligible as where the metric saw every chain."""
+    frames, meta = artifacts.read_table(fetch_frames_workdir / artifacts.FRAMES, "frames")
+    table = binarize.binarize(frames, binarize.load_spec(binarize.default_spec_path("fetch")))
+    training = stage.training_data(table.with_columns(pl.lit("train").alias("split")), len(meta["classes"]))
+    expanded, _, _ = expand_templates(read_spec(TEMPORAL).formulas, training.space)
+    states = AtomSpace(training.space.words, tuple(class_constant(k) for k in range(len(meta["classes"]))))
+    args = (expanded, training.evidence, training.labels, training.starts, states)
+    third = len(training.labels) // 3
+    assert len(cll.metric_sample(training.starts, third)) < len(training.labels) / 2
+    whole, sampled = cll.learn(*args), cll.learn(*args, metric_frames=third)
+    objective = cll.Objective(*args, cll.DEFAULT_L2)
+    for weights in (whole, sampled):
+        _, gradient = objective(weights[objective.learned])
+        newton = np.linalg.solve(objective.hessian(weights[objective.learned]), gradient)
+        assert np.abs(newton).max() < 2e-4 and gradient @ newton < 1e-10
+    assert np.abs(whole - sampled)[objective.learned].max() < 1e-3

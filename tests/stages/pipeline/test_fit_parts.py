@@ -59,6 +59,34 @@ def test_the_parts_side_by_side_write_the_model_a_local_run_writes(arm_fit_args,
     assert not list((tmp_path / "apart" / ".fit").glob("*.pickle"))  # the results, read, are gone
 
 
+def test_a_local_fit_of_many_frames_runs_its_logic_beside_the_networks_and_writes_the_same_model(
+        arm_table, arm_fit, tmp_path, monkeypatch):
+    """From parts.BESIDE_FRAMES training frames on (here lowered to this table's), a local fit learns the logic in a
+    second process while it trains: the same model as one after the other."""
+    from mlnseq.collect import CollectOptions
+    from mlnseq.pipeline import fit as pipeline
+    from mlnseq.pipeline import parts
+
+    heard = []
+
+    class Heard(pipeline.Observer):
+        def binarized(self, step):
+            heard.append("binarized")
+
+        def training(self, epochs, folds):
+            heard.append("training")  # before the logic's stages: they finish in the other process
+            return super().training(epochs, folds)
+
+        def trained(self, step):
+            heard.append("trained")
+
+    monkeypatch.setattr(parts, "BESIDE_FRAMES", 1)
+    monkeypatch.chdir(tmp_path)
+    pipeline.fit(CollectOptions(env="table", source=arm_table), "beside", pipeline.FitOptions(epochs=2), Heard())
+    assert heard == ["training", "binarized", "trained"]
+    same_model(arm_fit["workdir"], tmp_path / "beside")
+
+
 def test_a_part_that_fails_says_what_a_local_run_says_and_options_are_checked_first(arm_table, tmp_path):
     spec = tmp_path / "bad.binarize.toml"  # a predicate on a channel the frames lack: the logic part fails
     spec.write_text('[[predicate]]\nname = "hand"\nkind = "bins"\nchannel = "no_such_channel"\nedges = [0.5]\n'
@@ -76,3 +104,25 @@ def test_a_part_that_fails_says_what_a_local_run_says_and_options_are_checked_fi
         refused = mlnseq("fit", "--env", "table", "--source", str(arm_table), "-w", "never", *flags, cwd=tmp_path)
         assert refused.returncode == 2 and said in refused.stderr and not (tmp_path / "never").exists(), \
             refused.stderr
+
+
+def test_a_logic_beside_the_networks_that_fails_raises_what_a_local_run_raises(arm_fit, tmp_path):
+    import shutil
+
+    from mlnseq.catalog.errors import BadInput
+    from mlnseq.pipeline import fit as pipeline
+    from mlnseq.pipeline import parts
+
+    work = tmp_path / "work"
+    work.mkdir()
+    shutil.copy(arm_fit["workdir"] / "frames.parquet", work)
+    spec = tmp_path / "bad.binarize.toml"  # a predicate on a channel the frames lack
+    spec.write_text('[[predicate]]\nname = "hand"\nkind = "bins"\nchannel = "no_such_channel"\nedges = [0.5]\n'
+                    'values = ["low", "high"]\n')
+    options = pipeline.FitOptions(spec=spec, epochs=2)
+    with pytest.raises(BadInput) as local:
+        pipeline.logic_part(work, options, 3)
+    with parts.logic_beside(work, (options, 3)) as logic, pytest.raises(BadInput) as beside:
+        logic()
+    assert str(beside.value) == str(local.value) and "no_such_channel" in str(local.value)
+    assert (work / ".fit" / "logs" / "logic.log").is_file()
