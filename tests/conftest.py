@@ -32,12 +32,13 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 # Files whose tests compare with one costly run of a session fixture: the interrupted local sweep (the SLURM sweep's
-# reference, and the full disk's) and one local fit (``arm_fit``: fit's parts side by side, fit through SLURM) go to
-# the worker of the SLURM tests' file, which makes them while its cluster runs; the docs' recordings page's check to
-# the worker that runs the docs' pages. So each run is made once.
+# reference, and the full disk's) goes to the worker of the SLURM tests' file, which makes it while its cluster runs;
+# the docs' recordings page's check to the worker that runs the docs' pages. So each run is made once. (The local fit
+# that fit's parts and fit through SLURM compare with, ``arm_fit``, is made once by ``made_once`` instead: the parts'
+# tests run on the other worker while the cluster waits.)
 ONE_WORKER = {path: "tests/stages/sweeps/test_sweep_slurm.py" for path in (
     "tests/stages/sweeps/test_sweep_local.py", "tests/stages/sweeps/test_sweep_disk.py",
-    "tests/stages/sweeps/test_sweep_file.py", "tests/stages/pipeline/test_fit_parts.py")} | {
+    "tests/stages/sweeps/test_sweep_file.py")} | {
     "tests/docs/test_docs_recordings.py": "tests/docs/test_docs_run.py"}
 
 
@@ -82,8 +83,11 @@ def arm_fit_args(tmp_path_factory) -> list[str]:
     table, 2 epochs: what ``arm_fit`` runs, and fit's parts and fit through SLURM run again."""
     import arm_bags
 
-    table = arm_bags.write_table(tmp_path_factory.mktemp("arm-table") / "arm.parquet", seed=9, episodes=6, rate=15.0)
-    return ["fit", "--env", "table", "--source", str(table), "--epochs", "2"]
+    def make(folder: Path) -> list[str]:
+        table = arm_bags.write_table(folder / "arm.parquet", seed=9, episodes=6, rate=15.0)
+        return ["fit", "--env", "table", "--source", str(table), "--epochs", "2"]
+
+    return made_once(tmp_path_factory, "arm-table", make)
 
 
 @pytest.fixture(scope="session")
@@ -93,11 +97,13 @@ def arm_fit(tmp_path_factory, arm_fit_args) -> dict:
     import subprocess
     import sys
 
-    folder = tmp_path_factory.mktemp("arm-fit")
-    done = subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *arm_fit_args, "-w", "local"], cwd=folder,
-                          capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stderr[-3000:]
-    return {"workdir": folder / "local", "stdout": done.stdout}
+    def make(folder: Path) -> dict:
+        done = subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *arm_fit_args, "-w", "local"],
+                              cwd=folder, capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return {"workdir": folder / "local", "stdout": done.stdout}
+
+    return made_once(tmp_path_factory, "arm-fit", make)
 
 
 @pytest.fixture(scope="session")
