@@ -193,8 +193,8 @@ def metric_sample(starts: np.ndarray, most: int = METRIC_FRAMES) -> np.ndarray |
     if len(starts) <= most:
         return None
     chain = np.cumsum(starts) - 1
-    every = int(np.ceil(len(starts) / most))
-    return np.flatnonzero(chain % every == 0)
+    rows = np.flatnonzero(chain % int(np.ceil(len(starts) / most)) == 0)
+    return rows if len(rows) < len(starts) else None  # one long chain: all of it
 
 
 def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, starts: np.ndarray,

@@ -149,6 +149,7 @@ def test_metric_sample_draws_whole_chains_evenly() -> None:
     chains = np.cumsum(starts) - 1
     assert sorted(set(chains[rows].tolist())) == [0, 4, 8, 12, 16]
     assert all(np.sum(chains[rows] == c) == 50 for c in (0, 4, 8, 12, 16))  # whole chains
+    assert cll.metric_sample(np.eye(1, 1000, dtype=bool)[0], most=300) is None  # one long chain: all of it
 
 
 @pytest.mark.mujoco
