@@ -32,6 +32,7 @@ accuracy on the same held-out frames at 0.1: DESK 0.726, Fetch 40 0.718, Fetch 1
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -216,12 +217,13 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
     objective = Objective(formulas, evidence, labels, starts, space, l2)
     sample = metric_sample(starts, metric_frames)
 
-    def exact_metric(at: np.ndarray) -> np.ndarray:
+    @functools.cache
+    def measured() -> Objective:
+        """The objective the exact Hessian is measured on: this one, or its chains drawn (made once, when needed)."""
         if sample is None:
-            return objective.hessian(at)
-        drawn = Objective(formulas, np.asarray(evidence)[sample], np.asarray(labels)[sample],
-                          np.asarray(starts)[sample], space, l2)
-        return drawn.hessian(at)
+            return objective
+        return Objective(formulas, np.asarray(evidence)[sample], np.asarray(labels)[sample],
+                         np.asarray(starts)[sample], space, l2)
 
     weights = objective.weights.copy()
     n_learned = int(objective.learned.sum())
@@ -235,11 +237,11 @@ def learn(formulas: list[Expanded], evidence: np.ndarray, labels: np.ndarray, st
             learned, metric = np.zeros(n_learned), objective.curvature()
         else:  # near the optimum already (a search's previous set): the exact Hessian there
             learned = np.asarray(initial, dtype=np.float64)[objective.learned].copy()
-            metric, runs = exact_metric(learned), runs[1:]
+            metric, runs = measured().hessian(learned), runs[1:]
         with one_thread():
             for run, iterations in enumerate(runs):
                 if run:
-                    metric = exact_metric(learned)
+                    metric = measured().hessian(learned)
                 # l2 = 0: keep it definite
                 metric += 1e-9 * max(np.trace(metric) / n_learned, 1e-12) * np.eye(n_learned)
                 factor = linalg.cholesky(metric, lower=True)  # learned + factor^-T z

@@ -173,12 +173,7 @@ def _elsewhere(collected: CollectStep, workdir: Path, options: FitOptions, obser
     observer.parts_running(options.executor, out / "logs")
     done = parts.run(workdir, options.executor, options.profile)
     (binarized, formulas, weights), trained = done["logic"], _restored(*done["network"])
-    observer.binarized(binarized)
-    observer.folded(folding)
-    observer.formulas_written(formulas)
-    observer.weights_learned(weights)
-    observer.trained(trained)
-    return binarized, folding, formulas, weights, trained
+    return _told(observer, binarized, folding, formulas, weights, trained)
 
 
 def _beside(collected: CollectStep, workdir: Path, options: FitOptions, observer: Observer
@@ -192,11 +187,16 @@ def _beside(collected: CollectStep, workdir: Path, options: FitOptions, observer
         with observer.training(options.epochs, folding.k) as progress:
             result = train.run(workdir, options.train_options(folding.k), progress)
         binarized, formulas, weights = logic()
+    return _told(observer, binarized, folding, formulas, weights, TrainStep(result, folding.k))
+
+
+def _told(observer: Observer, binarized: BinarizeStep, folding: FoldStep, formulas: FormulasStep, weights: WeightsStep,
+          trained: TrainStep) -> tuple[BinarizeStep, FoldStep, FormulasStep, WeightsStep, TrainStep]:
+    """The parts' stages, finished side by side, said to ``observer`` in the order a local run says them."""
     observer.binarized(binarized)
     observer.folded(folding)
     observer.formulas_written(formulas)
     observer.weights_learned(weights)
-    trained = TrainStep(result, folding.k)
     observer.trained(trained)
     return binarized, folding, formulas, weights, trained
 

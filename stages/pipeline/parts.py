@@ -111,16 +111,11 @@ def logic_beside(workdir: Path, plan: Any) -> Iterator[Callable[[], Any]]:
 
     def result() -> Any:
         code = process.wait()
-        error = out / "logic.error.pickle"
-        if error.is_file():  # bad input, as a local run raises it
-            raise pickle.loads(error.read_bytes())
         if code != 0:
-            last = next((line.strip() for line in reversed(log.read_text(errors="replace").splitlines())
-                         if line.strip()), "no output")
-            raise MlnseqError(f"fit's logic part failed (exit {code}): {last}; its log: {log}")
-        path = out / "logic.pickle"
-        done = pickle.loads(path.read_bytes())
-        path.unlink()
+            _raise_own_error(out, "logic")
+            raise MlnseqError(f"fit's logic part failed (exit {code}): {_last_line(log) or 'no output'}; "
+                              f"its log: {log}")
+        done = _taken(out, "logic")
         (out / PLAN).unlink(missing_ok=True)
         return done
 
@@ -184,26 +179,39 @@ def run(workdir: Path, executor: Executor, profile: Path | None) -> dict[str, An
     artifacts.write_text(out / "Snakefile", snakefile(workdir, executor))
     ran = running.run_snakemake(command(out, executor, profile), out / "snakemake.log", lambda _: None)
     if ran.code != 0:
-        for part in PARTS:  # a part's own error (bad input), as a local run raises it
-            said = out / f"{part}.error.pickle"
-            if said.is_file():
-                raise pickle.loads(said.read_bytes())
+        for part in PARTS:
+            _raise_own_error(out, part)
         raise MlnseqError(failed(ran, out))
-    results = {}
-    for part in PARTS:
-        path = out / f"{part}.pickle"
-        results[part] = pickle.loads(path.read_bytes())
-        path.unlink()
+    results = {part: _taken(out, part) for part in PARTS}
     (out / PLAN).unlink(missing_ok=True)
     return results
+
+
+def _raise_own_error(out: Path, part: str) -> None:
+    """A part's own error (bad input), raised as a local run raises it, where it stopped with one."""
+    said = out / f"{part}.error.pickle"
+    if said.is_file():
+        raise pickle.loads(said.read_bytes())
+
+
+def _taken(out: Path, part: str) -> Any:
+    """A part's result, read and its file removed."""
+    path = out / f"{part}.pickle"
+    result = pickle.loads(path.read_bytes())
+    path.unlink()
+    return result
+
+
+def _last_line(log: Path) -> str:
+    """A job log's last line that is not blank ('' where it has none)."""
+    lines = log.read_text(errors="replace").splitlines() if log.is_file() else []
+    return next((line.strip() for line in reversed(lines) if line.strip()), "")
 
 
 def failed(ran: Any, out: Path) -> str:
     """One line: which part failed and why, with its log and its last line; or Snakemake's own last line."""
     for error in ran.errors:
         log = out / "logs" / f"{error.rule}.log"
-        last = next((line.strip() for line in reversed(log.read_text(errors="replace").splitlines()) if line.strip()),
-                    "") if log.is_file() else ""
-        return f"fit's {error.rule} part {error.reason()}: {last or 'no output'}; its log: {log}"
+        return f"fit's {error.rule} part {error.reason()}: {_last_line(log) or 'no output'}; its log: {log}"
     last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
     return f"fit's parts' workflow failed (snakemake exit {ran.code}): {last}; see {out / 'snakemake.log'}"

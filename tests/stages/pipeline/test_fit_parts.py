@@ -18,6 +18,9 @@ import pytest
 pytest.importorskip("torch", reason="the [train] extra is not installed")
 pytest.importorskip("snakemake", reason="the [sweep] extra is not installed")
 
+BAD_SPEC = ('[[predicate]]\nname = "hand"\nkind = "bins"\nchannel = "no_such_channel"\nedges = [0.5]\n'
+            'values = ["low", "high"]\n')  # a predicate on a channel the frames lack: the logic part fails
+
 
 def mlnseq(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(Path(sys.executable).with_name("mlnseq")), *args], cwd=cwd, capture_output=True,
@@ -88,9 +91,8 @@ def test_a_local_fit_of_many_frames_runs_its_logic_beside_the_networks_and_write
 
 
 def test_a_part_that_fails_says_what_a_local_run_says_and_options_are_checked_first(arm_table, tmp_path):
-    spec = tmp_path / "bad.binarize.toml"  # a predicate on a channel the frames lack: the logic part fails
-    spec.write_text('[[predicate]]\nname = "hand"\nkind = "bins"\nchannel = "no_such_channel"\nedges = [0.5]\n'
-                    'values = ["low", "high"]\n')
+    spec = tmp_path / "bad.binarize.toml"
+    spec.write_text(BAD_SPEC)
     said = []
     for executor in ("local", "processes"):
         done = mlnseq("fit", "--env", "table", "--source", str(arm_table), "-w", executor, "--epochs", "1", "--spec",
@@ -116,9 +118,8 @@ def test_a_logic_beside_the_networks_that_fails_raises_what_a_local_run_raises(a
     work = tmp_path / "work"
     work.mkdir()
     shutil.copy(arm_fit["workdir"] / "frames.parquet", work)
-    spec = tmp_path / "bad.binarize.toml"  # a predicate on a channel the frames lack
-    spec.write_text('[[predicate]]\nname = "hand"\nkind = "bins"\nchannel = "no_such_channel"\nedges = [0.5]\n'
-                    'values = ["low", "high"]\n')
+    spec = tmp_path / "bad.binarize.toml"
+    spec.write_text(BAD_SPEC)
     options = pipeline.FitOptions(spec=spec, epochs=2)
     with pytest.raises(BadInput) as local:
         pipeline.logic_part(work, options, 3)
