@@ -14,14 +14,15 @@ Datasets (each built here, or read from ../shared/data):
 - ``desk-bags``: the real DESK trials as ROS 2 bags (tests/desk_bags.py), the 7th trial held out; hand spec: the
   paper's DESK predicates (``desk_bags.HAND_SPEC``).
 - ``lerobot``: the LeRobot-0.6.1-written pick-place dataset, pick-place-heldout held out; no hand spec.
-- ``fetch``: simulated Fetch pick-and-place (``collect --env fetch``, the paper's split: its first 126 frames train),
-  scored on its test split (the held-out recordings: no stage reads them); hand spec: the paper's Fetch predicates.
+- ``fetch``: simulated Fetch pick-and-place (``collect --env fetch`` at seed 0, the paper's split: its first 126
+  frames train; read back as a table, so that every seed fits the same episodes), scored on its test split (the
+  held-out recordings: no stage reads them); hand spec: the paper's Fetch predicates.
 
 ``BENCH_FIRST_DAY`` names the datasets to run (comma-separated; default all); ``BENCH_EPOCHS`` fit's epochs (100);
-``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each figure the mean over them, with its range;
-fetch's seed also draws its episodes); ``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only
-``arm-panda-dev``, 4 bags at 15 Hz and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets
-of issue 45 (on the means).
+``BENCH_SEEDS`` the networks' seeds (``fit --seed``; default 0,1,2: each figure the mean over them, with its
+range); ``BENCH_HELDOUT`` the arm rows' held-out bags (12); ``BENCH_QUICK=1``: only ``arm-panda-dev``, 4 bags at
+15 Hz and 1 held out, at 3 epochs, seed 0. Prints one row per dataset, then the targets of issue 45 (on the
+means).
 """
 
 from __future__ import annotations
@@ -89,7 +90,18 @@ def lerobot(root: Path) -> Dataset:
 
 
 def fetch(root: Path) -> Dataset:
-    return Dataset("fetch", ["--env", "fetch", "--episodes", os.environ.get("BENCH_FETCH_EPISODES", "40")], None,
+    """The episodes of seed 0 (the paper's split: the first 126 frames train), simulated once and read back as a
+    table, so that the seeds vary the networks and not the recordings (`fit --env fetch --seed` draws both)."""
+    import polars as pl
+
+    from mlnseq.sources.fetch import CLASSES, DEFAULT_TRAIN_FRAMES
+
+    collected, table = root / "fetch-collected", root / "fetch.parquet"
+    run(["collect", "--env", "fetch", "--episodes", os.environ.get("BENCH_FETCH_EPISODES", "40"), "--seed", "0",
+         "-w", str(collected)])
+    pl.read_parquet(collected / "frames.parquet").drop("split").write_parquet(table)
+    return Dataset("fetch", ["--env", "table", "--source", str(table), "--train-frames", str(DEFAULT_TRAIN_FRAMES),
+                             "--classes", ",".join(CLASSES)], None,
                    (REPO / "stages" / "specs" / "fetch.binarize.toml").read_text(), "MuJoCo; the test split")
 
 
