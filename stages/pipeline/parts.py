@@ -204,8 +204,9 @@ def _taken(out: Path, part: str) -> Any:
 
 def _last_line(log: Path) -> str:
     """A job log's last line that is not blank ('' where it has none)."""
-    lines = log.read_text(errors="replace").splitlines() if log.is_file() else []
-    return next((line.strip() for line in reversed(lines) if line.strip()), "")
+    from mlnseq.sweeps import running
+
+    return running.last_line(log.read_text(errors="replace").splitlines() if log.is_file() else [])
 
 
 def failed(ran: Any, out: Path) -> str:
@@ -213,5 +214,5 @@ def failed(ran: Any, out: Path) -> str:
     for error in ran.errors:
         log = out / "logs" / f"{error.rule}.log"
         return f"fit's {error.rule} part {error.reason()}: {_last_line(log) or 'no output'}; its log: {log}"
-    last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
-    return f"fit's parts' workflow failed (snakemake exit {ran.code}): {last}; see {out / 'snakemake.log'}"
+    return (f"fit's parts' workflow failed (snakemake exit {ran.code}): {ran.last_line or 'no output'}; "
+            f"see {out / 'snakemake.log'}")

@@ -169,8 +169,8 @@ def sweep(sweep_file: Path, options: SweepOptions = SweepOptions(),
     ran = running.run_snakemake(snakemake_command(snakefile, out, options), out / running.LOG, done.heard)
     done.heard(ran, finished=True)
     if ran.code != 0 and not ran.errors:  # Snakemake itself failed: no job to blame
-        last = next((line.strip() for line in reversed(ran.tail) if line.strip()), "no output")
-        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {ran.code}): {last}; see {out / running.LOG}"
+        raise MlnseqError(f"the sweep's workflow failed (snakemake exit {ran.code}): {ran.last_line or 'no output'}; "
+                          f"see {out / running.LOG}"
                           f"{'' if ran.log_error is None else f' ({ran.log_error})'}; rerun `mlnseq sweep` to resume")
     table, failures = results.gather(planned, out, ran.errors)
     path, write_error = None, None

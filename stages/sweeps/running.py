@@ -11,7 +11,7 @@ from __future__ import annotations
 import collections
 import re
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,6 +58,15 @@ class Run:
     tail: collections.deque = field(default_factory=lambda: collections.deque(maxlen=TAIL_LINES))
     log_error: str | None = None
     jobs: tuple[int, int] = (0, 0)  # done, of
+
+    @property
+    def last_line(self) -> str:
+        return last_line(self.tail)
+
+
+def last_line(lines: Iterable[str]) -> str:
+    """The last line that is not blank, stripped ('' where there is none)."""
+    return next((line.strip() for line in reversed(list(lines)) if line.strip()), "")
 
 
 class Reader:
