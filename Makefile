@@ -27,7 +27,7 @@ $(PRACMLN_DONE): $(SETUP_DONE) scripts/install_pracmln.sh
 # The suite's files go to TEST_WORKERS processes (pytest-xdist), a file's tests to one of them (its fixtures shared).
 TEST_WORKERS ?= 2
 test: setup ## Run the test suite in TEST_WORKERS processes (the SLURM cluster's test included: root, about a minute)
-	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 test-slurm: setup ## Run only the sweep through a real one-node SLURM cluster started on this machine (root)
 	$(VENV)/bin/pytest -q -m slurm tests/stages/sweeps
