@@ -18,9 +18,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 FETCH_TEST_EPISODES = 4
 FETCH_TEST_SEED = 0
-# The files that take a minute or more, the longest first (measured: `make test` with pytest's --durations): `make
-# test` hands whole files to its two workers in the order collected (--no-loadscope-reorder; xdist's own order, the
-# most tests first, started the review day's file last), and a long file started last leaves the other worker idle.
+# The eight longest files, the longest first (measured with pytest's --durations): `make test` hands whole files to
+# its two workers in the order collected (--no-loadscope-reorder: xdist's own order, the most tests first, started
+# the review day's one-test file last), and a long file started last leaves the other worker idle at the end.
 LONGEST_FIRST = ("tests/docs/test_docs_run.py", "tests/stages/sweeps/test_sweep_slurm.py", "tests/test_benchmarks.py",
                  "tests/cli/test_review_day.py", "tests/test_reproduce.py", "tests/cli/test_review_cli.py",
                  "tests/stages/pipeline/test_fit_parts.py", "tests/test_wheel.py")
