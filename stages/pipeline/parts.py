@@ -203,10 +203,10 @@ def _taken(out: Path, part: str) -> Any:
 
 
 def _last_line(log: Path) -> str:
-    """A job log's last line that is not blank ('' where it has none)."""
-    from mlnseq.sweeps import running
+    """A job log's last line that is not blank, stripped ('' where it has none or cannot be read)."""
+    from mlnseq.sweeps import results, running
 
-    return running.last_line(log.read_text(errors="replace").splitlines() if log.is_file() else [])
+    return running.last_line(results.last_lines(log, 1))
 
 
 def failed(ran: Any, out: Path) -> str:
